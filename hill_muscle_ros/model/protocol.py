@@ -1,0 +1,188 @@
+"""Stimulation protocols as data: piecewise-linear knots loaded from YAML.
+
+A protocol gives the recruitment (or the pulse width) and the MTU length
+change as lists of knots ``[time_s, value]``. Between knots the value is
+linear; a repeated time is a step, and the value there is that of the *last*
+knot with that time (right-continuous). Before the first knot and after the
+last one the nearest knot's value holds. See ``config/protocols/*.yaml``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from .muscle import DL_MT_LIMIT_M
+
+#: Keys a protocol file may have; exactly one stimulation key is required.
+STIMULATION_KEYS = ('recruitment', 'pulse_width_s')
+ALLOWED_KEYS = ('name', 'duration_s', *STIMULATION_KEYS, 'dl_mt_m')
+
+
+class ProtocolError(ValueError):
+    """A protocol file or mapping is malformed; the message says where and why."""
+
+
+@dataclass(frozen=True)
+class Knots:
+    """Piecewise-linear, right-continuous signal given by knots.
+
+    :param times_s: [s] knot times, non-decreasing
+    :param values: knot values, in the signal's unit
+    """
+
+    times_s: np.ndarray
+    values: np.ndarray
+
+    def __call__(self, t_s: np.ndarray | float) -> np.ndarray | float:
+        """Sample the signal at one time or an array of times.
+
+        :param t_s: [s] time(s) to sample at
+        :return: the value(s), same shape as ``t_s``
+        """
+        t = np.asarray(t_s, dtype=float)
+        times, values = self.times_s, self.values
+        # Index of the first knot strictly after t: with repeated times this
+        # lands past all of them, which makes steps right-continuous.
+        hi = np.searchsorted(times, t, side='right')
+        lo = np.clip(hi - 1, 0, len(times) - 1)
+        hi_c = np.clip(hi, 0, len(times) - 1)
+        t_lo, t_hi = times[lo], times[hi_c]
+        span = np.where(t_hi > t_lo, t_hi - t_lo, 1.0)
+        frac = np.where(t_hi > t_lo, (t - t_lo) / span, 0.0)
+        out = values[lo] + frac * (values[hi_c] - values[lo])
+        # Before the first knot hold its value (lo was clipped up to 0).
+        out = np.where(hi == 0, values[0], out)
+        return float(out) if out.ndim == 0 else out
+
+    @property
+    def breakpoints_s(self) -> np.ndarray:
+        """[s] distinct knot times, where the signal may have a kink or step."""
+        return np.unique(self.times_s)
+
+
+@dataclass(frozen=True)
+class Protocol:
+    """A stimulation protocol: recruitment or pulse width, and MTU length, over time.
+
+    :param name: human-readable name
+    :param duration_s: [s] length of the protocol
+    :param stimulation: recruitment [-] or pulse width [s] knots
+    :param stimulation_key: ``recruitment`` or ``pulse_width_s``
+    :param dl_mt_m: [m] MTU length change knots
+    """
+
+    name: str
+    duration_s: float
+    stimulation: Knots
+    stimulation_key: str
+    dl_mt_m: Knots
+
+    def recruitment(self, t_s: np.ndarray | float, pw_max_s: float) -> np.ndarray | float:
+        """Recruitment R(t) in [0, 1]; pulse widths map through ``pw_max_s``.
+
+        :param t_s: [s] time(s)
+        :param pw_max_s: [s] pulse width that recruits every unit (PW_max)
+        :return: [-] R at those times
+        """
+        values = self.stimulation(t_s)
+        if self.stimulation_key == 'pulse_width_s':
+            values = np.minimum(np.asarray(values) / pw_max_s, 1.0)
+            return float(values) if values.ndim == 0 else values
+        return values
+
+    def dl_mt(self, t_s: np.ndarray | float) -> np.ndarray | float:
+        """MTU length change dl_MT(t) [m]."""
+        return self.dl_mt_m(t_s)
+
+    @classmethod
+    def from_mapping(cls, data: Any, source: str = '<protocol>') -> 'Protocol':
+        """Validate a mapping (a parsed YAML document) and build a protocol.
+
+        :param data: the parsed document
+        :param source: the file name, for error messages
+        :raises ProtocolError: naming the file, key and entry on any defect
+        """
+        if not isinstance(data, dict):
+            raise ProtocolError(f'{source}: expected a mapping with keys '
+                                f'{", ".join(ALLOWED_KEYS)}, got {type(data).__name__}')
+        unknown = [k for k in data if k not in ALLOWED_KEYS]
+        if unknown:
+            raise ProtocolError(f'{source}: unknown key `{unknown[0]}` '
+                                f'(allowed: {", ".join(ALLOWED_KEYS)})')
+        for key in ('name', 'duration_s', 'dl_mt_m'):
+            if key not in data:
+                raise ProtocolError(f'{source}: missing key `{key}`')
+        given = [k for k in STIMULATION_KEYS if k in data]
+        if len(given) != 1:
+            raise ProtocolError(f'{source}: give exactly one of `recruitment` or '
+                                f'`pulse_width_s`, got {len(given)}')
+        name = data['name']
+        if not isinstance(name, str) or not name.strip():
+            raise ProtocolError(f'{source}: `name` must be a non-empty string, got {name!r}')
+        duration = data['duration_s']
+        if (isinstance(duration, bool) or not isinstance(duration, (int, float))
+                or not math.isfinite(duration) or duration <= 0):
+            raise ProtocolError(f'{source}: `duration_s` must be a positive finite '
+                                f'number, got {duration!r}')
+        key = given[0]
+        if key == 'recruitment':
+            stim = _parse_knots(data[key], source, key, 0.0, 1.0, 'in [0, 1]')
+        else:
+            stim = _parse_knots(data[key], source, key, 0.0, math.inf, 'non-negative')
+        dl = _parse_knots(data['dl_mt_m'], source, 'dl_mt_m', -DL_MT_LIMIT_M,
+                          DL_MT_LIMIT_M, f'within ±{DL_MT_LIMIT_M} m')
+        return cls(name=name, duration_s=float(duration), stimulation=stim,
+                   stimulation_key=key, dl_mt_m=dl)
+
+    @classmethod
+    def from_yaml(cls, path: str | Path) -> 'Protocol':
+        """Load and validate a protocol file.
+
+        :param path: path to the YAML file
+        :raises ProtocolError: if the file cannot be read or is malformed
+        """
+        path = Path(path)
+        try:
+            text = path.read_text(encoding='utf-8')
+        except (OSError, UnicodeDecodeError) as err:
+            raise ProtocolError(f'{path}: cannot read protocol file: {err}') from None
+        try:
+            data = yaml.safe_load(text)
+        except yaml.YAMLError as err:
+            raise ProtocolError(f'{path}: not valid YAML: {err}') from None
+        return cls.from_mapping(data, source=str(path))
+
+
+def _parse_knots(raw: Any, source: str, key: str, low: float, high: float,
+                 range_text: str) -> Knots:
+    """Validate a list of ``[time_s, value]`` knots."""
+    if not isinstance(raw, list) or not raw:
+        raise ProtocolError(f'{source}: `{key}` must be a non-empty list of '
+                            f'[time_s, value] knots, got {raw!r}')
+    times: list[float] = []
+    values: list[float] = []
+    for i, knot in enumerate(raw):
+        where = f'{source}: `{key}` entry {i} ({knot!r})'
+        if not isinstance(knot, (list, tuple)) or len(knot) != 2:
+            raise ProtocolError(f'{where}: must be a pair [time_s, value]')
+        if any(isinstance(x, bool) or not isinstance(x, (int, float)) for x in knot):
+            raise ProtocolError(f'{where}: time and value must be numbers')
+        t, v = float(knot[0]), float(knot[1])
+        if not (math.isfinite(t) and math.isfinite(v)):
+            raise ProtocolError(f'{where}: time and value must be finite')
+        if t < 0.0:
+            raise ProtocolError(f'{where}: time must be >= 0, got {t!r}')
+        if times and t < times[-1]:
+            raise ProtocolError(f'{where}: times must not decrease '
+                                f'({t!r} after {times[-1]!r})')
+        if not low <= v <= high:
+            raise ProtocolError(f'{where}: value must be {range_text}, got {v!r}')
+        times.append(t)
+        values.append(v)
+    return Knots(np.array(times), np.array(values))
+

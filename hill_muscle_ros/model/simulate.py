@@ -1,0 +1,91 @@
+"""Offline simulation of a protocol: the loop shared by the CLI and the figures."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .muscle import Muscle
+from .params import MuscleParams
+from .protocol import Protocol
+
+#: Columns of a simulation result, in CSV order, with their CSV headers.
+COLUMNS = (
+    ('t_s', 't_s'),
+    ('recruitment', 'recruitment'),
+    ('dl_mt_m', 'dl_mt_m'),
+    ('l_ce_m', 'l_ce_m'),
+    ('v_ce_m_per_s', 'v_ce_m_s'),
+    ('f_se_n', 'f_se_n'),
+    ('f_pe_n', 'f_pe_n'),
+    ('force_n', 'force_n'),
+    ('eff_f_iso_n', 'eff_f_iso_n'),
+)
+
+
+@dataclass(frozen=True)
+class SimulationResult:
+    """Time series of one offline run, one sample per step from t = 0 to the end.
+
+    Each attribute is a NumPy array of the same length; see
+    :class:`~hill_muscle_ros.model.muscle.MuscleOutputs` for units.
+    """
+
+    t_s: np.ndarray
+    recruitment: np.ndarray
+    n_recruited: np.ndarray
+    dl_mt_m: np.ndarray
+    l_ce_m: np.ndarray
+    v_ce_m_per_s: np.ndarray
+    f_se_n: np.ndarray
+    f_pe_n: np.ndarray
+    force_n: np.ndarray
+    eff_f_iso_n: np.ndarray
+
+    def at(self, t_s: float) -> int:
+        """Index of the sample nearest to time ``t_s``."""
+        return int(np.argmin(np.abs(self.t_s - t_s)))
+
+
+def sample_times(duration_s: float, rate_hz: float) -> np.ndarray:
+    """[s] sample instants k / rate for k = 0..round(duration * rate), inclusive.
+
+    Dividing the integer index (rather than accumulating dt) makes whole
+    seconds exact, so protocol steps fall exactly on a sample.
+    """
+    if not (math.isfinite(rate_hz) and rate_hz > 0):
+        raise ValueError(f'`rate_hz` must be positive and finite, got {rate_hz!r}')
+    n_steps = int(round(duration_s * rate_hz))
+    return np.arange(n_steps + 1) / rate_hz
+
+
+def simulate(protocol: Protocol, params: MuscleParams | None = None,
+             rate_hz: float = 1000.0) -> SimulationResult:
+    """Run a protocol from the resting state at a fixed step of 1 / ``rate_hz``.
+
+    The sample at t_k shows the state at t_k with the recruitment of t_k
+    already applied to the memory; the step from t_k to t_(k+1) holds R(t_k)
+    and ramps dl_MT linearly between the protocol's values at the two ends.
+
+    :param protocol: the protocol to replay
+    :param params: muscle parameters (paper defaults if omitted)
+    :param rate_hz: [Hz] step rate, 1 / dt
+    :return: the time series, ``round(duration * rate) + 1`` samples
+    """
+    muscle = Muscle(params)
+    t = sample_times(protocol.duration_s, rate_hz)
+    r = np.asarray(protocol.recruitment(t, muscle.params.pw_max_s), dtype=float)
+    dl = np.asarray(protocol.dl_mt(t), dtype=float)
+    dt = 1.0 / rate_hz
+    rows = [None] * len(t)
+    muscle.set_recruitment(r[0])
+    rows[0] = muscle.outputs()
+    for k in range(1, len(t)):
+        muscle.step(r[k - 1], dl[k], dt)
+        muscle.set_recruitment(r[k])
+        rows[k] = muscle.outputs()
+    cols = list(zip(*rows))
+    fields = {name: np.asarray(col) for name, col in zip(rows[0]._fields, cols)}
+    fields['t_s'] = t
+    return SimulationResult(**fields)

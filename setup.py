@@ -1,0 +1,40 @@
+"""ament_python build script for hill_muscle_ros.
+
+The ROS 2 Python wheels are deliberately *not* in ``install_requires``: a user
+with rclpy from apt runs ``colcon build`` without pip pulling in a second
+rclpy. The Makefile installs them from ``requirements-ros.txt`` instead.
+"""
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = 'hill_muscle_ros'
+
+setup(
+    name=PACKAGE,
+    version='0.1.0',
+    packages=find_packages(exclude=['test', 'test.*']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
+        ('share/' + PACKAGE, ['package.xml']),
+        ('share/' + PACKAGE + '/config', glob('config/*.yaml')),
+        ('share/' + PACKAGE + '/config/protocols', glob('config/protocols/*.yaml')),
+    ],
+    install_requires=['setuptools', 'numpy', 'PyYAML', 'matplotlib'],
+    extras_require={
+        'test': ['pytest', 'hypothesis', 'scipy', 'rosbags'],
+    },
+    zip_safe=True,
+    maintainer='hill_muscle_ros maintainers',
+    maintainer_email='maintainers@users.noreply.h-seed-be94e4d2.example',
+    description='Hill-type FES muscle with time-varying recruitment and length memory, for ROS 2',
+    license='Apache-2.0',
+    tests_require=['pytest'],
+    entry_points={
+        'console_scripts': [
+            'hill-muscle = hill_muscle_ros.cli:main',
+            'simulator = hill_muscle_ros.nodes.simulator:main',
+            'protocol_player = hill_muscle_ros.nodes.protocol_player:main',
+        ],
+    },
+)

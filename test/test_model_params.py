@@ -1,0 +1,94 @@
+"""Parameters: the paper's SI defaults, and validation that names the field."""
+import dataclasses
+import math
+
+import pytest
+
+from hill_muscle_ros.model import MuscleParams
+
+FLOAT_FIELDS = [f.name for f in dataclasses.fields(MuscleParams)
+                if f.type == 'float']
+
+
+def test_defaults_are_the_papers_values_in_si():
+    p = MuscleParams()
+    assert (p.f_iso_max_n, p.k_se_n_per_m, p.k_pe_n_per_m) == (45.0, 10000.0, 1000.0)
+    assert (p.l_rest_m, p.l_opt_m) == (0.125, 0.100)
+    assert (p.fv_a_n, p.fv_b_m_per_s, p.fv_a_ecc_n, p.fv_b_ecc_m_per_s) == \
+        (10.0, 0.040, 10.0, 0.030)
+    assert (p.n_units, p.units, p.length, p.pw_max_s) == (1000, 'multi', 'initial', 0.0005)
+
+
+def test_field_names_are_the_documented_keys():
+    assert MuscleParams.field_names() == (
+        'f_iso_max_n', 'k_se_n_per_m', 'k_pe_n_per_m', 'l_rest_m', 'l_opt_m', 'fv_a_n',
+        'fv_b_m_per_s', 'fv_a_ecc_n', 'fv_b_ecc_m_per_s', 'n_units', 'units', 'length',
+        'pw_max_s')
+
+
+def test_parameters_are_frozen():
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        MuscleParams().k_se_n_per_m = 1.0
+
+
+@pytest.mark.parametrize('name', FLOAT_FIELDS)
+@pytest.mark.parametrize('bad', [-3.0, 0.0, math.nan, math.inf, -math.inf])
+def test_non_positive_or_non_finite_number_is_rejected_by_name(name, bad):
+    with pytest.raises(ValueError, match=f'`{name}` must be positive and finite, got {bad!r}'):
+        MuscleParams(**{name: bad})
+
+
+@pytest.mark.parametrize('name', FLOAT_FIELDS)
+def test_non_number_is_rejected_by_name(name):
+    with pytest.raises(ValueError, match=f'`{name}` must be a number'):
+        MuscleParams(**{name: 'stiff'})
+    with pytest.raises(ValueError, match=f'`{name}` must be a number'):
+        MuscleParams(**{name: True})
+
+
+def test_integer_value_for_a_float_field_becomes_a_float():
+    p = MuscleParams(f_iso_max_n=45)
+    assert p.f_iso_max_n == 45.0 and isinstance(p.f_iso_max_n, float)
+
+
+@pytest.mark.parametrize('bad', [0, -1])
+def test_fewer_than_one_unit_is_rejected(bad):
+    with pytest.raises(ValueError, match=rf'`n_units` must be in \[1, .*got {bad}'):
+        MuscleParams(n_units=bad)
+
+
+@pytest.mark.parametrize('bad', [1000.0, '1000', True])
+def test_non_integer_unit_count_is_rejected(bad):
+    with pytest.raises(ValueError, match='`n_units` must be an integer'):
+        MuscleParams(n_units=bad)
+
+
+def test_unknown_units_value_is_rejected():
+    with pytest.raises(ValueError, match="`units` must be one of multi, single, got 'many'"):
+        MuscleParams(units='many')
+
+
+def test_unknown_length_value_is_rejected():
+    with pytest.raises(ValueError,
+                       match="`length` must be one of initial, instantaneous, got 'current'"):
+        MuscleParams(length='current')
+
+
+def test_unknown_key_in_a_mapping_is_rejected_by_name():
+    with pytest.raises(ValueError, match='muscle.yaml: unknown parameter `k_se`'):
+        MuscleParams.from_mapping({'k_se': 3.0}, source='muscle.yaml')
+
+
+def test_mapping_error_names_the_source_and_field():
+    with pytest.raises(ValueError, match='muscle.yaml: `k_se_n_per_m` must be positive'):
+        MuscleParams.from_mapping({'k_se_n_per_m': -3.0}, source='muscle.yaml')
+
+
+def test_mapping_may_carry_known_non_muscle_keys():
+    p = MuscleParams.from_mapping({'rate_hz': 500, 'units': 'single'}, ignore=('rate_hz',))
+    assert p.units == 'single'
+
+
+def test_replace_validates_like_construction():
+    with pytest.raises(ValueError, match='`l_opt_m`'):
+        MuscleParams().replace(l_opt_m=-0.1)
