@@ -35,6 +35,8 @@ setup(
             'hill-muscle = hill_muscle_ros.cli:main',
             'simulator = hill_muscle_ros.nodes.simulator:main',
             'protocol_player = hill_muscle_ros.nodes.protocol_player:main',
+            'recorder = hill_muscle_ros.nodes.recorder:main',
+            'force_controller = hill_muscle_ros.nodes.force_controller:main',
         ],
     },
 )

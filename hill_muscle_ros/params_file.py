@@ -1,0 +1,77 @@
+"""Read a ROS 2 parameters file (``config/muscle.yaml``) without ROS.
+
+The offline CLI and the simulator node load the same file; this module does it
+for the CLI, with the same names and the same validation as the node.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from .model import MuscleParams
+
+#: Parameters of the simulator node that are not muscle parameters. They are
+#: valid in the file; the offline CLI reads ``rate_hz`` and ignores the rest.
+SIMULATOR_NODE_KEYS = ('rate_hz', 'real_time_factor', 'input_timeout_s', 'frame_id',
+                       'publish_clock', 'use_sim_time')
+
+#: Section names that apply to the simulator: every node, or the node by name.
+_WILDCARD = '/**'
+_NODE_NAME = 'simulator'
+
+
+def read_ros_parameters(path: str | Path) -> dict[str, Any]:
+    """The ``ros__parameters`` that a ROS 2 params file gives the simulator node.
+
+    Sections ``/**`` and those naming the node (``simulator``, ``/simulator``,
+    ``/ns/simulator``, ``/**/simulator``) are merged in file order, later ones
+    winning, as ``--params-file`` does.
+
+    :param path: the YAML file
+    :raises ValueError: naming the file if it cannot be read or has no section
+        for the simulator
+    """
+    path = Path(path)
+    try:
+        doc = yaml.safe_load(path.read_text(encoding='utf-8'))
+    except (OSError, UnicodeDecodeError) as err:
+        raise ValueError(f'{path}: cannot read parameters file: {err}') from None
+    except yaml.YAMLError as err:
+        raise ValueError(f'{path}: not valid YAML: {err}') from None
+    if not isinstance(doc, dict):
+        raise ValueError(f'{path}: expected `/**:` or a node name, then '
+                         f'`ros__parameters:`; got {type(doc).__name__}')
+    merged: dict[str, Any] = {}
+    found = False
+    for node, section in doc.items():
+        name = str(node)
+        if name != _WILDCARD and name.rstrip('/').split('/')[-1] != _NODE_NAME:
+            continue
+        if not isinstance(section, dict) or 'ros__parameters' not in section:
+            raise ValueError(f'{path}: section `{name}` must contain `ros__parameters:`')
+        params = section['ros__parameters']
+        if not isinstance(params, dict):
+            raise ValueError(f'{path}: `{name}.ros__parameters` must be a mapping, '
+                             f'got {params!r}')
+        merged.update(params)
+        found = True
+    if not found:
+        raise ValueError(f'{path}: no `/**` or `{_NODE_NAME}` section with '
+                         f'`ros__parameters`')
+    return merged
+
+
+def load_muscle_params(path: str | Path) -> tuple[MuscleParams, dict[str, Any]]:
+    """Muscle parameters and the simulator-node settings from a params file.
+
+    :param path: the YAML file
+    :return: the validated :class:`MuscleParams` and a dict of the node keys
+        present in the file (``rate_hz`` and the like)
+    :raises ValueError: on an unknown key or invalid value, naming the file
+    """
+    values = read_ros_parameters(path)
+    params = MuscleParams.from_mapping(values, source=str(path), ignore=SIMULATOR_NODE_KEYS)
+    node = {k: v for k, v in values.items() if k in SIMULATOR_NODE_KEYS}
+    return params, node
