@@ -1,2 +1,351 @@
-def main():
-    print("stub")
+"""The ``hill-muscle`` command: offline simulation, the paper's figures, and the ROS nodes.
+
+``simulate`` and ``figures`` run the model core offline and never import
+rclpy. The node subcommands (``simulator``, ``player``, ``record``,
+``controller``) import their node module only when called and hand it the
+rest of the command line untouched, so ``--ros-args -p name:=value`` works as
+with ``ros2 run``.
+
+User errors (a malformed protocol or parameters file, a bad option value)
+print one line naming the file and the key and exit with status 2; there is
+no traceback.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import math
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from . import resources
+from .model import COLUMNS, LENGTH_CHOICES, UNITS_CHOICES, MuscleParams, Protocol
+from .model import SimulationResult, simulate
+from .params_file import load_muscle_params
+
+PROG = 'hill-muscle'
+#: Exit status for errors in the user's input (as argparse uses).
+EXIT_USAGE = 2
+#: [Hz] step rate when neither ``--rate`` nor the parameters file gives one.
+DEFAULT_RATE_HZ = 1000.0
+#: Key of the step rate in the simulator node's parameters file.
+RATE_KEY = 'rate_hz'
+#: printf format that round-trips a float64 exactly (17 significant digits).
+CSV_FLOAT_FORMAT = '%.17g'
+#: [s] spacing of the rows of the summary table printed without ``--csv``.
+TABLE_INTERVAL_S = 1.0
+#: Columns of the summary table: result attribute, header, printf format.
+TABLE_COLUMNS = (
+    ('t_s', 't_s', '{:7.3f}'),
+    ('recruitment', 'recruitment', '{:11.3f}'),
+    ('dl_mt_m', 'dl_mt_m', '{:9.5f}'),
+    ('l_ce_m', 'l_ce_m', '{:9.6f}'),
+    ('f_se_n', 'f_se_n', '{:9.3f}'),
+    ('force_n', 'force_n', '{:9.3f}'),
+)
+
+
+@dataclass(frozen=True)
+class NodeCommand:
+    """A subcommand that runs one of the package's ROS 2 nodes.
+
+    :param module: module whose ``main(args)`` runs the node
+    :param executable: the node's name for ``ros2 run hill_muscle_ros ...``
+    :param summary: one line for ``hill-muscle --help``
+    """
+
+    module: str
+    executable: str
+    summary: str
+
+
+NODE_COMMANDS = {
+    'simulator': NodeCommand('hill_muscle_ros.nodes.simulator', 'simulator',
+                             'run the muscle simulator node (ROS 2)'),
+    'player': NodeCommand('hill_muscle_ros.nodes.protocol_player', 'protocol_player',
+                          'run the protocol player node (ROS 2)'),
+    'record': NodeCommand('hill_muscle_ros.nodes.recorder', 'recorder',
+                          'run the recorder node (ROS 2)'),
+    'controller': NodeCommand('hill_muscle_ros.nodes.force_controller', 'force_controller',
+                              'run the force controller node (ROS 2)'),
+}
+_HELP_FLAGS = ('-h', '--help')
+_ROS_ARGS = '--ros-args'
+
+
+class UserError(Exception):
+    """An error in the user's input: reported in one line, exit status 2."""
+
+
+@dataclass(frozen=True)
+class SimulationRun:
+    """One offline run and what produced it, handed to the output writers.
+
+    :param protocol: the protocol that was replayed
+    :param params: the muscle parameters, with ``--units``/``--length`` applied
+    :param rate_hz: [Hz] step rate, 1 / dt
+    :param result: the time series
+    """
+
+    protocol: Protocol
+    params: MuscleParams
+    rate_hz: float
+    result: SimulationResult
+
+
+# --------------------------------------------------------------------------- parsing
+
+def _positive_rate(text: str) -> float:
+    """argparse type for ``--rate``: a positive finite number of hertz."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'must be a number of hertz, got {text!r}') from None
+    if not (math.isfinite(value) and value > 0.0):
+        raise argparse.ArgumentTypeError(f'must be positive and finite, got {text!r}')
+    return value
+
+
+def _add_output_options(parser: argparse.ArgumentParser) -> None:
+    """Options that choose where ``simulate`` writes its result.
+
+    Each output has its option here and its writer in :func:`write_outputs`.
+    """
+    parser.add_argument('--csv', metavar='PATH', type=Path,
+                        help='write one row per step to this CSV file (SI units, '
+                             'column names with unit suffixes such as force_n); '
+                             'without it a summary table is printed')
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of ``hill-muscle`` with all subcommands."""
+    parser = argparse.ArgumentParser(
+        prog=PROG,
+        description='Hill-type muscle with time-varying recruitment and length memory '
+                    '(hill_muscle_ros): offline simulation, figures and ROS 2 nodes.')
+    sub = parser.add_subparsers(dest='command', metavar='COMMAND', required=True)
+
+    sim = sub.add_parser(
+        'simulate', help='run a protocol offline (no ROS) and print or save the result',
+        description='Run a stimulation protocol offline from the resting state and print\n'
+                    'the force at the end of each second, or write every step to a CSV.',
+        epilog='examples:\n'
+               f'  {PROG} simulate --protocol II\n'
+               f'  {PROG} simulate --protocol I --units single --csv protocol_I.csv\n'
+               f'  {PROG} simulate --protocol my_protocol.yaml --params my_muscle.yaml '
+               '--rate 2000',
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    sim.add_argument('--protocol', required=True, metavar='{I,II,PATH}',
+                     help='the paper\'s Protocol I or II, or a protocol YAML file '
+                          '(copy config/protocols/protocol_II.yaml to write one)')
+    sim.add_argument('--units', choices=UNITS_CHOICES,
+                     help='motor units: multi (N virtual units, Eq. 2) or single '
+                          '(overrides the parameters file)')
+    sim.add_argument('--length', choices=LENGTH_CHOICES,
+                     help='length used in the force-length relation: initial (at '
+                          'recruitment) or instantaneous (overrides the parameters file)')
+    sim.add_argument('--rate', type=_positive_rate, metavar='HZ',
+                     help=f'step rate in Hz, dt = 1/HZ (default: `{RATE_KEY}` of the '
+                          f'parameters file, else {DEFAULT_RATE_HZ:g})')
+    sim.add_argument('--params', type=Path, metavar='YAML',
+                     help='ROS 2 parameters file (`/**:` or `simulator:`, then '
+                          '`ros__parameters:`), the one the simulator node loads '
+                          f'(default: {resources.default_params_file()})')
+    _add_output_options(sim)
+
+    fig = sub.add_parser(
+        'figures', help="write PNGs reproducing the paper's Figures 8-11",
+        description="Simulate Protocols I and II in the model variants of the paper's "
+                    'Figures 8-11 and write one PNG per figure.')
+    fig.add_argument('--out', required=True, type=Path, metavar='DIR',
+                     help='directory for the PNG files (created if missing)')
+
+    for name, node in NODE_COMMANDS.items():
+        # Listed for the help text only: main() dispatches node commands before
+        # argparse, which would otherwise reject ``--ros-args -p x:=1``.
+        sub.add_parser(name, help=f'{node.summary}; arguments go to the node',
+                       add_help=False)
+    return parser
+
+
+# --------------------------------------------------------------------------- simulate
+
+def _rate_from_file(node_settings: dict, source: Path) -> float | None:
+    """The ``rate_hz`` a parameters file gives, validated, or ``None``."""
+    if RATE_KEY not in node_settings:
+        return None
+    value = node_settings[RATE_KEY]
+    if (isinstance(value, bool) or not isinstance(value, (int, float))
+            or not math.isfinite(value) or value <= 0.0):
+        raise UserError(f'{source}: `{RATE_KEY}` must be positive and finite, got {value!r}')
+    return float(value)
+
+
+def load_inputs(args: argparse.Namespace) -> tuple[Protocol, MuscleParams, float]:
+    """The protocol, parameters and step rate that the options ask for.
+
+    :raises UserError: naming the file and key if a file is malformed
+    """
+    try:
+        protocol = Protocol.from_yaml(resources.protocol_path(args.protocol))
+        params_path = args.params if args.params is not None else resources.default_params_file()
+        params, node_settings = load_muscle_params(params_path)
+    except ValueError as err:  # ProtocolError is a ValueError
+        raise UserError(str(err)) from None
+    overrides = {k: v for k, v in (('units', args.units), ('length', args.length)) if v}
+    if overrides:
+        params = params.replace(**overrides)
+    rate = args.rate
+    if rate is None:
+        rate = _rate_from_file(node_settings, params_path) or DEFAULT_RATE_HZ
+    return protocol, params, rate
+
+
+def write_csv(path: Path, result: SimulationResult) -> int:
+    """Write one row per sample with full float precision.
+
+    :param path: the CSV file; missing parent directories are created
+    :return: the number of data rows written
+    """
+    data = np.column_stack([getattr(result, attr) for attr, _ in COLUMNS])
+    header = ','.join(name for _, name in COLUMNS)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        np.savetxt(path, data, fmt=CSV_FLOAT_FORMAT, delimiter=',', header=header,
+                   comments='')
+    except OSError as err:
+        raise UserError(f'{path}: cannot write CSV: {err.strerror or err}') from None
+    return len(data)
+
+
+def summary_times(duration_s: float) -> list[float]:
+    """[s] the end of each whole second, and the end of the protocol if later."""
+    times = [float(s) for s in range(1, int(math.floor(duration_s)) + 1)]
+    if not times or times[-1] < duration_s:
+        times.append(duration_s)
+    return times
+
+
+def format_table(run: SimulationRun) -> str:
+    """The summary table: the state at the end of each second."""
+    p, result = run.params, run.result
+    lines = [f'{run.protocol.name}: units={p.units}, length={p.length}, '
+             f'{run.rate_hz:g} Hz ({len(result.t_s)} samples)',
+             '  '.join(f'{header:>{len(fmt.format(0.0))}}' for _, header, fmt in TABLE_COLUMNS)]
+    for t in summary_times(run.protocol.duration_s):
+        k = result.at(t)
+        lines.append('  '.join(fmt.format(float(getattr(result, attr)[k]))
+                               for attr, _, fmt in TABLE_COLUMNS))
+    return '\n'.join(lines)
+
+
+def write_outputs(args: argparse.Namespace, run: SimulationRun) -> None:
+    """Write the run where the output options say (:func:`_add_output_options`)."""
+    if args.csv is not None:
+        rows = write_csv(args.csv, run.result)
+        print(f'wrote {rows} rows to {args.csv}')
+    else:
+        print(format_table(run))
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    protocol, params, rate = load_inputs(args)
+    run = SimulationRun(protocol, params, rate, simulate(protocol, params, rate))
+    write_outputs(args, run)
+    return 0
+
+
+# --------------------------------------------------------------------------- figures
+
+def cmd_figures(args: argparse.Namespace) -> int:
+    # matplotlib is imported only for this command.
+    from .figures import write_figures
+    try:
+        paths = write_figures(args.out)
+    except OSError as err:
+        raise UserError(f'{args.out}: cannot write figures: {err.strerror or err}') from None
+    for path in paths:
+        print(f'wrote {path}')
+    return 0
+
+
+# --------------------------------------------------------------------------- nodes
+
+def node_usage(name: str) -> str:
+    """Help for a node subcommand, printed without importing rclpy."""
+    node = NODE_COMMANDS[name]
+    return (f'usage: {PROG} {name} [--ros-args [-p NAME:=VALUE ...] '
+            f'[--params-file FILE] [-r FROM:=TO ...]]\n\n'
+            f'{node.summary[0].upper()}{node.summary[1:]}: the same as '
+            f'`ros2 run hill_muscle_ros {node.executable}`.\n'
+            'It is a ROS 2 node: everything after the subcommand goes to ROS untouched.\n'
+            'Set parameters with `--ros-args -p NAME:=VALUE` or '
+            '`--ros-args --params-file config/muscle.yaml`;\n'
+            'list them while it runs with `ros2 param list`.')
+
+
+def run_node(name: str, node_args: Sequence[str]) -> int:
+    """Import a node module and run its ``main`` with ``node_args``.
+
+    The node gets ``[program, *node_args]``, the shape of ``sys.argv`` that
+    ``rclpy.init(args=...)`` expects.
+    """
+    node = NODE_COMMANDS[name]
+    if any(a in _HELP_FLAGS for a in _args_before_ros(node_args)):
+        print(node_usage(name))
+        return 0
+    try:
+        module = importlib.import_module(node.module)
+    except ModuleNotFoundError as err:
+        if err.name == node.module or node.module.startswith(f'{err.name}.'):
+            raise UserError(f'the `{name}` node is not available: module '
+                            f'{node.module} is not installed') from None
+        raise UserError(f'the `{name}` node cannot start: {err} '
+                        '(is ROS 2 / rclpy installed in this environment?)') from None
+    status = module.main([f'{PROG} {name}', *node_args])
+    return 0 if status is None else int(status)
+
+
+def _args_before_ros(args: Sequence[str]) -> Sequence[str]:
+    """The arguments before ``--ros-args`` (those are not ROS's to parse)."""
+    args = list(args)
+    return args[:args.index(_ROS_ARGS)] if _ROS_ARGS in args else args
+
+
+# --------------------------------------------------------------------------- main
+
+_COMMANDS = {'simulate': cmd_simulate, 'figures': cmd_figures}
+
+
+def _error(message: str) -> int:
+    print(f'{PROG}: error: {message}', file=sys.stderr)
+    return EXIT_USAGE
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``hill-muscle`` console script.
+
+    :param argv: the arguments after the program name (default: ``sys.argv[1:]``)
+    :return: exit status: 0 on success, 2 on a user error
+    """
+    argv = list(sys.argv[1:] if argv is None else argv)
+    try:
+        if argv and argv[0] in NODE_COMMANDS:
+            return run_node(argv[0], argv[1:])
+        try:
+            args = build_parser().parse_args(argv)
+        except SystemExit as exit_:  # --help, or argparse's own usage error
+            if exit_.code is None:
+                return 0
+            return exit_.code if isinstance(exit_.code, int) else EXIT_USAGE
+        return _COMMANDS[args.command](args)
+    except UserError as err:
+        return _error(str(err))
+
+
+if __name__ == '__main__':
+    sys.exit(main())
