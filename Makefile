@@ -20,8 +20,14 @@ $(STAMP): setup.py setup.cfg package.xml requirements-dev.txt requirements-ros.t
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
+# Until the ROS nodes exist the demo is offline: Protocol II as a table and a
+# CSV, plus the paper's Figures 8-11. Every run overwrites the same files.
 demo: $(STAMP)
 	$(BIN)/hill-muscle simulate --protocol II
+	$(BIN)/hill-muscle simulate --protocol II --csv runs/demo/protocol_II.csv
+	$(BIN)/hill-muscle figures --out runs/figures
+
+figures: $(STAMP)
 	$(BIN)/hill-muscle figures --out runs/figures
 
 clean:
