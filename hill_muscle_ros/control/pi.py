@@ -1,0 +1,108 @@
+"""A force controller for FES: feedforward through the inverse recruitment
+curve plus a PI loop with anti-windup, output clamped to [0, PW_max].
+
+This is an example for users to start from, not part of the muscle model.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+
+from ..model.curves import force_length
+from ..model.params import MuscleParams
+
+_DEFAULTS = MuscleParams()
+#: [N] force of the default muscle at full recruitment, held at rest length with
+#: initial-length memory: f_iso_max FL(l_rest / l_opt) = 37.19 N (MODEL.md section 6).
+DEFAULT_FF_FORCE_N = _DEFAULTS.f_iso_max_n * force_length(_DEFAULTS.l_rest_m / _DEFAULTS.l_opt_m)
+
+
+def _spec(unit: str, description: str, low: float, high: float) -> dict:
+    return {'unit': unit, 'description': description, 'low': low, 'high': high}
+
+
+@dataclass(frozen=True)
+class ControllerParams:
+    """Gains and limits of :class:`ForceController`; validated on construction.
+
+    :param kp_s_per_n: [s/N] proportional gain, pulse width per newton of error
+    :param ki_s_per_n_s: [s/(N s)] integral gain
+    :param ff_force_n: [N] force expected at full recruitment; the feedforward
+        inverts R = F / ff_force_n, then PW = R PW_max. 0 disables feedforward.
+    :param pw_max_s: [s] largest pulse width the stimulator may send (PW_max)
+    :param rate_hz: [Hz] control and stimulation rate
+    :param feedback_timeout_s: [s] stop stimulating if no force arrives this long
+    """
+
+    kp_s_per_n: float = field(default=4.0e-5, metadata=_spec(
+        's/N', 'proportional gain (pulse width per newton of force error)', 0.0, 1.0))
+    ki_s_per_n_s: float = field(default=2.0e-4, metadata=_spec(
+        's/(N s)', 'integral gain', 0.0, 10.0))
+    ff_force_n: float = field(default=DEFAULT_FF_FORCE_N, metadata=_spec(
+        'N', 'force at full recruitment used by the feedforward (0 disables it)', 0.0, 1e6))
+    pw_max_s: float = field(default=_DEFAULTS.pw_max_s, metadata=_spec(
+        's', 'largest pulse width sent; also the recruitment scale PW_max', 1e-9, 1.0))
+    rate_hz: float = field(default=100.0, metadata=_spec(
+        'Hz', 'control and stimulation rate', 1e-3, 1e5))
+    feedback_timeout_s: float = field(default=0.2, metadata=_spec(
+        's', 'stop stimulating when force feedback is older than this', 1e-3, 1e3))
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            low, high = f.metadata['low'], f.metadata['high']
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise ValueError(f'`{f.name}` must be a number, got {value!r}')
+            if not (math.isfinite(value) and low <= value <= high):
+                raise ValueError(f'`{f.name}` must be in [{low}, {high}], got {value!r}')
+            object.__setattr__(self, f.name, float(value))
+
+
+class ForceController:
+    """PI force control with feedforward and conditional-integration anti-windup.
+
+    ``PW = clip(PW_ff(F*) + kp e + ki ∫e, 0, PW_max)`` with ``e = F* - F``.
+    The integrator only moves when the output is not saturated in the
+    direction the error pushes, so it never winds up against the clamp.
+
+    :param params: gains and limits
+    """
+
+    def __init__(self, params: ControllerParams | None = None) -> None:
+        self.params = params if params is not None else ControllerParams()
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the integral; the next output starts from the feedforward."""
+        self.integral_s = 0.0  # [s] integral term, in pulse-width units
+
+    def feedforward(self, target_n: float) -> float:
+        """[s] pulse width expected to hold ``target_n`` newtons (inverse recruitment curve)."""
+        p = self.params
+        if p.ff_force_n == 0.0:
+            return 0.0
+        return p.pw_max_s * min(max(target_n / p.ff_force_n, 0.0), 1.0)
+
+    def update(self, target_n: float, force_n: float, dt_s: float) -> float:
+        """One control period: the pulse width to send now.
+
+        :param target_n: [N] force target (F*)
+        :param force_n: [N] measured muscle force (F)
+        :param dt_s: [s] time since the previous update
+        :return: [s] pulse width in [0, PW_max]
+        :raises ValueError: on a non-finite input (the state is unchanged)
+        """
+        for name, value in (('target_n', target_n), ('force_n', force_n), ('dt_s', dt_s)):
+            if not math.isfinite(value):
+                raise ValueError(f'`{name}` must be finite, got {value!r}')
+        if dt_s <= 0.0:
+            raise ValueError(f'`dt_s` must be positive, got {dt_s!r}')
+        p = self.params
+        error = target_n - force_n
+        unclamped = self.feedforward(target_n) + p.kp_s_per_n * error + self.integral_s
+        pushing_up = error > 0.0
+        saturated = (unclamped >= p.pw_max_s and pushing_up) or (unclamped <= 0.0 and not pushing_up)
+        if not saturated:
+            self.integral_s += p.ki_s_per_n_s * error * dt_s
+        return min(max(unclamped, 0.0), p.pw_max_s)
