@@ -1,0 +1,278 @@
+"""Helpers shared by the package's nodes (ROS side only, no model logic).
+
+- :class:`StartupError` and :func:`run_node`: the Jazzy talker ``main()``
+  pattern with clean exit codes (a configuration error is one logged line and
+  exit status 1, never a traceback).
+- :func:`field_descriptor`, :func:`number_descriptor`, :func:`declare_checked`
+  and :func:`declare_muscle_parameters`: ROS parameters declared from the
+  model's :class:`~hill_muscle_ros.model.MuscleParams` field metadata, so the
+  names, units and ranges have a single source.
+- :class:`BadInputWarner`: a throttled warning per topic for rejected input.
+- :class:`StepSchedule`: how many fixed steps are due at a given clock reading.
+- :data:`RELIABLE_QOS`: the QoS every topic of the package uses.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from typing import Any, Callable
+
+import rclpy
+from rclpy.exceptions import (InvalidParameterTypeException,
+                              InvalidParameterValueException)
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile,
+                       ReliabilityPolicy)
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange,
+                                ParameterDescriptor)
+
+from ..model import MuscleParams
+
+#: Exit status of a node that could not start (bad parameter, bad file).
+EXIT_FAILURE = 1
+#: Exit status of a node that ran to its end or was interrupted.
+EXIT_SUCCESS = 0
+
+#: Depth of every publisher and subscription queue.
+QUEUE_DEPTH = 10
+#: Reliable, volatile, keep-last 10: what ``create_publisher(..., 10)`` gives.
+#: A reliable publisher also matches best-effort subscribers (such as the
+#: sensor-data QoS), so every subscriber receives the outputs.
+RELIABLE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=QUEUE_DEPTH,
+                          reliability=ReliabilityPolicy.RELIABLE,
+                          durability=DurabilityPolicy.VOLATILE)
+
+#: [s] at most one bad-input warning per topic in this period.
+BAD_INPUT_THROTTLE_S = 1.0
+
+
+class StartupError(Exception):
+    """A node cannot start: the message says which parameter or file and why."""
+
+
+# -- main() -------------------------------------------------------------------
+
+
+def run_node(node_factory: Callable[[], Node], args: list[str] | None = None) -> int:
+    """Create a node and spin it, following the Jazzy talker demo's ``main()``.
+
+    If the node has a ``done`` attribute (an :class:`rclpy.task.Future`) the
+    node is spun until it completes and its result is the exit status;
+    otherwise it spins until Ctrl-C or an external shutdown (exit status 0).
+
+    :param node_factory: builds the node; may raise :class:`StartupError`
+    :param args: command-line arguments for ``rclpy.init`` (``--ros-args ...``);
+        ``None`` means ``sys.argv``
+    :return: the process exit status
+    """
+    rclpy.init(args=args)
+    node = None
+    status = EXIT_SUCCESS
+    try:
+        node = node_factory()
+        done = getattr(node, 'done', None)
+        if done is None:
+            rclpy.spin(node)
+        else:
+            rclpy.spin_until_future_complete(node, done)
+            if done.done():
+                status = int(done.result())
+    except StartupError as err:
+        # One clear line instead of a traceback: the user made a config error.
+        rclpy.logging.get_logger(getattr(node_factory, 'NODE_NAME', 'node')).error(str(err))
+        status = EXIT_FAILURE
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            on_exit = getattr(node, 'on_exit', None)
+            if on_exit is not None:
+                on_exit()
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return status
+
+
+# -- parameters -----------------------------------------------------------------
+
+
+def number_descriptor(description: str, unit: str, low: float | int, high: float | int, *,
+                      integer: bool = False, read_only: bool = False,
+                      constraints: str = '') -> ParameterDescriptor:
+    """A descriptor with the unit in the description and an inclusive range.
+
+    :param description: what the parameter is
+    :param unit: its unit, e.g. ``N/m`` (``-`` for a pure number)
+    :param low: lowest accepted value
+    :param high: highest accepted value
+    :param integer: integer parameter (``IntegerRange``) instead of a double
+    :param read_only: the parameter cannot change while the node runs
+    :param constraints: extra constraints in words (``additional_constraints``)
+    """
+    desc = ParameterDescriptor(description=f'[{unit}] {description}', read_only=read_only,
+                               additional_constraints=constraints)
+    if integer:
+        desc.integer_range = [IntegerRange(from_value=int(low), to_value=int(high), step=1)]
+    else:
+        desc.floating_point_range = [FloatingPointRange(from_value=float(low),
+                                                        to_value=float(high), step=0.0)]
+    return desc
+
+
+def field_descriptor(field: dataclasses.Field, *, read_only: bool = False,
+                     note: str = '') -> ParameterDescriptor:
+    """The descriptor of one :class:`MuscleParams` field, from its metadata.
+
+    :param field: a field of :class:`MuscleParams`
+    :param read_only: the parameter cannot change while the node runs
+    :param note: appended to the description (e.g. what a live change does)
+    """
+    spec = field.metadata
+    description = spec['description'] + (f' ({note})' if note else '')
+    if spec['choices'] is not None:
+        return ParameterDescriptor(
+            description=description, read_only=read_only,
+            additional_constraints=f'one of: {", ".join(spec["choices"])}')
+    integer = field.type == 'int'
+    constraints = '' if integer else 'positive and finite'
+    return number_descriptor(description, spec['unit'], spec['low'], spec['high'],
+                             integer=integer, read_only=read_only, constraints=constraints)
+
+
+def declare_checked(node: Node, name: str, default: Any,
+                    descriptor: ParameterDescriptor) -> Any:
+    """Declare a parameter; turn a bad override into a :class:`StartupError`.
+
+    rclpy raises on a wrong type or an out-of-range value from
+    ``--params-file`` or ``-p``; the error names the parameter and the value.
+
+    :return: the parameter's value (override or default)
+    """
+    given = node._parameter_overrides.get(name)  # noqa: SLF001 - only to quote it
+    value = given.value if given is not None else default
+    try:
+        return node.declare_parameter(name, default, descriptor).value
+    except InvalidParameterTypeException:
+        hint = ' (write floats with a decimal point)' if isinstance(default, float) else ''
+        raise StartupError(
+            f'parameter `{name}`: got {value!r} ({type(value).__name__}), expected a '
+            f'{type(default).__name__} like {default!r}{hint}') from None
+    except InvalidParameterValueException as err:
+        reason = str(err.args[0]).split('Reason: ', 1)[-1]
+        raise StartupError(f'parameter `{name}` = {value!r} rejected: {reason}') from None
+
+
+#: What a live change of a muscle parameter does (README "ROS 2 nodes").
+LIVE_KEEPS_STATE = ('k_se_n_per_m', 'k_pe_n_per_m', 'fv_a_n', 'fv_b_m_per_s',
+                    'fv_a_ecc_n', 'fv_b_ecc_m_per_s', 'pw_max_s')
+#: These fields shape the motor-unit memory or the resting state itself, so a
+#: live change rebuilds the muscle at rest.
+LIVE_RESETS = ('f_iso_max_n', 'l_rest_m', 'l_opt_m', 'n_units', 'units', 'length')
+
+
+def declare_muscle_parameters(node: Node) -> MuscleParams:
+    """Declare one ROS parameter per :class:`MuscleParams` field and build it.
+
+    Defaults are the paper's values; overrides come from ``--params-file`` or
+    ``-p``. All are live: see :data:`LIVE_KEEPS_STATE` and :data:`LIVE_RESETS`.
+
+    :raises StartupError: naming the parameter and value if any is invalid
+    """
+    defaults = MuscleParams()
+    values = {}
+    for f in dataclasses.fields(MuscleParams):
+        note = ('live, state kept' if f.name in LIVE_KEEPS_STATE
+                else 'live, a change resets the muscle to rest')
+        values[f.name] = declare_checked(node, f.name, getattr(defaults, f.name),
+                                         field_descriptor(f, note=note))
+    try:
+        return MuscleParams(**values)
+    except ValueError as err:
+        raise StartupError(f'parameter {err}') from None
+
+
+def warn_unknown_overrides(node: Node) -> None:
+    """Warn about overrides no parameter was declared for: usually a typo.
+
+    Not an error: a ``/**`` section may legitimately carry other nodes' keys.
+    """
+    declared = set(node._parameters)  # noqa: SLF001 - rclpy has no public listing
+    unknown = sorted(set(node._parameter_overrides) - declared)  # noqa: SLF001
+    if unknown:
+        node.get_logger().warning(
+            f'ignoring parameters this node does not have: {", ".join(unknown)}')
+
+
+# -- bad input ------------------------------------------------------------------
+
+
+class BadInputWarner:
+    """A warning per topic, at most once per ``period_s``, counting the rest.
+
+    rclpy's ``throttle_duration_sec`` throttles per call site, so one helper
+    line would let one noisy topic hide another; this keys on the topic.
+
+    :param logger: the node's logger
+    :param period_s: [s] shortest interval between two warnings of one topic
+    """
+
+    def __init__(self, logger, period_s: float = BAD_INPUT_THROTTLE_S) -> None:
+        self._logger = logger
+        self._period_s = period_s
+        self._last: dict[str, float] = {}
+        self._suppressed: dict[str, int] = {}
+
+    def warn(self, topic: str, message: str) -> bool:
+        """Log ``message`` for ``topic`` unless one was logged less than a period ago.
+
+        :return: whether it was logged
+        """
+        now = time.monotonic()
+        last = self._last.get(topic)
+        if last is not None and now - last < self._period_s:
+            self._suppressed[topic] = self._suppressed.get(topic, 0) + 1
+            return False
+        skipped = self._suppressed.pop(topic, 0)
+        suffix = f' ({skipped} more since the last warning)' if skipped else ''
+        self._logger.warning(message + suffix)
+        self._last[topic] = now
+        return True
+
+
+# -- fixed-step schedule ----------------------------------------------------------
+
+_NS_PER_S = 1_000_000_000
+
+
+class StepSchedule:
+    """Whole steps due since a start instant, with no accumulated drift.
+
+    The step count is always recomputed from the elapsed time,
+    ``floor(elapsed * real_time_factor * rate_hz)``, never accumulated tick by
+    tick, so simulated time cannot drift from the clock it follows.
+
+    :param rate_hz: [Hz] step rate, 1 / dt
+    :param real_time_factor: [-] simulated seconds per clock second
+    :param start_ns: [ns] clock reading at simulated time 0
+    """
+
+    def __init__(self, rate_hz: float, real_time_factor: float, start_ns: int) -> None:
+        self.steps_per_ns = rate_hz * real_time_factor / _NS_PER_S
+        self.start_ns = start_ns
+        self.steps_done = 0
+        self.late_ticks = 0
+        self.ticks = 0
+
+    def target(self, now_ns: int) -> int:
+        """Steps that should have been run by ``now_ns``."""
+        return math.floor((now_ns - self.start_ns) * self.steps_per_ns)
+
+    def due(self, now_ns: int) -> int:
+        """Steps to run now; counts the tick, and a late tick if more than one."""
+        n = max(0, self.target(now_ns) - self.steps_done)
+        self.ticks += 1
+        if n > 1:
+            self.late_ticks += 1
+        return n

@@ -1,0 +1,304 @@
+"""The muscle simulator node: the model core behind ROS 2 topics.
+
+Subscribes ``pulse_width`` [s], ``recruitment`` [-] and ``length_command``
+[m] (std_msgs/Float64, zero-order hold), steps :class:`Muscle` at a fixed
+dt = 1 / ``rate_hz`` against the steady clock, and publishes ``force`` [N],
+``ce_length`` [m] and ``wrench`` (geometry_msgs/WrenchStamped, force along +x)
+after every tick; optionally ``/clock``. A ``reset`` service (std_srvs/Trigger)
+returns the muscle to rest. See README "ROS 2 nodes" for the tables.
+
+Run: ``ros2 run hill_muscle_ros simulator --ros-args --params-file muscle.yaml``
+or ``hill-muscle simulator --ros-args ...``.
+"""
+from __future__ import annotations
+
+import math
+import sys
+
+from geometry_msgs.msg import WrenchStamped
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.clock import Clock, ClockType
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.time import Time
+from rosgraph_msgs.msg import Clock as ClockMsg
+from std_msgs.msg import Float64
+from std_srvs.srv import Trigger
+
+from ..model import Muscle, MuscleParams
+from ..model.muscle import check_dl_mt, check_recruitment, recruitment_from_pulse_width
+from ._common import (LIVE_RESETS, RELIABLE_QOS, BadInputWarner, StartupError,
+                      StepSchedule, declare_checked, declare_muscle_parameters,
+                      number_descriptor, run_node, warn_unknown_overrides)
+
+NODE_NAME = 'simulator'
+
+# Node parameters (their names are params_file.SIMULATOR_NODE_KEYS).
+DEFAULT_RATE_HZ = 1000.0
+#: [Hz] a step rate outside this range is a typo (period in place of rate).
+RATE_HZ_RANGE = (1.0, 100_000.0)
+DEFAULT_REAL_TIME_FACTOR = 1.0
+#: [-] from 100x slower to 1000x faster than the wall clock.
+REAL_TIME_FACTOR_RANGE = (0.01, 1000.0)
+DEFAULT_INPUT_TIMEOUT_S = 0.5
+#: [s] 0 disables the watchdog; an hour is longer than any FES session gap.
+INPUT_TIMEOUT_RANGE_S = (0.0, 3600.0)
+DEFAULT_FRAME_ID = 'muscle'
+
+#: [s] the timer never ticks faster than this: at a higher step rate or a real
+#: time factor > 1 each tick runs several steps (publishing the last one).
+MIN_TICK_PERIOD_S = 0.001
+#: [s] of clock time one tick may catch up at most, so that a long stall (a
+#: suspended process) cannot freeze the node while it runs a huge backlog.
+MAX_CATCH_UP_S = 0.1
+#: A pulse width this many times PW_max is not an FES pulse: it is rejected
+#: with a hint, since it is most likely microseconds sent for seconds.
+PULSE_WIDTH_UNIT_HINT_FACTOR = 100.0
+
+_NS_PER_S = 1_000_000_000
+
+
+class Simulator(Node):
+    """ROS 2 shell around :class:`~hill_muscle_ros.model.Muscle`.
+
+    :raises StartupError: on an invalid parameter at start-up
+    """
+
+    NODE_NAME = NODE_NAME
+
+    def __init__(self) -> None:
+        super().__init__(NODE_NAME)
+        params = declare_muscle_parameters(self)
+        rate_hz = declare_checked(self, 'rate_hz', DEFAULT_RATE_HZ, number_descriptor(
+            'step rate, dt = 1 / rate_hz', 'Hz', *RATE_HZ_RANGE, read_only=True))
+        rtf = declare_checked(self, 'real_time_factor', DEFAULT_REAL_TIME_FACTOR,
+                              number_descriptor('simulated seconds per clock second', '-',
+                                                *REAL_TIME_FACTOR_RANGE, read_only=True))
+        self._input_timeout_s = declare_checked(
+            self, 'input_timeout_s', DEFAULT_INPUT_TIMEOUT_S, number_descriptor(
+                'stimulation watchdog: R drops to 0 after this long without a '
+                'pulse_width or recruitment message; 0 disables', 's', *INPUT_TIMEOUT_RANGE_S))
+        self._frame_id = declare_checked(self, 'frame_id', DEFAULT_FRAME_ID, ParameterDescriptor(
+            description='frame_id of the wrench output'))
+        self._publish_clock = declare_checked(self, 'publish_clock', False, ParameterDescriptor(
+            description='publish /clock (sim time from 0) and stamp outputs with it',
+            read_only=True))
+        for name, value in (('rate_hz', rate_hz), ('real_time_factor', rtf)):
+            if not math.isfinite(value):
+                raise StartupError(f'parameter `{name}` must be finite, got {value!r}')
+        warn_unknown_overrides(self)
+
+        self._muscle = Muscle(params)
+        self._rate_hz = rate_hz
+        self._dt_s = 1.0 / rate_hz
+        self._recruitment = 0.0      # [-] held R (zero-order hold)
+        self._dl_mt_m = 0.0          # [m] held dl_MT
+        self._last_stim_t_s = 0.0    # [s] sim time of the last stimulation message
+        self._watchdog_tripped = False
+        self._bad_input = BadInputWarner(self.get_logger())
+
+        self._pub_force = self.create_publisher(Float64, 'force', RELIABLE_QOS)
+        self._pub_ce_length = self.create_publisher(Float64, 'ce_length', RELIABLE_QOS)
+        self._pub_wrench = self.create_publisher(WrenchStamped, 'wrench', RELIABLE_QOS)
+        # /clock is absolute by ROS convention: one time source per graph.
+        self._pub_clock = (self.create_publisher(ClockMsg, '/clock', RELIABLE_QOS)
+                           if self._publish_clock else None)
+        self._sub_pw = self.create_subscription(Float64, 'pulse_width', self._on_pulse_width,
+                                                RELIABLE_QOS)
+        self._sub_r = self.create_subscription(Float64, 'recruitment', self._on_recruitment,
+                                               RELIABLE_QOS)
+        self._sub_dl = self.create_subscription(Float64, 'length_command',
+                                                self._on_length_command, RELIABLE_QOS)
+        self.create_service(Trigger, 'reset', self._on_reset)
+        self.add_on_set_parameters_callback(self._validate_parameters)
+        self.add_post_set_parameters_callback(self._apply_parameters)
+
+        # Stamps without publish_clock: the node clock at start + simulated time.
+        self._stamp_origin_ns = 0 if self._publish_clock else self.get_clock().now().nanoseconds
+        self._steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self._schedule = StepSchedule(rate_hz, rtf, self._steady.now().nanoseconds)
+        self._max_steps_per_tick = max(1, math.ceil(MAX_CATCH_UP_S * rtf * rate_hz))
+        tick_s = max(MIN_TICK_PERIOD_S, self._dt_s / rtf)
+        self._timer = self.create_timer(tick_s, self._on_tick, clock=self._steady)
+        self.get_logger().info(
+            f'{params.units}/{params.length} muscle, {rate_hz:g} Hz, real_time_factor '
+            f'{rtf:g}, publish_clock {self._publish_clock}, watchdog '
+            f'{self._input_timeout_s:g} s')
+
+    # -- time -------------------------------------------------------------------
+
+    @property
+    def sim_time_s(self) -> float:
+        """[s] simulated time, from the step count (no accumulated rounding)."""
+        return self._schedule.steps_done / self._rate_hz
+
+    def _on_tick(self) -> None:
+        due = self._schedule.due(self._steady.now().nanoseconds)
+        if due == 0:
+            return
+        n = min(due, self._max_steps_per_tick)
+        if n < due:
+            self.get_logger().warning(
+                f'{due} steps due, running {n}: the node cannot keep up with rate_hz '
+                f'{self._rate_hz:g} x real_time_factor; it will catch up if the load drops',
+                throttle_duration_sec=1.0)
+        out = None
+        for _ in range(n):
+            self._watchdog()
+            out = self._muscle.step(self._recruitment, self._dl_mt_m, self._dt_s)
+            self._schedule.steps_done += 1
+        if not (math.isfinite(out.force_n) and math.isfinite(out.l_ce_m)):
+            # Cannot happen with validated inputs and parameters; if it does,
+            # never publish it: report and return to rest.
+            self.get_logger().error(
+                f'non-finite output (force {out.force_n!r} N, l_ce {out.l_ce_m!r} m) '
+                f'with R {self._recruitment!r}, dl_mt {self._dl_mt_m!r} m: resetting',
+                throttle_duration_sec=1.0)
+            self._reset_to_rest()
+            return
+        self._publish(out.force_n, out.l_ce_m)
+
+    def _publish(self, force_n: float, l_ce_m: float) -> None:
+        sim_ns = round(self._schedule.steps_done * _NS_PER_S / self._rate_hz)
+        stamp = Time(nanoseconds=self._stamp_origin_ns + sim_ns).to_msg()
+        if self._pub_clock is not None:
+            self._pub_clock.publish(ClockMsg(clock=stamp))
+        self._pub_force.publish(Float64(data=force_n))
+        self._pub_ce_length.publish(Float64(data=l_ce_m))
+        wrench = WrenchStamped()
+        wrench.header.stamp = stamp
+        wrench.header.frame_id = self._frame_id
+        wrench.wrench.force.x = force_n
+        self._pub_wrench.publish(wrench)
+
+    def _watchdog(self) -> None:
+        """Stimulation watchdog: R -> 0 when the controller has gone quiet."""
+        if (self._input_timeout_s > 0.0 and self._recruitment > 0.0
+                and self.sim_time_s - self._last_stim_t_s > self._input_timeout_s):
+            self.get_logger().warning(
+                f'no pulse_width or recruitment message for {self._input_timeout_s:g} s '
+                f'(input_timeout_s): recruitment {self._recruitment:g} -> 0 until the next one')
+            self._recruitment = 0.0
+            self._watchdog_tripped = True
+
+    # -- inputs -----------------------------------------------------------------
+
+    def _set_stimulation(self, recruitment: float) -> None:
+        self._recruitment = recruitment
+        self._last_stim_t_s = self.sim_time_s
+        if self._watchdog_tripped:
+            self._watchdog_tripped = False
+            self.get_logger().info(f'stimulation back: recruitment {recruitment:g}')
+
+    def _reject(self, topic: str, value: float, err: Exception, hint: str = '') -> None:
+        self._bad_input.warn(topic, f'ignoring {topic} = {value!r}: {err}{hint}; keeping '
+                                    f'recruitment {self._recruitment:g}, length_command '
+                                    f'{self._dl_mt_m:g} m')
+
+    def _on_pulse_width(self, msg: Float64) -> None:
+        pw_max_s = self._muscle.params.pw_max_s
+        try:
+            if msg.data > PULSE_WIDTH_UNIT_HINT_FACTOR * pw_max_s:
+                raise ValueError(f'`pulse_width` is more than {PULSE_WIDTH_UNIT_HINT_FACTOR:g} '
+                                 f'x pw_max_s ({pw_max_s!r} s)')
+            r = recruitment_from_pulse_width(msg.data, pw_max_s)
+        except ValueError as err:
+            hint = ''
+            if msg.data > PULSE_WIDTH_UNIT_HINT_FACTOR * pw_max_s:
+                hint = ('. It looks like microseconds: pulse_width is in seconds (REP 103), '
+                        f'e.g. {msg.data * 1e-6:g} for {msg.data:g} us')
+            self._reject(self._sub_pw.topic_name, msg.data, err, hint)
+            return
+        self._set_stimulation(r)
+
+    def _on_recruitment(self, msg: Float64) -> None:
+        try:
+            r = check_recruitment(msg.data)
+        except ValueError as err:
+            self._reject(self._sub_r.topic_name, msg.data, err)
+            return
+        self._set_stimulation(r)
+
+    def _on_length_command(self, msg: Float64) -> None:
+        try:
+            self._dl_mt_m = check_dl_mt(msg.data, 'length_command')
+        except ValueError as err:
+            self._reject(self._sub_dl.topic_name, msg.data, err)
+
+    # -- reset ------------------------------------------------------------------
+
+    def _reset_to_rest(self) -> None:
+        """Rest state, empty memory, and the held inputs back to rest too.
+
+        The held inputs are cleared so that rest really is rest: the next
+        input message applies from there. Simulated time keeps running.
+        """
+        self._muscle.reset()
+        self._recruitment = 0.0
+        self._dl_mt_m = 0.0
+        self._watchdog_tripped = False
+
+    def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        self._reset_to_rest()
+        response.success = True
+        response.message = (f'muscle at rest at t = {self.sim_time_s:.3f} s: memory cleared, '
+                            'recruitment 0, length_command 0')
+        self.get_logger().info(response.message)
+        return response
+
+    # -- parameters -------------------------------------------------------------
+
+    def _candidate(self, parameters: list[Parameter]) -> MuscleParams:
+        changes = {p.name: p.value for p in parameters if p.name in MuscleParams.field_names()}
+        return self._muscle.params.replace(**changes) if changes else self._muscle.params
+
+    def _validate_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
+        """Accept a change only if the model accepts it; the reason names the value."""
+        try:
+            self._candidate(parameters)
+        except (ValueError, TypeError) as err:
+            return SetParametersResult(successful=False, reason=str(err))
+        for p in parameters:
+            if p.name == 'input_timeout_s' and not math.isfinite(p.value):
+                return SetParametersResult(
+                    successful=False, reason=f'`input_timeout_s` must be finite, got {p.value!r}')
+        return SetParametersResult(successful=True)
+
+    def _apply_parameters(self, parameters: list[Parameter]) -> None:
+        old = self._muscle.params
+        new = self._candidate(parameters)
+        for p in parameters:
+            if p.name == 'input_timeout_s':
+                self._input_timeout_s = p.value
+            elif p.name == 'frame_id':
+                self._frame_id = p.value
+        if new == old:
+            return
+        changed = [n for n in MuscleParams.field_names() if getattr(new, n) != getattr(old, n)]
+        if any(n in LIVE_RESETS for n in changed):
+            self._muscle = Muscle(new)
+            self._reset_to_rest()
+            self.get_logger().info(f'{", ".join(changed)} changed: muscle reset to rest')
+        else:
+            # Muscle reads these constants at every step, so the state is kept.
+            self._muscle.params = new
+            self.get_logger().info(f'{", ".join(changed)} changed, state kept')
+
+    def on_exit(self) -> None:
+        """Log the run's timing statistics (achieved rate, drift, late ticks)."""
+        s = self._schedule
+        elapsed_s = (self._steady.now().nanoseconds - s.start_ns) / _NS_PER_S
+        behind = s.target(self._steady.now().nanoseconds) - s.steps_done
+        self.get_logger().info(
+            f'ran {s.steps_done} steps in {elapsed_s:.3f} s of steady time '
+            f'({s.steps_done / elapsed_s if elapsed_s > 0 else 0.0:.1f} steps/s), '
+            f'{s.ticks} ticks, {s.late_ticks} late, {behind} steps behind at exit')
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point: ``simulator [--ros-args ...]``; returns the exit status."""
+    return run_node(Simulator, args)
+
+
+if __name__ == '__main__':
+    sys.exit(main())
