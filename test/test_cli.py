@@ -3,6 +3,7 @@
 The CSV and the table are compared with the offline core (``simulate``) run on
 the same protocol and parameters, never with numbers copied from output.
 """
+import importlib.util
 import os
 import subprocess
 import sys
@@ -301,3 +302,13 @@ def test_simulate_and_figures_never_import_rclpy(tmp_path):
     proc = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
                           env=os.environ.copy(), timeout=SUBPROCESS_TIMEOUT_S)
     assert proc.returncode == 0, proc.stderr
+
+
+@pytest.mark.ros
+def test_simulator_subcommand_hands_ros_parameters_to_the_real_node():
+    """An out-of-range ``rate_hz`` reaches the node, which refuses to start."""
+    if importlib.util.find_spec('hill_muscle_ros.nodes.simulator') is None:
+        pytest.skip('the simulator node is not written yet (issue 3)')
+    proc = run_cli('simulator', '--ros-args', '-p', 'rate_hz:=-1.0')
+    assert proc.returncode == 1
+    assert 'rate_hz' in proc.stdout + proc.stderr
