@@ -11,9 +11,10 @@ Euler would be off by about 0.3 N.
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import NamedTuple, Sequence
 
-from .curves import force_length, force_velocity_inverse, parallel_force, series_force
+from .curves import (ECC_PLATEAU, FL_A, FL_B, FL_C, force_length, force_velocity_inverse,
+                     parallel_force, series_force)
 from .memory import UnitMemory, recruited_units
 from .params import MuscleParams
 
@@ -100,6 +101,13 @@ class Muscle:
     Use :meth:`step` to advance by ``dt`` and read the returned
     :class:`MuscleOutputs`; :meth:`reset` returns to the resting state.
 
+    All stepping goes through one hot loop, :meth:`run`, which advances any
+    number of steps over input sequences: :meth:`step` (the ROS node, once a
+    tick) calls it with one step, :func:`~hill_muscle_ros.model.simulate.simulate`
+    (the CLI) with a whole protocol. :meth:`outputs` and :meth:`eff_f_iso`
+    evaluate the readable curves of :mod:`.curves` and are the reference the
+    tests compare the hot loop against.
+
     :param params: the muscle's parameters (paper defaults if omitted)
     """
 
@@ -123,6 +131,10 @@ class Muscle:
         self._memory.clear()
         # Single/initial: the isometric force of the one unit, fixed at recruitment.
         self._f_iso_single_n = 0.0
+        # [N] Eff.f_iso (initial) or Eff.f_iso / FL(l_ce / l_opt) (instantaneous):
+        # everything the recruitment contributes, so that the hot loop needs
+        # only a multiplication to get Eff.f_iso.
+        self._gain_n = 0.0
         # Velocity of the free CE when Eff.f_iso = 0 (it follows the MTU).
         self._v_free = 0.0
 
@@ -139,12 +151,21 @@ class Muscle:
         :param recruitment: [-] recruitment R in [0, 1]
         :raises ValueError: if R is outside [0, 1] or not finite
         """
-        r = check_recruitment(recruitment)
+        self._apply_recruitment(check_recruitment(recruitment))
+
+    def _apply_recruitment(self, r: float) -> float:
+        """Update the memory for a validated R at the current CE length.
+
+        :param r: [-] recruitment R in [0, 1], already validated
+        :return: [N] the new gain (see :meth:`reset`)
+        """
         p = self.params
         if self._multi:
             m = recruited_units(r, p.n_units)
             if self._initial:
-                self._memory.update(m, self.l_ce_m)
+                gain = self._memory.update(m, self.l_ce_m)
+            else:
+                gain = m / p.n_units * p.f_iso_max_n
         else:
             m = 1 if r > 0.0 else 0
             if self._initial:
@@ -153,8 +174,13 @@ class Muscle:
                 elif self.recruitment == 0.0:
                     self._f_iso_single_n = p.f_iso_max_n * force_length(
                         self.l_ce_m / p.l_opt_m)
+                gain = r * self._f_iso_single_n
+            else:
+                gain = r * p.f_iso_max_n
         self.recruitment = r
         self.n_recruited = m
+        self._gain_n = gain
+        return gain
 
     def set_pulse_width(self, pulse_width_s: float) -> None:
         """Apply an FES pulse width now: R = clip(PW / PW_max, 0, 1).
@@ -168,7 +194,8 @@ class Muscle:
         """Effective isometric force (Eff.f_iso) of the four variants.
 
         Implements Eq. (2) of the paper (multi/initial) and its three
-        siblings of MODEL.md section 2.
+        siblings of MODEL.md section 2. This is the readable reference; the
+        hot loop of :meth:`run` computes the same value inline.
 
         :param l_ce_m: [m] CE length for the instantaneous variants
             (the current one if omitted)
@@ -184,7 +211,11 @@ class Muscle:
         return scale * p.f_iso_max_n * force_length(l_ce / p.l_opt_m)
 
     def outputs(self) -> MuscleOutputs:
-        """The outputs at the current instant, derived from the state."""
+        """The outputs at the current instant, derived from the state.
+
+        Evaluates the readable curves of :mod:`.curves`; :meth:`run` returns
+        the same values from its inlined arithmetic.
+        """
         p = self.params
         l_ce, dl = self.l_ce_m, self.dl_mt_m
         f_se = series_force(p.k_se_n_per_m, dl, l_ce, p.l_rest_m)
@@ -200,48 +231,153 @@ class Muscle:
 
     # -- dynamics ------------------------------------------------------------
 
-    def _v_ce(self, l_ce: float, dl_mt: float, f0_held: float) -> float:
-        """Right-hand side d l_ce / dt = FV_inv(f_se, Eff.f_iso) (MODEL.md section 4)."""
+    def run(self, r_start: Sequence[float], dl_mt_end_m: Sequence[float], dt_s: float,
+            r_end: Sequence[float] | None = None,
+            columns: Sequence[list] | None = None) -> MuscleOutputs:
+        """Advance ``len(dl_mt_end_m)`` steps: the one hot loop of the model.
+
+        Step k applies the recruitment ``r_start[k]`` (new units store the CE
+        length of that instant), integrates the CE length over ``dt_s`` with R
+        held and the MTU length ramping linearly to ``dl_mt_end_m[k]``, then
+        applies ``r_end[k]`` (default: ``r_start[k]``, which changes nothing)
+        and evaluates the outputs. :func:`.simulate` passes ``r_end[k] =
+        r_start[k + 1]`` so each sample shows the recruitment of its instant.
+
+        The integrator is classical RK4 (MODEL.md section 4). When Eff.f_iso
+        is zero the CE offers no resistance and takes the length that makes
+        f_SE zero. The curves of :mod:`.curves` (Eq. 1, Eq. 3, the springs)
+        are inlined here because function calls dominate a pure-Python step;
+        the tests check this loop against them. Inputs are not validated:
+        :meth:`step` validates, :func:`.simulate` checks whole arrays.
+
+        :param r_start: [-] recruitment R in [0, 1] held over each step
+        :param dl_mt_end_m: [m] MTU length change at the end of each step
+        :param dt_s: [s] step length, > 0
+        :param r_end: [-] recruitment applied after each step, before the outputs
+        :param columns: if given, ten preallocated lists in the order of
+            :class:`MuscleOutputs`; step k writes index k of each
+        :return: the outputs after the last step
+        """
         p = self.params
-        f0 = f0_held if self._initial else self.eff_f_iso(l_ce)
-        stretch = dl_mt - (l_ce - p.l_rest_m)
-        f_se = p.k_se_n_per_m * stretch if stretch > 0.0 else 0.0
-        return force_velocity_inverse(f_se, f0, p.fv_a_n, p.fv_b_m_per_s,
-                                      p.fv_a_ecc_n, p.fv_b_ecc_m_per_s)
+        k_se, k_pe, l_rest, l_opt = p.k_se_n_per_m, p.k_pe_n_per_m, p.l_rest_m, p.l_opt_m
+        a, b, a_ecc, b_ecc = p.fv_a_n, p.fv_b_m_per_s, p.fv_a_ecc_n, p.fv_b_ecc_m_per_s
+        initial = self._initial
+        apply_recruitment = self._apply_recruitment
+        dt = dt_s
+        half_dt = 0.5 * dt
+        if r_end is None:
+            r_end = r_start
+        write = columns is not None
+        if write:
+            (c_t, c_r, c_m, c_dl, c_l, c_v, c_se, c_pe, c_force, c_f0) = columns
+
+        def f0_at(l_ce: float, gain: float) -> float:
+            """[N] Eff.f_iso at CE length ``l_ce`` (Eq. 1 inlined)."""
+            if initial:
+                return gain
+            x = l_ce / l_opt
+            fl = (FL_A * x + FL_B) * x + FL_C
+            return gain * fl if fl > 0.0 else 0.0
+
+        def velocity(l_ce: float, dl_mt: float, gain: float) -> float:
+            """[m/s] d l_ce / dt = FV_inv(f_SE, Eff.f_iso), springs and Eq. 3 inlined."""
+            if initial:
+                f0 = gain
+            else:
+                x = l_ce / l_opt
+                fl = (FL_A * x + FL_B) * x + FL_C
+                f0 = gain * fl if fl > 0.0 else 0.0
+            stretch = dl_mt - (l_ce - l_rest)
+            f = k_se * stretch if stretch > 0.0 else 0.0
+            if f <= 0.0:
+                return -f0 * b / a
+            if f <= f0:
+                return b * (f - f0) / (f + a)
+            if f < ECC_PLATEAU * f0:
+                return b_ecc * (2.0 * f - 2.0 * f0) / (3.0 * f0 - 2.0 * f + a_ecc)
+            return f0 * b_ecc / a_ecc
+
+        l = self.l_ce_m
+        dl0 = self.dl_mt_m
+        t = self.t_s
+        v_free = self._v_free
+        r_now = self.recruitment
+        m_now = self.n_recruited
+        gain = self._gain_n
+        # f0 and v are the outputs at the current instant; while the
+        # recruitment is unchanged, v is also the first RK4 stage of the
+        # next step (same state, same inputs), so it is computed once.
+        f0 = f0_at(l, gain)
+        v = velocity(l, dl0, gain) if f0 > 0.0 else v_free
+        k = -1
+        for k, dl1 in enumerate(dl_mt_end_m):
+            r = r_start[k]
+            if r != r_now:
+                self.l_ce_m = l
+                gain = apply_recruitment(r)
+                r_now, m_now = r, self.n_recruited
+                f0 = f0_at(l, gain)
+                if f0 > 0.0:
+                    v = velocity(l, dl0, gain)
+            if f0 > 0.0:
+                dl_mid = 0.5 * (dl0 + dl1)
+                k2 = velocity(l + half_dt * v, dl_mid, gain)
+                k3 = velocity(l + half_dt * k2, dl_mid, gain)
+                k4 = velocity(l + dt * k3, dl1, gain)
+                l = l + dt * (v + 2.0 * k2 + 2.0 * k3 + k4) / 6.0
+            else:
+                l = l_rest + dl1
+            if not initial:
+                f0 = f0_at(l, gain)
+            if f0 == 0.0:
+                # Nothing recruited, or the instantaneous CE left the FL range
+                # within the step: the free CE takes up the SE slack (MODEL.md 4).
+                l = l_rest + dl1
+            v_free = (dl1 - dl0) / dt
+            dl0 = dl1
+            t += dt
+            r = r_end[k]
+            if r != r_now:
+                self.l_ce_m = l
+                gain = apply_recruitment(r)
+                r_now, m_now = r, self.n_recruited
+                f0 = f0_at(l, gain)
+            v = velocity(l, dl1, gain) if f0 > 0.0 else v_free
+            if write:
+                stretch = dl1 - (l - l_rest)
+                f_se = k_se * stretch if stretch > 0.0 else 0.0
+                f_pe = k_pe * dl1 if dl1 > 0.0 else 0.0
+                c_t[k] = t
+                c_r[k] = r_now
+                c_m[k] = m_now
+                c_dl[k] = dl1
+                c_l[k] = l
+                c_v[k] = v
+                c_se[k] = f_se
+                c_pe[k] = f_pe
+                c_force[k] = f_se + f_pe
+                c_f0[k] = f0
+        self.l_ce_m = l
+        self.dl_mt_m = dl0
+        self.t_s = t
+        self._v_free = v_free
+        stretch = dl0 - (l - l_rest)
+        f_se = k_se * stretch if stretch > 0.0 else 0.0
+        f_pe = k_pe * dl0 if dl0 > 0.0 else 0.0
+        return MuscleOutputs(t, r_now, m_now, dl0, l, v, f_se, f_pe,
+                             f_se + f_pe, f0)
 
     def advance(self, dl_mt_end_m: float, dt_s: float) -> None:
         """Integrate the CE length over one step with the recruitment held.
 
         The MTU length ramps linearly from its current value to
-        ``dl_mt_end_m``. Classical RK4; when Eff.f_iso is zero the CE offers
-        no resistance and takes the length that makes f_SE zero.
+        ``dl_mt_end_m``; see :meth:`run`.
 
         :param dl_mt_end_m: [m] MTU length change at the end of the step
         :param dt_s: [s] step length, > 0
         """
-        p = self.params
-        dl0 = self.dl_mt_m
-        dl1 = dl_mt_end_m
-        l0 = self.l_ce_m
-        f0 = self.eff_f_iso()
-        if f0 > 0.0:
-            h = dt_s
-            dlm = 0.5 * (dl0 + dl1)
-            k1 = self._v_ce(l0, dl0, f0)
-            k2 = self._v_ce(l0 + 0.5 * h * k1, dlm, f0)
-            k3 = self._v_ce(l0 + 0.5 * h * k2, dlm, f0)
-            k4 = self._v_ce(l0 + h * k3, dl1, f0)
-            l1 = l0 + h * (k1 + 2.0 * k2 + 2.0 * k3 + k4) / 6.0
-        else:
-            l1 = p.l_rest_m + dl1
-        self.l_ce_m = l1
-        self.dl_mt_m = dl1
-        self.t_s += dt_s
-        if not self._initial and self.eff_f_iso() == 0.0:
-            # The instantaneous CE left the FL range within the step: it is
-            # free again, so it takes up the SE slack (MODEL.md section 4).
-            self.l_ce_m = p.l_rest_m + dl1
-        self._v_free = (dl1 - dl0) / dt_s
+        r = (self.recruitment,)
+        self.run(r, (dl_mt_end_m,), dt_s)
 
     def step(self, recruitment: float, dl_mt_m: float, dt_s: float) -> MuscleOutputs:
         """Advance one step: recruit now, then integrate with R held.
@@ -259,6 +395,5 @@ class Muscle:
         dl = check_dl_mt(dl_mt_m)
         if not (math.isfinite(dt_s) and dt_s > 0.0):
             raise ValueError(f'`dt_s` must be positive and finite, got {dt_s!r}')
-        self.set_recruitment(recruitment)
-        self.advance(dl, dt_s)
-        return self.outputs()
+        r = check_recruitment(recruitment)
+        return self.run((r,), (dl,), dt_s)
