@@ -1,0 +1,385 @@
+"""The recorder node: records topics to a rosbag2 bag (MCAP storage).
+
+There is no rosbag2 on PyPI; this node writes the same bag that ``ros2 bag
+record -s mcap`` writes (see :mod:`hill_muscle_ros.recording.bag_writer`),
+so ``ros2 bag info``, Foxglove, PlotJuggler and rosbags open it as it is.
+
+- Parameters: ``topics`` (names resolved in the node's namespace; default:
+  every topic of the simulator and the protocol player) and ``output`` (the
+  bag directory; default ``runs/<UTC timestamp>``; an existing non-empty
+  directory is an error, never overwritten).
+- Topics are subscribed when a publisher appears (the graph is polled), with
+  the type and QoS the publishers offer, as serialized messages: the CDR bytes
+  go to disk exactly as received.
+- ``log_time`` is the receive time on the node's clock (sim time with
+  ``use_sim_time``), ``publish_time`` the header stamp where there is one.
+- Each message's publisher sequence number is checked: a gap means DDS lost
+  messages, and is reported with the count of messages sent vs. recorded.
+- SIGINT and SIGTERM stop it cleanly: messages already delivered are drained
+  and written, then the summary and ``metadata.yaml``. Chunks close at least
+  every second, so after a SIGKILL all but the last second can be read.
+
+Run: ``ros2 run hill_muscle_ros recorder --ros-args -p output:=runs/my_run``
+or ``hill-muscle record --ros-args ...``.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import functools
+import importlib
+import signal
+import struct
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import rclpy
+from rcl_interfaces.msg import ParameterDescriptor, ParameterType
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+
+from ..recording.bag_writer import BagOutputError, BagWriter
+from ._common import EXIT_FAILURE, EXIT_SUCCESS, StartupError
+
+NODE_NAME = 'recorder'
+
+#: Every topic the simulator and the protocol player use (relative names are
+#: resolved in the recorder's namespace; /clock is global by ROS convention).
+DEFAULT_TOPICS = ('pulse_width', 'recruitment', 'length_command', 'force', 'ce_length',
+                  'wrench', '/clock')
+#: Where bags go by default, one directory per run named by its UTC start time.
+DEFAULT_RUNS_DIR = 'runs'
+#: [s] how often the graph is polled for publishers of the wanted topics.
+DISCOVERY_PERIOD_S = 0.1
+#: [s] how often an open chunk is checked against its wall-time limit.
+FLUSH_CHECK_PERIOD_S = 0.1
+#: Messages DDS keeps for the recorder while Python is busy: 10 s at 1 kHz.
+#: Reliable delivery only helps if the reader's history never overflows.
+QUEUE_DEPTH = 10_000
+#: Most messages taken from one subscription per executor callback. Taking a
+#: batch skips the executor's per-message wait-set overhead, which is what
+#: lets one Python process keep up with several 1 kHz topics.
+TAKE_BATCH = 500
+#: [s] after a stop signal, how long messages already delivered are drained.
+DRAIN_TIMEOUT_S = 2.0
+#: [s] executor wake-up period (checks the stop flag).
+SPIN_PERIOD_S = 0.05
+#: Bytes of the CDR encapsulation header before the payload.
+CDR_HEADER_BYTES = 4
+#: Stamp layout at the start of a message whose first field is a std_msgs/Header:
+#: int32 sec, uint32 nanosec.
+_STAMP_LE = struct.Struct('<iI')
+_STAMP_BE = struct.Struct('>iI')
+_HEADER_TYPE_LINE = 'std_msgs/Header header'
+_NS_PER_S = 1_000_000_000
+
+
+def default_output(now: _dt.datetime | None = None) -> Path:
+    """``runs/<UTC timestamp>``, e.g. ``runs/2025-01-31T12-00-00Z``."""
+    now = now or _dt.datetime.now(_dt.timezone.utc)
+    return Path(DEFAULT_RUNS_DIR) / now.strftime('%Y-%m-%dT%H-%M-%SZ')
+
+
+def message_class(type_name: str) -> type:
+    """The Python class of a ROS message type, e.g. ``std_msgs/msg/Float64``."""
+    package, namespace, name = type_name.split('/')
+    return getattr(importlib.import_module(f'{package}.{namespace}'), name)
+
+
+def has_header_first(type_name: str) -> bool:
+    """Whether the type's first field is a ``std_msgs/Header`` (its stamp leads the CDR)."""
+    from ..recording.bag_writer import _read_msg_file  # same .msg source as the schema
+    for line in _read_msg_file(type_name).splitlines():
+        line = line.split('#', 1)[0].strip()
+        if line:
+            return ' '.join(line.split()) in (_HEADER_TYPE_LINE, 'Header header')
+    return False
+
+
+def header_stamp_ns(data: bytes) -> int:
+    """[ns] ``header.stamp`` of a serialized message whose first field is a Header."""
+    little = len(data) > 1 and data[1] & 1
+    sec, nanosec = (_STAMP_LE if little else _STAMP_BE).unpack_from(data, CDR_HEADER_BYTES)
+    return sec * _NS_PER_S + nanosec
+
+
+def request_qos(offered: list[QoSProfile]) -> QoSProfile:
+    """The subscription QoS that matches every publisher, as rosbag2 adapts it.
+
+    Reliable only if all publishers are, transient-local only if all are;
+    a deep keep-last queue so DDS can hold bursts while Python writes.
+    """
+    reliable = all(q.reliability == ReliabilityPolicy.RELIABLE for q in offered)
+    latched = all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in offered)
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST, depth=QUEUE_DEPTH,
+        reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
+        durability=(DurabilityPolicy.TRANSIENT_LOCAL if latched
+                    else DurabilityPolicy.VOLATILE))
+
+
+@dataclass
+class _TopicStats:
+    """What was received on one topic, and what its publisher's sequence numbers say was sent."""
+
+    name: str
+    stamped: bool
+    publishers: int = 1
+    received: int = 0
+    first_seq: int | None = None
+    last_seq: int | None = None
+    lost: int = 0
+    gap_events: list[tuple[int, int]] = field(default_factory=list)
+
+    def add(self, seq: int | None) -> int:
+        """Count one message; return how many were skipped before it (0 if none)."""
+        self.received += 1
+        if seq is None or self.publishers != 1:
+            return 0
+        if self.last_seq is not None and seq <= self.last_seq:
+            # Out of order: another publisher joined; sequences no longer tell.
+            self.publishers = 0
+            return 0
+        missing = 0
+        if self.last_seq is not None and seq > self.last_seq + 1:
+            missing = seq - self.last_seq - 1
+            self.lost += missing
+        if self.first_seq is None:
+            self.first_seq = seq
+        self.last_seq = seq
+        return missing
+
+    @property
+    def sent(self) -> int | None:
+        """Messages the (single) publisher sent from the first to the last one recorded."""
+        if self.first_seq is None or self.publishers != 1:
+            return None
+        return self.last_seq - self.first_seq + 1
+
+
+class Recorder(Node):
+    """Records topics to a rosbag2 MCAP bag.
+
+    :raises StartupError: if the output cannot be written (exists and is not
+        empty, not writable, disk full)
+    """
+
+    NODE_NAME = NODE_NAME
+
+    def __init__(self) -> None:
+        super().__init__(NODE_NAME)
+        topics = self.declare_parameter('topics', list(DEFAULT_TOPICS), ParameterDescriptor(
+            type=ParameterType.PARAMETER_STRING_ARRAY, read_only=True,
+            description='topics to record; relative names resolve in the node namespace'
+        )).value
+        output = self.declare_parameter('output', '', ParameterDescriptor(
+            type=ParameterType.PARAMETER_STRING, read_only=True,
+            description='bag directory (must not exist or be empty); '
+                        f'default {DEFAULT_RUNS_DIR}/<UTC timestamp>')).value
+        self.output = Path(output) if output else default_output()
+        self._wanted = []
+        for topic in topics:
+            resolved = self.resolve_topic_name(topic)
+            if resolved not in self._wanted:
+                self._wanted.append(resolved)
+        try:
+            self._writer = BagWriter(self.output)
+        except BagOutputError as err:
+            raise StartupError(str(err)) from None
+        self._use_sim_time = bool(self.get_parameter('use_sim_time').value)
+        self._subs: dict[str, Any] = {}
+        self._stats: dict[str, _TopicStats] = {}
+        self._warned_types: set[str] = set()
+        self.failure: str = ''
+        self.stop_requested = False
+        self._discovery = self.create_timer(DISCOVERY_PERIOD_S, self._discover)
+        self._flush_timer = self.create_timer(FLUSH_CHECK_PERIOD_S, self._flush_if_due)
+        self.get_logger().info(f'recording {", ".join(self._wanted)} to {self.output}')
+        self._discover()
+
+    # -- discovery ----------------------------------------------------------------
+
+    def _discover(self) -> None:
+        for name in self._wanted:
+            if name in self._subs:
+                continue
+            infos = self.get_publishers_info_by_topic(name)
+            if not infos:
+                continue
+            types = sorted({i.topic_type for i in infos})
+            if len(types) > 1:
+                if name not in self._warned_types:
+                    self._warned_types.add(name)
+                    self.get_logger().error(
+                        f'{name}: publishers disagree on the type ({", ".join(types)}); '
+                        f'not recording it')
+                continue
+            self._subscribe(name, types[0], [i.qos_profile for i in infos], len(infos))
+        if len(self._subs) == len(self._wanted):
+            self._discovery.cancel()
+
+    def _subscribe(self, name: str, type_name: str, offered: list[QoSProfile],
+                   n_publishers: int) -> None:
+        try:
+            cls = message_class(type_name)
+            stamped = has_header_first(type_name)
+            self._writer.add_topic(name, type_name, offered_qos_profiles=offered)
+        except (ImportError, AttributeError, LookupError, ValueError) as err:
+            if name not in self._warned_types:
+                self._warned_types.add(name)
+                self.get_logger().error(f'{name}: cannot record {type_name}: {err}')
+            return
+        self._stats[name] = _TopicStats(name, stamped, publishers=n_publishers)
+        sub = self.create_subscription(cls, name, functools.partial(self._on_message, name),
+                                       request_qos(offered), raw=True)
+        self._subs[name] = sub
+        self.get_logger().info(f'recording {name} ({type_name}, {n_publishers} publisher(s))')
+
+    # -- messages -----------------------------------------------------------------
+
+    def _on_message(self, topic: str, data: bytes, info: dict[str, Any]) -> None:
+        if self.failure:
+            return
+        self._record(topic, data, info)
+        # Take what else is already queued on this topic in the same callback.
+        sub = self._subs[topic]
+        for _ in range(TAKE_BATCH):
+            if self.failure:
+                return
+            with sub.handle:
+                taken = sub.handle.take_message(sub.msg_type, True)
+            if taken is None:
+                return
+            self._record(topic, *taken)
+
+    def _record(self, topic: str, data: bytes, info: dict[str, Any]) -> None:
+        stats = self._stats[topic]
+        if self._use_sim_time:
+            log_ns = self.get_clock().now().nanoseconds
+        else:
+            # DDS's receive instant on the system clock, i.e. this node's clock,
+            # and not delayed by how long the message waited for Python.
+            log_ns = info.get('received_timestamp') or self.get_clock().now().nanoseconds
+        publish_ns = header_stamp_ns(data) if stats.stamped else log_ns
+        seq = info.get('publication_sequence_number')
+        try:
+            self._writer.write(topic, data, log_ns, publish_ns)
+        except OSError as err:
+            self._fail(f'writing {self._writer.mcap_path} failed: {err.strerror or err}')
+            return
+        missing = stats.add(seq)
+        if missing:
+            self.get_logger().warning(
+                f'{topic}: {missing} message(s) lost before sequence number {seq} '
+                f'({stats.lost} so far)', throttle_duration_sec=1.0)
+
+    def _flush_if_due(self) -> None:
+        if self.failure:
+            return
+        try:
+            self._writer.flush_if_due()
+        except OSError as err:
+            self._fail(f'writing {self._writer.mcap_path} failed: {err.strerror or err}')
+
+    def _fail(self, reason: str) -> None:
+        """Stop recording after an I/O error; what is on disk stays readable."""
+        self.failure = reason
+        self.stop_requested = True
+        self.get_logger().error(f'{reason}; stopping, the bag keeps what was written before')
+
+    # -- stopping -----------------------------------------------------------------
+
+    def drain(self, executor: SingleThreadedExecutor, timeout_s: float = DRAIN_TIMEOUT_S) -> None:
+        """Write what DDS already delivered: spin until no callback is ready.
+
+        Publishers may still be running, so this stops at the first quiet
+        spin, or after ``timeout_s``, whichever is first.
+        """
+        deadline = time.monotonic() + timeout_s
+        while not self.failure and time.monotonic() < deadline:
+            before = sum(s.received for s in self._stats.values())
+            executor.spin_once(timeout_sec=0.0)
+            if sum(s.received for s in self._stats.values()) == before:
+                return
+
+    def report(self) -> str:
+        """One line per topic: received, sent (from sequence numbers), lost."""
+        lines = []
+        for name in self._wanted:
+            stats = self._stats.get(name)
+            if stats is None:
+                lines.append(f'{name}: no publisher seen, not recorded')
+                continue
+            sent = stats.sent
+            sent_txt = f', publisher sent {sent}' if sent is not None else ''
+            lines.append(f'{name}: {stats.received} recorded{sent_txt}, {stats.lost} lost')
+        return '\n'.join(lines)
+
+    def close(self) -> int:
+        """Close the bag (summary, metadata.yaml), log the counts; return the exit status."""
+        for sub in self._subs.values():
+            self.destroy_subscription(sub)
+        self._subs.clear()
+        try:
+            self._writer.close()
+        except OSError as err:
+            self.failure = self.failure or f'closing {self._writer.mcap_path} failed: {err}'
+        lost = sum(s.lost for s in self._stats.values())
+        log = self.get_logger()
+        (log.warning if lost else log.info)(
+            f'bag {self.output}: {sum(self._writer.counts.values())} messages\n' + self.report())
+        if self.failure:
+            log.error(f'recording stopped early: {self.failure}. Complete chunks are '
+                      f'readable; metadata.yaml lists what reached the disk')
+            return EXIT_FAILURE
+        return EXIT_SUCCESS
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point: ``recorder [--ros-args ...]``; returns the exit status.
+
+    rclpy's own signal handlers would shut the context down at once and drop
+    what DDS has delivered but the node has not yet written. This node takes
+    SIGINT and SIGTERM itself, stops, drains, and closes the bag.
+    """
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    node = None
+    status = EXIT_SUCCESS
+    executor = SingleThreadedExecutor()
+
+    def request_stop(signum: int, _frame: Any) -> None:
+        if node is not None:
+            node.stop_requested = True
+        else:
+            raise KeyboardInterrupt
+
+    previous = {s: signal.signal(s, request_stop) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        node = Recorder()
+        executor.add_node(node)
+        while not node.stop_requested and rclpy.ok():
+            executor.spin_once(timeout_sec=SPIN_PERIOD_S)
+        node.drain(executor)
+    except StartupError as err:
+        rclpy.logging.get_logger(NODE_NAME).error(str(err))
+        status = EXIT_FAILURE
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            status = node.close()
+            executor.remove_node(node)
+            node.destroy_node()
+        executor.shutdown()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        rclpy.try_shutdown()
+    return status
+
+
+if __name__ == '__main__':
+    sys.exit(main())
