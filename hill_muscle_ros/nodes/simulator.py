@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 import sys
 
+import rclpy
 from geometry_msgs.msg import WrenchStamped
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.clock import Clock, ClockType
@@ -289,7 +290,8 @@ class Simulator(Node):
         s = self._schedule
         elapsed_s = (self._steady.now().nanoseconds - s.start_ns) / _NS_PER_S
         behind = s.target(self._steady.now().nanoseconds) - s.steps_done
-        self.get_logger().info(
+        # Not the node logger: after Ctrl-C its /rosout publisher is gone.
+        rclpy.logging.get_logger(f'{self.get_name()}.stats').info(
             f'ran {s.steps_done} steps in {elapsed_s:.3f} s of steady time '
             f'({s.steps_done / elapsed_s if elapsed_s > 0 else 0.0:.1f} steps/s), '
             f'{s.ticks} ticks, {s.late_ticks} late, {behind} steps behind at exit')

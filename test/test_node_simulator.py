@@ -1,0 +1,254 @@
+"""The simulator node over real DDS: parameters, inputs, watchdog, reset, namespaces.
+
+Two simulators (``/left`` and ``/right``) are shared by the module, at 200 Hz
+to spare the CPU, with the watchdog off; a fixture returns both to rest before
+each test. Tests that change a parameter restore it.
+"""
+import math
+
+import pytest
+import yaml
+from geometry_msgs.msg import WrenchStamped
+from std_msgs.msg import Float64
+from std_srvs.srv import Trigger
+
+from conftest import REPO
+from hill_muscle_ros.model import MuscleParams, force_length
+from hill_muscle_ros.params_file import load_muscle_params
+from ros_helpers import Probe, ProcessGroup, node_command
+
+pytestmark = pytest.mark.ros
+
+MUSCLE_YAML = REPO / 'config' / 'muscle.yaml'
+SHARED_RATE_HZ = 200.0
+DEFAULTS = MuscleParams()
+#: [m] a stretch well inside the FL range
+STRETCH_M = 0.010
+#: [N] force at STRETCH_M with nothing recruited: only the PE carries load
+PE_FORCE_N = DEFAULTS.k_pe_n_per_m * STRETCH_M
+#: [N] tolerance on a force that should be constant
+FORCE_TOL_N = 0.05
+#: [s] of messages to watch for a value that must not change
+WATCH_S = 0.5
+
+
+@pytest.fixture(scope='module')
+def shared(tmp_path_factory):
+    """The two simulators and a probe, for the whole module."""
+    tmp = tmp_path_factory.mktemp('sim')
+    overrides = tmp / 'overrides.yaml'
+    overrides.write_text(yaml.safe_dump({'/**': {'ros__parameters': {
+        'rate_hz': SHARED_RATE_HZ, 'input_timeout_s': 0.0}}}))
+    with ProcessGroup(tmp) as procs, Probe() as probe:
+        sims = {ns: procs.start(ns, node_command('simulator', ns=f'/{ns}',
+                                                 params_files=[MUSCLE_YAML, overrides]))
+                for ns in ('left', 'right')}
+        recs = {ns: {'force': probe.record(f'/{ns}/force', Float64),
+                     'ce_length': probe.record(f'/{ns}/ce_length', Float64),
+                     'wrench': probe.record(f'/{ns}/wrench', WrenchStamped)}
+                for ns in sims}
+        for ns in sims:
+            probe.wait_for_messages(recs[ns]['force'], procs=sims.values())
+        yield {'procs': list(sims.values()), 'sims': sims, 'probe': probe, 'recs': recs}
+
+
+@pytest.fixture
+def sim(shared):
+    """The shared simulators, both at rest and publishing."""
+    probe = shared['probe']
+    for ns in shared['sims']:
+        response = probe.call(Trigger, f'/{ns}/reset', Trigger.Request(), procs=shared['procs'])
+        assert response.success
+        rec = shared['recs'][ns]['force']
+        probe.wait_for_value(rec, lambda f: f == 0.0, 'zero force at rest', mark=rec.mark(),
+                             procs=shared['procs'])
+    return shared
+
+
+def _settle(sim, ns, topic, predicate, what):
+    """Wait for a value on /ns/topic from now on; return its index."""
+    rec = sim['recs'][ns][topic]
+    return sim['probe'].wait_for_value(rec, predicate, what, mark=rec.mark(), procs=sim['procs'])
+
+
+def _publish(sim, topic, value):
+    sim['probe'].publish_when_matched(topic, Float64(data=value), procs=sim['procs'])
+
+
+def test_outputs_at_rest_are_zero_force_and_rest_length(sim):
+    probe, recs = sim['probe'], sim['recs']['left']
+    mark = recs['ce_length'].mark()
+    probe.wait_for_messages(recs['ce_length'], mark=mark, procs=sim['procs'])
+    assert recs['ce_length'].messages[mark].data == DEFAULTS.l_rest_m
+    assert recs['force'].messages[-1].data == 0.0
+
+
+def test_wrench_carries_force_along_x_in_frame_id(sim):
+    _publish(sim, '/left/length_command', STRETCH_M)
+    _settle(sim, 'left', 'force', lambda f: abs(f - PE_FORCE_N) < FORCE_TOL_N, 'PE force')
+    rec = sim['recs']['left']['wrench']
+    mark = rec.mark()
+    sim['probe'].wait_for_messages(rec, mark=mark, procs=sim['procs'])
+    wrench = rec.messages[mark]
+    assert wrench.header.frame_id == 'muscle'
+    assert wrench.wrench.force.x == pytest.approx(PE_FORCE_N, abs=FORCE_TOL_N)
+    assert (wrench.wrench.force.y, wrench.wrench.force.z) == (0.0, 0.0)
+
+
+def test_params_file_values_are_loaded(sim):
+    expected, node_keys = load_muscle_params(MUSCLE_YAML)
+    names = list(MuscleParams.field_names()) + ['rate_hz', 'frame_id', 'input_timeout_s']
+    got = sim['probe'].get_parameters('/left/simulator', names, procs=sim['procs'])
+    for name in MuscleParams.field_names():
+        assert got[name] == getattr(expected, name), name
+    assert got['frame_id'] == node_keys['frame_id']
+    # The second params file, later on the command line, wins.
+    assert (got['rate_hz'], got['input_timeout_s']) == (SHARED_RATE_HZ, 0.0)
+
+
+@pytest.mark.parametrize('name, value, reason', [
+    # out of the descriptor's range: rclpy's own check
+    ('k_se_n_per_m', -3.0, 'k_se_n_per_m out of range'),
+    # in range, but the model wants it positive: the set-parameters callback
+    ('k_pe_n_per_m', 0.0, '`k_pe_n_per_m` must be positive and finite, got 0.0'),
+    ('units', 'triple', "`units` must be one of multi, single, got 'triple'"),
+    ('n_units', 0, 'n_units out of range'),
+    # rclpy's type check runs first; its reason names the types, not the name
+    ('f_iso_max_n', 45, 'Wrong parameter type'),
+])
+def test_rejected_live_parameter_gives_reason(sim, name, value, reason):
+    results = sim['probe'].set_parameters('/left/simulator', {name: value}, procs=sim['procs'])
+    assert not results[0].successful
+    assert reason in results[0].reason
+    got = sim['probe'].get_parameters('/left/simulator', [name], procs=sim['procs'])
+    assert got[name] == getattr(DEFAULTS, name)
+    _settle(sim, 'left', 'force', math.isfinite, 'still publishing')
+
+
+def test_read_only_rate_is_rejected_live(sim):
+    results = sim['probe'].set_parameters('/left/simulator', {'rate_hz': 500.0},
+                                          procs=sim['procs'])
+    assert not results[0].successful
+    assert 'rate_hz' in results[0].reason
+
+
+def test_live_stiffness_change_applies_with_state_kept(sim):
+    _publish(sim, '/left/length_command', STRETCH_M)
+    _settle(sim, 'left', 'force', lambda f: abs(f - PE_FORCE_N) < FORCE_TOL_N, 'PE force')
+    k_new = 2.0 * DEFAULTS.k_pe_n_per_m
+    try:
+        results = sim['probe'].set_parameters('/left/simulator', {'k_pe_n_per_m': k_new},
+                                              procs=sim['procs'])
+        assert results[0].successful, results[0].reason
+        # The held stretch survives the change: F = k_pe_new * dl, not 0 (rest).
+        _settle(sim, 'left', 'force', lambda f: abs(f - k_new * STRETCH_M) < FORCE_TOL_N,
+                'force with the new k_pe')
+    finally:
+        sim['probe'].set_parameters('/left/simulator', {'k_pe_n_per_m': DEFAULTS.k_pe_n_per_m},
+                                    procs=sim['procs'])
+
+
+def test_live_units_change_resets_to_rest(sim):
+    _publish(sim, '/left/length_command', STRETCH_M)
+    _settle(sim, 'left', 'force', lambda f: abs(f - PE_FORCE_N) < FORCE_TOL_N, 'PE force')
+    try:
+        results = sim['probe'].set_parameters('/left/simulator', {'units': 'single'},
+                                              procs=sim['procs'])
+        assert results[0].successful, results[0].reason
+        _settle(sim, 'left', 'force', lambda f: f == 0.0, 'zero force after the reset')
+        _settle(sim, 'left', 'ce_length', lambda x: x == DEFAULTS.l_rest_m, 'rest length')
+    finally:
+        sim['probe'].set_parameters('/left/simulator', {'units': DEFAULTS.units},
+                                    procs=sim['procs'])
+
+
+def test_reset_service_returns_muscle_to_rest(sim):
+    _publish(sim, '/left/recruitment', 1.0)
+    _publish(sim, '/left/length_command', STRETCH_M)
+    _settle(sim, 'left', 'force', lambda f: f > 2.0 * PE_FORCE_N, 'active force')
+    response = sim['probe'].call(Trigger, '/left/reset', Trigger.Request(), procs=sim['procs'])
+    assert response.success
+    _settle(sim, 'left', 'force', lambda f: f == 0.0, 'zero force after reset')
+    _settle(sim, 'left', 'ce_length', lambda x: x == DEFAULTS.l_rest_m, 'rest length')
+
+
+#: A good value per input topic and the steady force it gives at rest length
+#: (R = 1 at l_ce = l_rest: f_iso_max * FL(l_rest / l_opt)) or at the stretch.
+_FL_REST = force_length(DEFAULTS.l_rest_m / DEFAULTS.l_opt_m)
+GOOD_INPUTS = {
+    'pulse_width': (DEFAULTS.pw_max_s, DEFAULTS.f_iso_max_n * _FL_REST),
+    'recruitment': (1.0, DEFAULTS.f_iso_max_n * _FL_REST),
+    'length_command': (STRETCH_M, PE_FORCE_N),
+}
+
+
+@pytest.mark.parametrize('topic', sorted(GOOD_INPUTS))
+def test_nan_and_inf_input_keep_last_good_value(sim, topic):
+    good, force_n = GOOD_INPUTS[topic]
+    _publish(sim, f'/left/{topic}', good)
+    _settle(sim, 'left', 'force', lambda f: abs(f - force_n) < FORCE_TOL_N, 'steady force')
+    rec = sim['recs']['left']['force']
+    mark = rec.mark()
+    for bad in (math.nan, math.inf, -math.inf):
+        _publish(sim, f'/left/{topic}', bad)
+    sim['probe'].spin_for(WATCH_S)
+    forces = rec.data_since(mark)
+    assert forces, 'the node stopped publishing'
+    assert all(math.isfinite(f) for f in forces)
+    assert max(abs(f - force_n) for f in forces) < FORCE_TOL_N
+    log = sim['sims']['left'].output()
+    assert f'ignoring /left/{topic} = nan' in log
+
+
+def test_microsecond_pulse_width_is_rejected_with_hint(sim):
+    _publish(sim, '/left/pulse_width', 500.0)
+    sim['probe'].spin_until(lambda: 'looks like microseconds' in sim['sims']['left'].output(),
+                            'the microseconds hint', procs=sim['procs'])
+    rec = sim['recs']['left']['force']
+    mark = rec.mark()
+    sim['probe'].spin_for(WATCH_S)
+    assert set(rec.data_since(mark)) == {0.0}
+
+
+def test_watchdog_drops_recruitment_after_silence(sim):
+    probe = sim['probe']
+    log_start = len(sim['sims']['left'].output())
+    try:
+        assert probe.set_parameters('/left/simulator', {'input_timeout_s': 0.3},
+                                    procs=sim['procs'])[0].successful
+        _publish(sim, '/left/recruitment', 1.0)
+        _settle(sim, 'left', 'force', lambda f: f > 1.0, 'active force')
+        # No more messages: the watchdog sets R = 0, the free CE unloads at once.
+        _settle(sim, 'left', 'force', lambda f: f == 0.0, 'force dropped by the watchdog')
+        probe.spin_for(WATCH_S)
+        log = sim['sims']['left'].output()[log_start:]
+        assert log.count('no pulse_width or recruitment message') == 1
+        _publish(sim, '/left/recruitment', 1.0)
+        _settle(sim, 'left', 'force', lambda f: f > 1.0, 'force back with the next message')
+    finally:
+        probe.set_parameters('/left/simulator', {'input_timeout_s': 0.0}, procs=sim['procs'])
+
+
+def test_namespaced_simulators_do_not_cross_talk(sim):
+    right = sim['recs']['right']['force']
+    mark = right.mark()
+    _publish(sim, '/left/length_command', STRETCH_M)
+    _settle(sim, 'left', 'force', lambda f: abs(f - PE_FORCE_N) < FORCE_TOL_N, 'PE force')
+    sim['probe'].spin_for(WATCH_S)
+    assert right.data_since(mark) and set(right.data_since(mark)) == {0.0}
+
+
+@pytest.mark.parametrize('override, needle', [
+    ('k_se_n_per_m:=-3.0', "`k_se_n_per_m` = -3.0"),
+    ('f_iso_max_n:=45', '`f_iso_max_n`: got 45'),
+    ('units:=triple', "`units` must be one of multi, single, got 'triple'"),
+])
+def test_bad_startup_parameter_exits_nonzero_naming_it(tmp_path, override, needle):
+    with ProcessGroup(tmp_path) as procs:
+        proc = procs.start('bad', node_command('simulator', params_files=[MUSCLE_YAML],
+                                               extra_ros_args=['-p', override]))
+        status = proc.wait()
+        log = proc.output()
+    assert status != 0
+    assert needle in log
+    assert 'Traceback' not in log
