@@ -119,6 +119,9 @@ def _add_output_options(parser: argparse.ArgumentParser) -> None:
                         help='write one row per step to this CSV file (SI units, '
                              'column names with unit suffixes such as force_n); '
                              'without it a summary table is printed')
+    parser.add_argument('--bag', metavar='DIR', type=Path,
+                        help='also write the run as a rosbag2 MCAP bag in simulated time, '
+                             'with the topics of a live run (DIR must not exist or be empty)')
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -245,6 +248,14 @@ def format_table(run: SimulationRun) -> str:
 
 def write_outputs(args: argparse.Namespace, run: SimulationRun) -> None:
     """Write the run where the output options say (:func:`_add_output_options`)."""
+    if args.bag is not None:
+        from .recording import BagOutputError
+        from .recording.offline import write_simulation_bag
+        try:
+            write_simulation_bag(args.bag, run.result, run.params, run.protocol)
+        except BagOutputError as err:
+            raise UserError(str(err)) from None
+        print(f'wrote bag {args.bag}')
     if args.csv is not None:
         rows = write_csv(args.csv, run.result)
         print(f'wrote {rows} rows to {args.csv}')

@@ -229,7 +229,7 @@ def prepare_output_dir(bag_dir: Path, *, min_free_bytes: int = MIN_FREE_BYTES) -
             raise BagOutputError(f'bag output {bag_dir} exists and is not a directory')
         if any(bag_dir.iterdir()):
             raise BagOutputError(f'bag output directory {bag_dir} exists and is not empty; '
-                                 f'refusing to overwrite it (choose another `output`)')
+                                 f'refusing to overwrite it; choose another directory')
     try:
         bag_dir.mkdir(parents=True, exist_ok=True)
     except OSError as err:
