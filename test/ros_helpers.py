@@ -201,10 +201,17 @@ class Recording:
         self.topic = topic
         self.messages: list[Any] = []
         self.times_s: list[float] = []
+        self._listeners: list[Callable[[Any], None]] = []
 
     def _on_message(self, msg: Any) -> None:
         self.messages.append(msg)
         self.times_s.append(time.monotonic())
+        for listener in self._listeners:
+            listener(msg)
+
+    def add_listener(self, listener: Callable[[Any], None]) -> None:
+        """Also call ``listener(msg)`` for every message from now on."""
+        self._listeners.append(listener)
 
     def mark(self) -> int:
         """Index of the next message: use with :meth:`since`."""

@@ -1,0 +1,170 @@
+"""The protocol player, alone, with the simulator end to end, and on sim time.
+
+Every test runs its nodes in its own namespace.
+"""
+import math
+
+import numpy as np
+import pytest
+import yaml
+from geometry_msgs.msg import WrenchStamped
+from rosgraph_msgs.msg import Clock
+from std_msgs.msg import Float64
+
+from hill_muscle_ros.model import MuscleParams, Protocol, ProtocolError, simulate
+from hill_muscle_ros.resources import protocol_path
+from rclpy.qos import QoSProfile
+from ros_helpers import Probe, ProcessGroup, node_command
+
+pytestmark = pytest.mark.ros
+
+#: A short protocol: R steps 0.3 -> 0.7 at 0.25 s, the length ramps 0 -> 2 mm.
+SHORT = {'name': 'short', 'duration_s': 0.5,
+         'recruitment': [[0.0, 0.3], [0.25, 0.3], [0.25, 0.7]],
+         'dl_mt_m': [[0.0, 0.0], [0.5, 0.002]]}
+#: [s] the end-to-end sample instants after the player's first message: each
+#: in a hold phase of Protocol II, where a few ms of latency do not matter
+E2E_TIMES_S = (0.9, 2.9, 3.9, 5.9)
+#: [N] allowed difference between the ROS run and the offline simulation
+E2E_TOL_N = 0.5
+#: Reliable with room for 5 s of 1 kHz messages, so a busy probe loses none.
+DEEP_QOS = QoSProfile(depth=5000)
+#: [s] allowed difference between sim-time spans measured through DDS
+SIM_SPAN_TOL_S = 0.2
+#: [N] clearly active force (R = 0.3..0.7 gives tens of newtons)
+ACTIVE_FORCE_N = 10.0
+#: [N] tolerance on a force that should be exact
+FORCE_TOL_N = 0.01
+#: [s] a wrench stamp and the nearest /clock time seen (a few 5 ms steps)
+STAMP_TOL_S = 0.02
+
+
+def _protocol_file(tmp_path, data):
+    path = tmp_path / f'{data["name"]}.yaml'
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def test_player_without_subscriber_fails_clearly(tmp_path):
+    with ProcessGroup(tmp_path) as procs:
+        player = procs.start('player', node_command(
+            'protocol_player', ns='/lonely', params={'wait_for_subscribers_s': 1.0}))
+        status = player.wait()
+    assert status != 0
+    assert 'no subscriber on /lonely/' in player.output()
+
+
+def test_bad_protocol_file_exits_with_validator_message(tmp_path):
+    bad = dict(SHORT, recruitment=[[0.0, 1.5]])
+    path = _protocol_file(tmp_path, bad)
+    with pytest.raises(ProtocolError) as expected:
+        Protocol.from_yaml(path)
+    with ProcessGroup(tmp_path) as procs:
+        player = procs.start('player', node_command('protocol_player',
+                                                    params={'protocol': str(path)}))
+        status = player.wait()
+    assert status != 0
+    assert str(expected.value) in player.output()
+    assert 'Traceback' not in player.output()
+
+
+@pytest.mark.parametrize('output, pw_max_s, scale', [
+    ('recruitment', 0.0005, 1.0),
+    ('pulse_width', 0.001, 0.001),   # R * pw_max_s, with the player's own pw_max_s
+])
+def test_player_replays_protocol_then_sends_zero(tmp_path, output, pw_max_s, scale):
+    path = _protocol_file(tmp_path, SHORT)
+    protocol = Protocol.from_yaml(path)
+    ns = f'/replay_{output}'
+    with ProcessGroup(tmp_path) as procs, Probe() as probe:
+        stim = probe.record(f'{ns}/{output}', Float64)
+        length = probe.record(f'{ns}/length_command', Float64)
+        player = procs.start('player', node_command('protocol_player', ns=ns, params={
+            'protocol': str(path), 'output': output, 'rate_hz': 100.0, 'pw_max_s': pw_max_s}))
+        probe.spin_until(lambda: player.returncode is not None, 'the player to exit')
+        probe.spin_for(0.2)  # messages already acknowledged may still be in our queue
+    assert player.returncode == 0, player.describe()
+    values = np.array([m.data for m in stim.messages])
+    assert values[0] == pytest.approx(protocol.recruitment(0.0, pw_max_s) * scale)
+    assert values[-1] == 0.0
+    allowed = {0.0, *(r * scale for r in protocol.stimulation.values)}
+    assert all(any(math.isclose(v, a) for a in allowed) for v in values)
+    assert length.messages[-1].data == pytest.approx(protocol.dl_mt(protocol.duration_s))
+
+
+def test_protocol_ii_through_dds_matches_offline_simulation(tmp_path):
+    """Simulator and player as separate processes, multi/initial, 1 kHz.
+
+    Time zero is the player's first message as the simulator saw it: the
+    first step with a non-zero force (at rest and R = 0 the force is exactly
+    0). Times are the wrench stamps, i.e. the simulator's own step times, so
+    the probe's receive latency plays no part.
+    """
+    params = MuscleParams(units='multi', length='initial')
+    offline = simulate(Protocol.from_yaml(protocol_path('II')), params, rate_hz=1000.0)
+    ns = '/e2e'
+    with ProcessGroup(tmp_path) as procs, Probe() as probe:
+        wrench = probe.record(f'{ns}/wrench', WrenchStamped, qos=DEEP_QOS)
+        sim = procs.start('sim', node_command('simulator', ns=ns, params={
+            'units': 'multi', 'length': 'initial', 'rate_hz': 1000.0}))
+        probe.wait_for_messages(wrench, procs=[sim])
+        player = procs.start('player', node_command('protocol_player', ns=ns, params={
+            'protocol': 'II', 'output': 'pulse_width'}))
+        probe.spin_until(lambda: player.returncode is not None, 'the player to finish',
+                         timeout_s=60.0, procs=[sim])
+        assert player.returncode == 0, player.describe()
+    stamps_s = np.array([_sec(w.header.stamp) for w in wrench.messages])
+    f_ros = np.array([w.wrench.force.x for w in wrench.messages])
+    first = int(np.argmax(f_ros > 0.0))
+    # The step that produced the first force started when the message arrived.
+    t_s = stamps_s - (stamps_s[first] - offline.t_s[1])
+    for t in E2E_TIMES_S:
+        got = f_ros[np.argmin(np.abs(t_s - t))]
+        want = offline.force_n[offline.at(t)]
+        assert got == pytest.approx(want, abs=E2E_TOL_N), f't = {t} s'
+
+
+def test_player_on_sim_time_follows_published_clock(tmp_path):
+    """A simulator 3x faster than the wall clock drives a use_sim_time player.
+
+    The player's run is timed in sim time by its effect on the simulator:
+    from the first step with force (the first message arrived) to the step
+    where force falls to the parallel spring's alone (the final zero
+    stimulation). On sim time that is the protocol's 1 s; on the wall clock
+    it would be 3 s.
+    """
+    protocol = dict(SHORT, duration_s=1.0)
+    path = _protocol_file(tmp_path, protocol)
+    final_pe_force_n = MuscleParams().k_pe_n_per_m * protocol['dl_mt_m'][-1][1]
+    ns = '/simtime'
+    with ProcessGroup(tmp_path) as procs, Probe() as probe:
+        clock = probe.record('/clock', Clock, qos=DEEP_QOS)
+        wrench = probe.record(f'{ns}/wrench', WrenchStamped, qos=DEEP_QOS)
+        sim = procs.start('sim', node_command('simulator', ns=ns, params={
+            'publish_clock': True, 'real_time_factor': 3.0, 'rate_hz': 200.0}))
+        probe.wait_for_messages(wrench, procs=[sim])
+        player = procs.start('player', node_command('protocol_player', ns=ns, params={
+            'protocol': str(path), 'output': 'recruitment', 'rate_hz': 100.0,
+            'use_sim_time': True}))
+        probe.spin_until(lambda: player.returncode is not None, 'the player to finish',
+                         procs=[sim])
+        probe.spin_for(0.2)
+        assert player.returncode == 0, player.describe()
+    clock_s = np.array([_sec(m.clock) for m in clock.messages])
+    stamps_s = np.array([_sec(w.header.stamp) for w in wrench.messages])
+    f = np.array([w.wrench.force.x for w in wrench.messages])
+    # Outputs are stamped with the published sim time, which starts at 0.
+    assert clock_s.min() < 1.0
+    gaps = np.abs(stamps_s[:, None] - clock_s[None, :]).min(axis=1)
+    assert gaps.max() <= STAMP_TOL_S
+    start = int(np.argmax(f > 0.0))
+    active = start + int(np.argmax(f[start:] > ACTIVE_FORCE_N))
+    end = active + int(np.argmax(np.abs(f[active:] - final_pe_force_n) < FORCE_TOL_N))
+    assert end > active, 'the final zero stimulation never reached the simulator'
+    assert stamps_s[end] - stamps_s[start] == pytest.approx(protocol['duration_s'],
+                                                           abs=SIM_SPAN_TOL_S)
+
+
+def _sec(stamp):
+    return stamp.sec + stamp.nanosec * 1e-9
+
