@@ -55,6 +55,17 @@ def _install_env(prefix: Path) -> dict[str, str]:
     return ros_env(AMENT_PREFIX_PATH=str(prefix), PYTHONPATH=str(site))
 
 
+def _run_python(code: str, install: Path) -> str:
+    """Run ``python -c code`` in the install's environment; its stdout.
+
+    Not from the checkout: ``python -c`` puts the working directory first
+    on sys.path, which would import the source tree instead.
+    """
+    return subprocess.run([sys.executable, '-c', code], env=_install_env(install),
+                          cwd=install, capture_output=True, text=True, timeout=60,
+                          check=True).stdout
+
+
 @pytest.mark.parametrize('name', EXECUTABLES)
 def test_executables_are_installed(install, name):
     path = install / 'lib' / PACKAGE / name
@@ -76,8 +87,7 @@ def test_package_xml_and_config_are_installed(install):
 def test_ament_index_finds_the_install(install):
     code = ('from ament_index_python.packages import get_package_prefix; '
             f'print(get_package_prefix({PACKAGE!r}))')
-    out = subprocess.run([sys.executable, '-c', code], env=_install_env(install),
-                         capture_output=True, text=True, timeout=60, check=True).stdout
+    out = _run_python(code, install)
     assert Path(out.strip()) == install
 
 
@@ -94,6 +104,5 @@ def test_installed_simulator_publishes_force(install, tmp_path):
 
 def test_install_env_runs_the_installed_code(install):
     code = f'import {PACKAGE}; print({PACKAGE}.__file__)'
-    out = subprocess.run([sys.executable, '-c', code], env=_install_env(install),
-                         capture_output=True, text=True, timeout=60, check=True).stdout
+    out = _run_python(code, install)
     assert Path(out.strip()).is_relative_to(install)
