@@ -140,8 +140,9 @@ class Simulator(Node):
         n = min(due, self._max_steps_per_tick)
         if n < due:
             self.get_logger().warning(
-                f'{due} steps due, running {n}: the node cannot keep up with rate_hz '
-                f'{self._rate_hz:g} x real_time_factor; it will catch up if the load drops',
+                f'{due} steps due after a stall or overload: running {n} now and the rest '
+                f'on the next ticks; if this repeats, lower rate_hz ({self._rate_hz:g}) or '
+                'real_time_factor',
                 throttle_duration_sec=1.0)
         out = None
         for _ in range(n):
