@@ -11,7 +11,7 @@ Euler would be off by about 0.3 N.
 from __future__ import annotations
 
 import math
-from typing import NamedTuple, Sequence
+from typing import Callable, NamedTuple, Sequence
 
 from .curves import (ECC_PLATEAU, FL_A, FL_B, FL_C, force_length, force_velocity_inverse,
                      parallel_force, series_force)
@@ -117,6 +117,8 @@ class Muscle:
         self._multi = p.units == 'multi'
         self._initial = p.length == 'initial'
         self._memory = UnitMemory(p.n_units, p.f_iso_max_n, p.l_opt_m)
+        # The hot loop, built once so that a single step pays no set-up.
+        self._run = _hot_loop(self)
         self.reset()
 
     # -- state ---------------------------------------------------------------
@@ -258,11 +260,84 @@ class Muscle:
             :class:`MuscleOutputs`; step k writes index k of each
         :return: the outputs after the last step
         """
-        p = self.params
-        k_se, k_pe, l_rest, l_opt = p.k_se_n_per_m, p.k_pe_n_per_m, p.l_rest_m, p.l_opt_m
-        a, b, a_ecc, b_ecc = p.fv_a_n, p.fv_b_m_per_s, p.fv_a_ecc_n, p.fv_b_ecc_m_per_s
-        initial = self._initial
-        apply_recruitment = self._apply_recruitment
+        return self._run(r_start, dl_mt_end_m, dt_s, r_end, columns)
+
+    def advance(self, dl_mt_end_m: float, dt_s: float) -> None:
+        """Integrate the CE length over one step with the recruitment held.
+
+        The MTU length ramps linearly from its current value to
+        ``dl_mt_end_m``; see :meth:`run`.
+
+        :param dl_mt_end_m: [m] MTU length change at the end of the step
+        :param dt_s: [s] step length, > 0
+        """
+        r = (self.recruitment,)
+        self._run(r, (dl_mt_end_m,), dt_s, None, None)
+
+    def step(self, recruitment: float, dl_mt_m: float, dt_s: float) -> MuscleOutputs:
+        """Advance one step: recruit now, then integrate with R held.
+
+        The memory changes only at the start of the step, from the CE length of
+        that instant (MODEL.md section 4).
+
+        :param recruitment: [-] recruitment R in [0, 1], held over the step
+        :param dl_mt_m: [m] MTU length change at the end of the step (dl_MT)
+        :param dt_s: [s] step length, > 0
+        :return: the outputs at the end of the step
+        :raises ValueError: on a NaN, infinite or out-of-range input; the state
+            is unchanged
+        """
+        dl = check_dl_mt(dl_mt_m)
+        if not (math.isfinite(dt_s) and dt_s > 0.0):
+            raise ValueError(f'`dt_s` must be positive and finite, got {dt_s!r}')
+        r = check_recruitment(recruitment)
+        return self._run((r,), (dl,), dt_s, None, None)
+
+
+def _hot_loop(muscle: Muscle) -> Callable[..., MuscleOutputs]:
+    """Build the one hot loop of a muscle: see :meth:`Muscle.run`.
+
+    The parameters are bound once, as closure constants; the state is read
+    from and written back to the muscle on every call, so :meth:`Muscle.reset`,
+    :meth:`Muscle.set_recruitment` and the public state attributes stay the
+    single source of truth.
+    """
+    p = muscle.params
+    k_se, k_pe, l_rest, l_opt = p.k_se_n_per_m, p.k_pe_n_per_m, p.l_rest_m, p.l_opt_m
+    a, b, a_ecc, b_ecc = p.fv_a_n, p.fv_b_m_per_s, p.fv_a_ecc_n, p.fv_b_ecc_m_per_s
+    initial = muscle._initial
+    apply_recruitment = muscle._apply_recruitment
+
+    def f0_at(l_ce: float, gain: float) -> float:
+        """[N] Eff.f_iso at CE length ``l_ce`` (Eq. 1 inlined)."""
+        if initial:
+            return gain
+        x = l_ce / l_opt
+        fl = (FL_A * x + FL_B) * x + FL_C
+        return gain * fl if fl > 0.0 else 0.0
+
+    def velocity(l_ce: float, dl_mt: float, gain: float) -> float:
+        """[m/s] d l_ce / dt = FV_inv(f_SE, Eff.f_iso), springs and Eq. 3 inlined."""
+        if initial:
+            f0 = gain
+        else:
+            x = l_ce / l_opt
+            fl = (FL_A * x + FL_B) * x + FL_C
+            f0 = gain * fl if fl > 0.0 else 0.0
+        stretch = dl_mt - (l_ce - l_rest)
+        f = k_se * stretch if stretch > 0.0 else 0.0
+        if f <= 0.0:
+            return -f0 * b / a
+        if f <= f0:
+            return b * (f - f0) / (f + a)
+        if f < ECC_PLATEAU * f0:
+            return b_ecc * (2.0 * f - 2.0 * f0) / (3.0 * f0 - 2.0 * f + a_ecc)
+        return f0 * b_ecc / a_ecc
+
+    def run(r_start: Sequence[float], dl_mt_end_m: Sequence[float], dt_s: float,
+            r_end: Sequence[float] | None,
+            columns: Sequence[list] | None) -> MuscleOutputs:
+        """:meth:`Muscle.run` of the muscle this loop was built for."""
         dt = dt_s
         half_dt = 0.5 * dt
         if r_end is None:
@@ -270,52 +345,24 @@ class Muscle:
         write = columns is not None
         if write:
             (c_t, c_r, c_m, c_dl, c_l, c_v, c_se, c_pe, c_force, c_f0) = columns
-
-        def f0_at(l_ce: float, gain: float) -> float:
-            """[N] Eff.f_iso at CE length ``l_ce`` (Eq. 1 inlined)."""
-            if initial:
-                return gain
-            x = l_ce / l_opt
-            fl = (FL_A * x + FL_B) * x + FL_C
-            return gain * fl if fl > 0.0 else 0.0
-
-        def velocity(l_ce: float, dl_mt: float, gain: float) -> float:
-            """[m/s] d l_ce / dt = FV_inv(f_SE, Eff.f_iso), springs and Eq. 3 inlined."""
-            if initial:
-                f0 = gain
-            else:
-                x = l_ce / l_opt
-                fl = (FL_A * x + FL_B) * x + FL_C
-                f0 = gain * fl if fl > 0.0 else 0.0
-            stretch = dl_mt - (l_ce - l_rest)
-            f = k_se * stretch if stretch > 0.0 else 0.0
-            if f <= 0.0:
-                return -f0 * b / a
-            if f <= f0:
-                return b * (f - f0) / (f + a)
-            if f < ECC_PLATEAU * f0:
-                return b_ecc * (2.0 * f - 2.0 * f0) / (3.0 * f0 - 2.0 * f + a_ecc)
-            return f0 * b_ecc / a_ecc
-
-        l = self.l_ce_m
-        dl0 = self.dl_mt_m
-        t = self.t_s
-        v_free = self._v_free
-        r_now = self.recruitment
-        m_now = self.n_recruited
-        gain = self._gain_n
+        l = muscle.l_ce_m
+        dl0 = muscle.dl_mt_m
+        t = muscle.t_s
+        v_free = muscle._v_free
+        r_now = muscle.recruitment
+        m_now = muscle.n_recruited
+        gain = muscle._gain_n
         # f0 and v are the outputs at the current instant; while the
         # recruitment is unchanged, v is also the first RK4 stage of the
         # next step (same state, same inputs), so it is computed once.
         f0 = f0_at(l, gain)
         v = velocity(l, dl0, gain) if f0 > 0.0 else v_free
-        k = -1
         for k, dl1 in enumerate(dl_mt_end_m):
             r = r_start[k]
             if r != r_now:
-                self.l_ce_m = l
+                muscle.l_ce_m = l
                 gain = apply_recruitment(r)
-                r_now, m_now = r, self.n_recruited
+                r_now, m_now = r, muscle.n_recruited
                 f0 = f0_at(l, gain)
                 if f0 > 0.0:
                     v = velocity(l, dl0, gain)
@@ -338,9 +385,9 @@ class Muscle:
             t += dt
             r = r_end[k]
             if r != r_now:
-                self.l_ce_m = l
+                muscle.l_ce_m = l
                 gain = apply_recruitment(r)
-                r_now, m_now = r, self.n_recruited
+                r_now, m_now = r, muscle.n_recruited
                 f0 = f0_at(l, gain)
             v = velocity(l, dl1, gain) if f0 > 0.0 else v_free
             if write:
@@ -357,43 +404,14 @@ class Muscle:
                 c_pe[k] = f_pe
                 c_force[k] = f_se + f_pe
                 c_f0[k] = f0
-        self.l_ce_m = l
-        self.dl_mt_m = dl0
-        self.t_s = t
-        self._v_free = v_free
+        muscle.l_ce_m = l
+        muscle.dl_mt_m = dl0
+        muscle.t_s = t
+        muscle._v_free = v_free
         stretch = dl0 - (l - l_rest)
         f_se = k_se * stretch if stretch > 0.0 else 0.0
         f_pe = k_pe * dl0 if dl0 > 0.0 else 0.0
         return MuscleOutputs(t, r_now, m_now, dl0, l, v, f_se, f_pe,
                              f_se + f_pe, f0)
 
-    def advance(self, dl_mt_end_m: float, dt_s: float) -> None:
-        """Integrate the CE length over one step with the recruitment held.
-
-        The MTU length ramps linearly from its current value to
-        ``dl_mt_end_m``; see :meth:`run`.
-
-        :param dl_mt_end_m: [m] MTU length change at the end of the step
-        :param dt_s: [s] step length, > 0
-        """
-        r = (self.recruitment,)
-        self.run(r, (dl_mt_end_m,), dt_s)
-
-    def step(self, recruitment: float, dl_mt_m: float, dt_s: float) -> MuscleOutputs:
-        """Advance one step: recruit now, then integrate with R held.
-
-        The memory changes only at the start of the step, from the CE length of
-        that instant (MODEL.md section 4).
-
-        :param recruitment: [-] recruitment R in [0, 1], held over the step
-        :param dl_mt_m: [m] MTU length change at the end of the step (dl_MT)
-        :param dt_s: [s] step length, > 0
-        :return: the outputs at the end of the step
-        :raises ValueError: on a NaN, infinite or out-of-range input; the state
-            is unchanged
-        """
-        dl = check_dl_mt(dl_mt_m)
-        if not (math.isfinite(dt_s) and dt_s > 0.0):
-            raise ValueError(f'`dt_s` must be positive and finite, got {dt_s!r}')
-        r = check_recruitment(recruitment)
-        return self.run((r,), (dl,), dt_s)
+    return run

@@ -90,11 +90,12 @@ def simulate(protocol: Protocol, params: MuscleParams | None = None,
     columns = [[0.0] * n_steps for _ in first]
     r_list = r.tolist()
     muscle.run(r_list[:-1], dl.tolist()[1:], dt, r_end=r_list[1:], columns=columns)
-    fields = {}
+    # The sample times and the recruitment are the inputs themselves.
+    fields = {'t_s': t, 'recruitment': r}
     for name, value, col in zip(first._fields, first, columns):
-        array = np.empty(n_steps + 1, dtype=type(value))
-        array[0] = value
-        array[1:] = col
-        fields[name] = array
-    fields['t_s'] = t
+        if name not in fields:
+            array = np.empty(n_steps + 1, dtype=type(value))
+            array[0] = value
+            array[1:] = col
+            fields[name] = array
     return SimulationResult(**fields)

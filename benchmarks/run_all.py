@@ -1,0 +1,421 @@
+"""Run the whole benchmark and write BENCHMARKS.md (``make bench``).
+
+Every number is the median with its min and max over ``--runs`` runs (at
+least 5) measured in this process or in subprocesses started by it, on the
+machine this runs on. Nothing here is a test: no threshold fails the run;
+targets are reported as met or not.
+
+Usage::
+
+    .venv/bin/python benchmarks/run_all.py --out BENCHMARKS.md [--runs 7]
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import itertools
+import os
+import shlex
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+REPO = HERE.parent
+sys.path.insert(0, str(HERE))
+
+from naive import NaiveMuscle  # noqa: E402
+from timing import Stats, load_average, machine, repeat  # noqa: E402
+
+from hill_muscle_ros import cli  # noqa: E402
+from hill_muscle_ros.model import Muscle, MuscleParams, Protocol, simulate  # noqa: E402
+from hill_muscle_ros.model.batch import MuscleBatch  # noqa: E402
+from hill_muscle_ros.model.simulate import sample_times  # noqa: E402
+from hill_muscle_ros.resources import protocol_path  # noqa: E402
+
+MIN_RUNS = 5
+DT_S = 1e-3
+RATE_HZ = 1000.0
+UNIT_COUNTS = (1, 1_000, 1_000_000)
+VARIANTS = tuple(itertools.product(('multi', 'single'), ('initial', 'instantaneous')))
+BATCH_SIZES = (1, 100, 10_000)
+#: Protocol II window replayed by the batch benchmark: it contains the step
+#: of R at 3 s, so every muscle's memory changes once.
+BATCH_WINDOW_S = (2.5, 3.5)
+PROTOCOL_60S = HERE / 'protocol_60s.yaml'
+PROTOCOL_STARTUP = HERE / 'protocol_startup.yaml'
+SEED = 20240601
+
+# Targets of issue 5 (and issue 2 item 4).
+TARGET_NAIVE_RATIO_1E6 = 50.0
+TARGET_NAIVE_FRACTION_1E3 = 0.5
+TARGET_N_SCALING = 1.5
+TARGET_RTF = 500.0
+TARGET_BATCH_RATE = 1e7
+
+
+def protocol_inputs(protocol: Protocol, rate_hz: float = RATE_HZ,
+                    pw_max_s: float = MuscleParams().pw_max_s):
+    t = sample_times(protocol.duration_s, rate_hz)
+    return (t, protocol.recruitment(t, pw_max_s).tolist(), protocol.dl_mt(t).tolist())
+
+
+def step_loop(muscle, r, dl, dt=DT_S):
+    """The node's way: one call per step, R(t_k) held while dl ramps to dl(t_k+1)."""
+    step = muscle.step
+    for k in range(1, len(dl)):
+        step(r[k - 1], dl[k], dt)
+
+
+def per_step(stats: Stats, n_steps: int) -> Stats:
+    return stats.scaled(1e6 / n_steps)   # [us/step]
+
+
+def bench_variants(runs, r, dl, protocol):
+    """Cost per step of the four variants at N = 1, 1e3, 1e6: step() and simulate()."""
+    n_steps = len(dl) - 1
+    rows = {}
+    for (units, length), n in itertools.product(VARIANTS, UNIT_COUNTS):
+        params = MuscleParams(units=units, length=length, n_units=n)
+        muscle = Muscle(params)
+        s_step = repeat(lambda: step_loop(muscle, r, dl), runs, setup=muscle.reset)
+        s_sim = repeat(lambda: simulate(protocol, params, RATE_HZ), runs)
+        rows[(units, length, n)] = (per_step(s_step, n_steps), per_step(s_sim, n_steps))
+        print(f'  {units}/{length} N={n}: step {rows[(units, length, n)][0].fmt()} us',
+              flush=True)
+    return rows
+
+
+def bench_naive(runs, r, dl):
+    n_steps = len(dl) - 1
+    rows = {}
+    for n in UNIT_COUNTS:
+        params = MuscleParams(n_units=n)
+        holder = {}
+
+        def fresh():
+            holder['m'] = NaiveMuscle(params)
+
+        def run():
+            m = holder['m']
+            step = m.step
+            for k in range(1, len(dl)):
+                step(r[k - 1], dl[k], DT_S)
+
+        rows[n] = per_step(repeat(run, runs, setup=fresh), n_steps)
+        print(f'  naive N={n}: {rows[n].fmt()} us', flush=True)
+    return rows
+
+
+def bench_changing_recruitment(runs, dl):
+    """multi/initial with R changing every step: random levels, and a fine staircase."""
+    n_steps = len(dl) - 1
+    rng = np.random.default_rng(SEED)
+    patterns = {
+        'random R each step': rng.uniform(0.0, 1.0, n_steps + 1).tolist(),
+        'R ramp 0 to 1 (stack grows every step)': np.linspace(0.0, 1.0, n_steps + 1).tolist(),
+    }
+    rows = {}
+    for name, r in patterns.items():
+        for n in (1_000, 1_000_000):
+            muscle = Muscle(MuscleParams(n_units=n))
+            rows[(name, n)] = per_step(
+                repeat(lambda: step_loop(muscle, r, dl), runs, setup=muscle.reset), n_steps)
+        print(f'  {name}: {rows[(name, 1000)].fmt()} / {rows[(name, 1_000_000)].fmt()} us',
+              flush=True)
+    return rows
+
+
+def bench_peers(runs, r, dl):
+    from peers import mujoco_runner, pymuscle_runner
+    n_steps = len(dl) - 1
+    rows = {}
+    try:
+        import pymuscle
+        run = pymuscle_runner(r, 1000, DT_S)
+        rows['pymuscle'] = (per_step(repeat(run, runs), n_steps),
+                            f'pymuscle {pymuscle.__version__}, PotvinFuglevandMuscle(1000)')
+    except ImportError as err:
+        rows['pymuscle'] = (None, f'not installed: {err}')
+    try:
+        import mujoco
+        run = mujoco_runner(r, dl, DT_S)
+        rows['mujoco'] = (per_step(repeat(run, runs), n_steps),
+                          f'mujoco {mujoco.__version__}, muscle actuator, kinematic slide joint')
+    except ImportError as err:
+        rows['mujoco'] = (None, f'not installed: {err}')
+    for name, (s, note) in rows.items():
+        print(f'  {name}: {s.fmt() if s else note}', flush=True)
+    return rows
+
+
+def cli_args(protocol: Path | str, rate_hz: float) -> list[str]:
+    return ['simulate', '--protocol', str(protocol), '--rate', f'{rate_hz:g}']
+
+
+def bench_rtf(runs):
+    """Real-time factor of `hill-muscle simulate`, in-process (no start-up) and as a process."""
+    exe = REPO / '.venv' / 'bin' / 'hill-muscle'
+    if not exe.exists():
+        exe = Path(sys.executable).with_name('hill-muscle')
+    cases = [('II', 6.0), (PROTOCOL_60S, 60.0)]
+    rows = {}
+    for (proto, duration), rate in itertools.product(cases, (1000.0, 10000.0)):
+        args = cli_args(proto, rate)
+
+        def in_process():
+            with contextlib.redirect_stdout(io.StringIO()):
+                status = cli.main(args)
+            if status != 0:
+                raise RuntimeError(f'hill-muscle {shlex.join(args)} exited with {status}')
+
+        s_in = repeat(in_process, runs)
+        cmd = [str(exe), *args]
+        s_proc = repeat(lambda: subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL),
+                        runs)
+        label = 'II' if proto == 'II' else Path(proto).relative_to(REPO).as_posix()
+        rows[(label, rate)] = (duration, s_in, s_proc, shlex.join(
+            ['.venv/bin/hill-muscle', *cli_args(label, rate)]))
+        print(f'  {label} {rate:g} Hz: in-process {s_in.fmt()} s, process {s_proc.fmt()} s',
+              flush=True)
+    startup_cmd = [str(exe), *cli_args(PROTOCOL_STARTUP, RATE_HZ)]
+    s_start = repeat(lambda: subprocess.run(startup_cmd, check=True,
+                                            stdout=subprocess.DEVNULL), runs)
+    startup_label = shlex.join(['.venv/bin/hill-muscle', *cli_args(
+        PROTOCOL_STARTUP.relative_to(REPO).as_posix(), RATE_HZ)])
+    print(f'  start-up: {s_start.fmt()} s', flush=True)
+    return rows, (s_start, startup_label)
+
+
+def bench_batch(runs, protocol):
+    t = sample_times(protocol.duration_s, RATE_HZ)
+    window = (t >= BATCH_WINDOW_S[0]) & (t <= BATCH_WINDOW_S[1])
+    r = protocol.recruitment(t[window], MuscleParams().pw_max_s)
+    dl = protocol.dl_mt(t[window])
+    n_steps = len(dl) - 1
+    rng = np.random.default_rng(SEED)
+    rows = {}
+    for k in BATCH_SIZES:
+        f_iso = rng.uniform(30.0, 60.0, k)
+        k_se = rng.uniform(5e3, 2e4, k)
+        sets = {
+            'multi/initial, f_iso_max and k_se varied': [
+                MuscleParams(f_iso_max_n=float(f), k_se_n_per_m=float(s))
+                for f, s in zip(f_iso, k_se)],
+            'four variants mixed': [
+                MuscleParams(units=VARIANTS[i % 4][0], length=VARIANTS[i % 4][1],
+                             f_iso_max_n=float(f_iso[i])) for i in range(k)],
+        }
+        for name, params in sets.items():
+            batch = MuscleBatch(params)
+            r_k = [np.full(k, x) for x in r]
+            dl_k = [np.full(k, x) for x in dl]
+
+            def run():
+                step = batch.step
+                for j in range(n_steps):
+                    step(r_k[j], dl_k[j + 1], DT_S)
+
+            s = repeat(run, runs, setup=batch.reset)
+            rows[(name, k)] = s.inverted(k * n_steps)   # [muscle-steps/s]
+            print(f'  batch {name} K={k}: {rows[(name, k)].fmt()} muscle-steps/s', flush=True)
+    return rows
+
+
+def node_status() -> str:
+    sim = REPO / 'hill_muscle_ros' / 'nodes' / 'simulator.py'
+    helpers = REPO / 'test' / 'ros_helpers.py'
+    return 'present' if sim.exists() and helpers.exists() else 'absent'
+
+
+def met(ok: bool) -> str:
+    return '**met**' if ok else '**not met**'
+
+
+def write_report(path: Path, runs: int, started: dict, results: dict) -> None:
+    v, naive, changing = results['variants'], results['naive'], results['changing']
+    peers, (rtf, startup), batch = results['peers'], results['rtf'], results['batch']
+    lines = []
+    add = lines.append
+    add('# Benchmarks')
+    add('')
+    add('Written by `make bench` (`.venv/bin/python benchmarks/run_all.py --out BENCHMARKS.md '
+        f'--runs {runs}`) on {started["date"]}. Do not edit by hand: rerun it.')
+    add('')
+    add(f'Every number is the **median (min to max) over {runs} runs**, after one '
+        'unrecorded warm-up run. Wall-clock time (`time.perf_counter`).')
+    add('')
+    add('## Machine')
+    add('')
+    add('| | |')
+    add('| --- | --- |')
+    for key, value in started['machine'].items():
+        add(f'| {key} | {value} |')
+    add(f'| load average (1, 5, 15 min) at start | {started["load"]} |')
+    add(f'| load average at end | {load_average()} |')
+    add(f'| wall time of the whole benchmark | {results["elapsed"]:.0f} s |')
+    add('')
+    add('Other engineers ran tests on this 2-core machine while it was measured, so '
+        'single runs are noisy; the medians are the numbers to read and the max '
+        'shows the interference.')
+    add('')
+
+    add('## 1. Cost per model step (Protocol II, 1 kHz, 6000 steps)')
+    add('')
+    add('`Muscle.step` is the ROS node\'s path (one validated call per step, returns a '
+        '`MuscleOutputs`); `simulate()` is the CLI\'s path (the same hot loop, '
+        '`Muscle.run`, over the whole protocol, incl. sampling the protocol and building '
+        'the arrays). Both replay Protocol II from rest.')
+    add('')
+    add('| variant | N units | `Muscle.step` [us/step] | `simulate()` [us/step] |')
+    add('| --- | ---: | ---: | ---: |')
+    for (units, length, n), (s_step, s_sim) in v.items():
+        add(f'| {units}/{length} | {n:,} | {s_step.fmt()} | {s_sim.fmt()} |')
+    add('')
+    add('### Against a naive per-unit implementation and the peers')
+    add('')
+    add('Naive: `benchmarks/naive.py`, the paper\'s method written plainly: a NumPy array '
+        'with one stored isometric force per unit (`NaiveUnitMemory`), updated on '
+        'recruitment and summed every step, the same RK4 and the same scalar curves. '
+        'Same protocol, one call per step, like the `Muscle.step` column.')
+    add('')
+    add('| model | N units | cost [us/step] |')
+    add('| --- | ---: | ---: |')
+    for n, s in naive.items():
+        add(f'| naive per-unit NumPy (multi/initial) | {n:,} | {s.fmt()} |')
+    for n in UNIT_COUNTS:
+        add(f'| this package, `Muscle.step` multi/initial | {n:,} | '
+            f'{v[("multi", "initial", n)][0].fmt()} |')
+    for name, (s, note) in peers.items():
+        add(f'| {note} | {"1,000" if name == "pymuscle" else "-"} | '
+            f'{s.fmt() if s else "not measured"} |')
+    add('')
+    ours_1e6 = v[('multi', 'initial', 1_000_000)][0].median
+    ours_1e3 = v[('multi', 'initial', 1_000)][0].median
+    ratio_1e6 = naive[1_000_000].median / ours_1e6
+    frac_1e3 = ours_1e3 / naive[1_000].median
+    add(f'- Target: multi/initial at N = 1e6 at least {TARGET_NAIVE_RATIO_1E6:g}x cheaper '
+        f'than naive at 1e6: **{ratio_1e6:.0f}x** (medians) — {met(ratio_1e6 >= TARGET_NAIVE_RATIO_1E6)}.')
+    add(f'- Target: at N = 1e3 at most {TARGET_NAIVE_FRACTION_1E3:g} of the naive cost: '
+        f'**{frac_1e3:.2f}** — {met(frac_1e3 <= TARGET_NAIVE_FRACTION_1E3)}.')
+    add('')
+    add('### Cost independent of N, with recruitment changing every step')
+    add('')
+    add('multi/initial, `Muscle.step`, Protocol II\'s length, R replaced by the pattern. '
+        f'Target: N = 1e6 within {TARGET_N_SCALING:g}x of N = 1e3.')
+    add('')
+    add('| R pattern | N = 1,000 [us/step] | N = 1,000,000 [us/step] | ratio of medians | target |')
+    add('| --- | ---: | ---: | ---: | --- |')
+    for name in dict.fromkeys(k[0] for k in changing):
+        a, b = changing[(name, 1_000)], changing[(name, 1_000_000)]
+        ratio = b.median / a.median
+        add(f'| {name} | {a.fmt()} | {b.fmt()} | {ratio:.2f} | {met(ratio <= TARGET_N_SCALING)} |')
+    add('')
+
+    add('## 2. Offline real-time factor of `hill-muscle simulate`')
+    add('')
+    add('In-process: `hill_muscle_ros.cli.main([...])` called in the benchmark process '
+        '(imports done, stdout captured), i.e. the command excluding process start-up: '
+        'loading the protocol and parameters, simulating, and printing the table. '
+        'Process: the console script run as a subprocess, start-up included. '
+        'RTF = simulated duration / wall time.')
+    add('')
+    add('| command | simulated | in-process wall [s] | RTF excl. start-up | process wall [s] | RTF incl. start-up |')
+    add('| --- | ---: | ---: | ---: | ---: | ---: |')
+    rtf_ii = None
+    for (label, rate), (duration, s_in, s_proc, cmd) in rtf.items():
+        r_in, r_proc = s_in.inverted(duration), s_proc.inverted(duration)
+        if label == 'II' and rate == 1000.0:
+            rtf_ii = r_in
+        add(f'| `{cmd}` | {duration:g} s | {s_in.fmt()} | {r_in.fmt()}x | {s_proc.fmt()} | '
+            f'{r_proc.fmt()}x |')
+    s_start, start_cmd = startup
+    add('')
+    add(f'Process start-up (interpreter, imports, argument and YAML parsing; a 1 ms '
+        f'protocol): `{start_cmd}`: **{s_start.fmt()} s**.')
+    add('')
+    mj = peers.get('mujoco', (None, ''))[0]
+    if mj is not None:
+        add(f'For comparison, MuJoCo\'s muscle above runs Protocol II at '
+            f'{mj.inverted(1e6 * DT_S).fmt()}x real time (its per-step cost at 1 ms).')
+        add('')
+    if rtf_ii is not None:
+        add(f'- Target: at least {TARGET_RTF:g}x real time for one muscle at 1 kHz excluding '
+            f'start-up (Protocol II, multi/initial): **{rtf_ii.median:.0f}x** — '
+            f'{met(rtf_ii.median >= TARGET_RTF)}. Accuracy is unchanged: RK4 at 1 ms, '
+            '`test/test_model_muscle.py::test_one_millisecond_step_is_within_10_mN_of_the_reference` '
+            'passes.')
+    add('')
+
+    add('## 3. Many muscles at once (`hill_muscle_ros.model.batch.MuscleBatch`)')
+    add('')
+    add(f'K muscles with their own parameters stepped together ({BATCH_WINDOW_S[0]:g} s to '
+        f'{BATCH_WINDOW_S[1]:g} s of Protocol II, 1 ms steps, which includes the step of R '
+        'at 3 s, so every multi/initial memory changes once). Muscle-steps per second = '
+        'K x steps / wall time.')
+    add('')
+    add('| parameter sets | K | muscle-steps/s |')
+    add('| --- | ---: | ---: |')
+    for (name, k), s in batch.items():
+        add(f'| {name} | {k:,} | {s.fmt()} |')
+    best = min(s.median for (name, k), s in batch.items() if k == 10_000)
+    add('')
+    add(f'- Target: at least 1e7 muscle-steps/s at K = 10,000: **{best:.3g}** (slower of the '
+        f'two sets) — {met(best >= TARGET_BATCH_RATE)}.')
+    add('- At K = 1 the batch is dominated by NumPy call overhead; use `Muscle` for one muscle.')
+    add('')
+
+    add('## 4-6. The ROS nodes: rate, jitter, latency, faster than real time')
+    add('')
+    add(f'Not measured by this version of the benchmark (simulator node {node_status()} '
+        'when it ran). See the issue note.')
+    add('')
+    add('## Profiles')
+    add('')
+    add('`benchmarks/profile_simulate.py` writes cProfile and pyinstrument output of '
+        '`simulate()` on Protocol II to `benchmarks/profiles/`; the files from before the '
+        'fast path are kept there as `before_*.txt`.')
+    add('')
+    path.write_text('\n'.join(lines), encoding='utf-8')
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument('--out', type=Path, default=REPO / 'BENCHMARKS.md',
+                        help='Markdown file to write (default: BENCHMARKS.md)')
+    parser.add_argument('--runs', type=int, default=7,
+                        help=f'runs per measurement, at least {MIN_RUNS} (default: 7)')
+    args = parser.parse_args(argv)
+    if args.runs < MIN_RUNS:
+        parser.error(f'--runs must be at least {MIN_RUNS}, got {args.runs}')
+    started = {'date': time.strftime('%Y-%m-%d %H:%M %Z'), 'machine': machine(),
+               'load': load_average()}
+    t0 = time.perf_counter()
+    os.chdir(REPO)
+    protocol = Protocol.from_yaml(protocol_path('II'))
+    _, r, dl = protocol_inputs(protocol)
+    results = {}
+    print('cost per step, four variants', flush=True)
+    results['variants'] = bench_variants(args.runs, r, dl, protocol)
+    print('naive', flush=True)
+    results['naive'] = bench_naive(args.runs, r, dl)
+    print('recruitment changing every step', flush=True)
+    results['changing'] = bench_changing_recruitment(args.runs, dl)
+    print('peers', flush=True)
+    results['peers'] = bench_peers(args.runs, r, dl)
+    print('hill-muscle simulate', flush=True)
+    results['rtf'] = bench_rtf(args.runs)
+    print('batch', flush=True)
+    results['batch'] = bench_batch(args.runs, protocol)
+    results['elapsed'] = time.perf_counter() - t0
+    write_report(args.out, args.runs, started, results)
+    print(f'wrote {args.out}')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
