@@ -1,0 +1,132 @@
+"""An example FES force controller node: closes the loop around the simulator.
+
+Subscribes ``force_target`` [N] and the simulator's ``force`` [N]
+(std_msgs/Float64) and publishes ``pulse_width`` [s] at ``rate_hz``, computed by
+:class:`~hill_muscle_ros.control.ForceController` (feedforward through the
+inverse recruitment curve plus PI with anti-windup, clamped to [0, PW_max]).
+With no force feedback for ``feedback_timeout_s`` it stops stimulating and
+warns; on shutdown it publishes zero stimulation.
+
+Run: ``ros2 run hill_muscle_ros force_controller`` or ``hill-muscle controller``.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import sys
+
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.node import Node
+from std_msgs.msg import Float64
+
+from ..control import ControllerParams, ForceController
+from ._common import (RELIABLE_QOS, BadInputWarner, StartupError, declare_checked,
+                      number_descriptor, run_node, warn_unknown_overrides)
+
+NODE_NAME = 'force_controller'
+_NS_PER_S = 1e9
+
+
+class ForceControllerNode(Node):
+    """ROS shell around :class:`ForceController`; all control logic lives there."""
+
+    def __init__(self) -> None:
+        super().__init__(NODE_NAME)
+        defaults = ControllerParams()
+        values = {}
+        for f in dataclasses.fields(ControllerParams):
+            spec = f.metadata
+            values[f.name] = declare_checked(
+                self, f.name, getattr(defaults, f.name),
+                number_descriptor(spec['description'], spec['unit'], spec['low'],
+                                  spec['high'], read_only=f.name == 'rate_hz'))
+        try:
+            self.controller = ForceController(ControllerParams(**values))
+        except ValueError as err:
+            raise StartupError(f'parameter {err}') from None
+        warn_unknown_overrides(self)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+
+        self._warner = BadInputWarner(self.get_logger())
+        self._target_n = 0.0
+        self._force_n: float | None = None
+        self._force_stamp_ns: int | None = None
+        self._last_tick_ns: int | None = None
+        self._starved = False
+        self._pub = self.create_publisher(Float64, 'pulse_width', RELIABLE_QOS)
+        self.create_subscription(Float64, 'force_target', self._on_target, RELIABLE_QOS)
+        self.create_subscription(Float64, 'force', self._on_force, RELIABLE_QOS)
+        self.create_timer(1.0 / self.controller.params.rate_hz, self._on_tick)
+
+    # -- inputs ---------------------------------------------------------------
+
+    def _on_target(self, msg: Float64) -> None:
+        if not math.isfinite(msg.data) or msg.data < 0.0:
+            self._warner.warn('force_target', f'ignoring force_target {msg.data!r} N: '
+                              f'must be finite and >= 0; keeping {self._target_n!r} N')
+            return
+        self._target_n = msg.data
+
+    def _on_force(self, msg: Float64) -> None:
+        if not math.isfinite(msg.data):
+            self._warner.warn('force', f'ignoring force {msg.data!r} N: not finite')
+            return
+        self._force_n = msg.data
+        self._force_stamp_ns = self.get_clock().now().nanoseconds
+
+    def _on_set_parameters(self, params) -> SetParametersResult:
+        changes = {p.name: p.value for p in params
+                   if p.name in ControllerParams.__dataclass_fields__}
+        if not changes:
+            return SetParametersResult(successful=True)
+        try:
+            new = dataclasses.replace(self.controller.params, **changes)
+        except ValueError as err:
+            return SetParametersResult(successful=False, reason=str(err))
+        self.controller.params = new
+        return SetParametersResult(successful=True)
+
+    # -- output -----------------------------------------------------------------
+
+    def _on_tick(self) -> None:
+        now_ns = self.get_clock().now().nanoseconds
+        p = self.controller.params
+        dt_s = (1.0 / p.rate_hz if self._last_tick_ns is None
+                else (now_ns - self._last_tick_ns) / _NS_PER_S)
+        self._last_tick_ns = now_ns
+        fresh = (self._force_stamp_ns is not None
+                 and (now_ns - self._force_stamp_ns) / _NS_PER_S <= p.feedback_timeout_s)
+        if not fresh:
+            if not self._starved and self._force_stamp_ns is not None:
+                self.get_logger().warning(
+                    f'no force feedback for more than {p.feedback_timeout_s} s: '
+                    f'stimulation stopped until it returns')
+            self._starved = self._force_stamp_ns is not None
+            self.controller.reset()
+            self._publish(0.0)
+            return
+        if self._starved:
+            self.get_logger().info('force feedback is back: stimulating again')
+            self._starved = False
+        if dt_s <= 0.0:
+            return  # sim time paused or went back: nothing to integrate over
+        self._publish(self.controller.update(self._target_n, self._force_n, dt_s))
+
+    def _publish(self, pulse_width_s: float) -> None:
+        self._pub.publish(Float64(data=pulse_width_s))
+
+    def on_exit(self) -> None:
+        """Leave the muscle unstimulated: a controller that stops must say 0."""
+        try:
+            self._publish(0.0)
+        except Exception as err:  # noqa: BLE001 - the context may already be down
+            self.get_logger().warning(f'could not publish zero stimulation on exit: {err}')
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point of ``ros2 run hill_muscle_ros force_controller``."""
+    return run_node(ForceControllerNode, args)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

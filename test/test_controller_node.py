@@ -1,0 +1,111 @@
+"""The force controller node on its own, over real DDS: what it publishes when
+feedback is missing or stops, on shutdown, and how it treats its parameters.
+
+The probe plays the simulator (it publishes ``force``) so that each claim can
+be checked without the muscle in the loop.
+"""
+from __future__ import annotations
+
+import itertools
+import os
+import signal
+
+import pytest
+from std_msgs.msg import Float64
+
+from hill_muscle_ros.control import ControllerParams
+from ros_helpers import Probe, ProcessGroup, node_command
+
+pytestmark = pytest.mark.ros
+
+_RUNS = itertools.count()
+DEFAULTS = ControllerParams()
+#: [N] a target the controller must stimulate for.
+TARGET_N = 10.0
+
+
+def unique_namespace() -> str:
+    """Unique even if another test run drew the same ROS_DOMAIN_ID."""
+    return f'/ctrl_{os.getpid()}_{next(_RUNS)}'
+
+
+@pytest.fixture
+def ctrl(tmp_path):
+    """A controller in its own namespace, stimulating against a fake force of 0 N."""
+    ns = unique_namespace()
+    with ProcessGroup(tmp_path) as procs, Probe('ctrl_probe') as probe:
+        proc = procs.start('controller', node_command('force_controller', ns=ns))
+        pw = probe.record(f'{ns}/pulse_width', Float64)
+        probe.publish_when_matched(f'{ns}/force_target', Float64(data=TARGET_N), procs=[proc])
+        force_pub = probe.publisher(f'{ns}/force', Float64)
+        probe.spin_until(lambda: force_pub.get_subscription_count() > 0,
+                         'controller subscribed to force', procs=[proc])
+        force_pub.publish(Float64(data=0.0))
+        probe.wait_for_value(pw, lambda v: v > 0.0, 'stimulation', procs=[proc])
+        yield {'ns': ns, 'proc': proc, 'probe': probe, 'pw': pw, 'force_pub': force_pub}
+
+
+def test_without_force_feedback_the_controller_publishes_zero(tmp_path):
+    ns = unique_namespace()
+    with ProcessGroup(tmp_path) as procs, Probe('ctrl_probe') as probe:
+        proc = procs.start('controller', node_command('force_controller', ns=ns))
+        pw = probe.record(f'{ns}/pulse_width', Float64)
+        probe.publish_when_matched(f'{ns}/force_target', Float64(data=TARGET_N), procs=[proc])
+        mark = pw.mark()
+        probe.wait_for_messages(pw, 20, mark=mark, procs=[proc])
+        assert set(pw.data_since(mark)) == {0.0}
+
+
+def test_stale_force_feedback_stops_stimulation_with_a_warning(ctrl):
+    probe, pw, proc = ctrl['probe'], ctrl['pw'], ctrl['proc']
+    # No more force messages: after feedback_timeout_s the output must be 0.
+    probe.wait_for_value(pw, lambda v: v == 0.0, 'zero after feedback stops',
+                         mark=pw.mark(), procs=[proc])
+    probe.spin_until(lambda: 'no force feedback' in proc.output(), 'the warning', procs=[proc])
+
+
+def test_stimulation_resumes_when_feedback_returns(ctrl):
+    probe, pw, proc = ctrl['probe'], ctrl['pw'], ctrl['proc']
+    probe.wait_for_value(pw, lambda v: v == 0.0, 'zero after feedback stops',
+                         mark=pw.mark(), procs=[proc])
+    mark = pw.mark()
+    ctrl['force_pub'].publish(Float64(data=0.0))
+    probe.wait_for_value(pw, lambda v: v > 0.0, 'stimulation again', mark=mark, procs=[proc])
+
+
+@pytest.mark.xfail(strict=True, reason='rclpy\'s signal handler shuts the context down '
+                   'before _common.run_node calls on_exit, so the zero cannot be published '
+                   '("publisher\'s context is invalid"); to be fixed in run_node')
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM], ids=['SIGINT', 'SIGTERM'])
+def test_stop_signal_publishes_zero_stimulation_last(ctrl, sig):
+    probe, pw, proc = ctrl['probe'], ctrl['pw'], ctrl['proc']
+    keep_fresh = probe.node.create_timer(
+        0.02, lambda: ctrl['force_pub'].publish(Float64(data=0.0)))
+    probe.wait_for_value(pw, lambda v: v > 0.0, 'stimulation', mark=pw.mark(), procs=[proc])
+    proc.popen.send_signal(sig)
+    probe.spin_until(lambda: proc.returncode is not None, 'the controller to exit')
+    keep_fresh.cancel()
+    probe.spin_for(0.5)
+    assert pw.messages[-1].data == 0.0
+
+
+@pytest.mark.parametrize('name, bad', [('kp_s_per_n', -1.0), ('rate_hz', 50.0),
+                                       ('pw_max_s', 0.0), ('ki_s_per_n_s', float('nan'))])
+def test_bad_parameter_at_run_time_is_rejected_by_name_and_nothing_changes(ctrl, name, bad):
+    probe, proc = ctrl['probe'], ctrl['proc']
+    node = f'{ctrl["ns"]}/force_controller'
+    names = [f for f in ControllerParams.__dataclass_fields__]
+    before = probe.get_parameters(node, names, procs=[proc])
+    (result,) = probe.set_parameters(node, {name: bad}, procs=[proc])
+    assert not result.successful
+    assert name in result.reason
+    assert probe.get_parameters(node, names, procs=[proc]) == before
+    assert proc.returncode is None
+
+
+def test_good_parameter_at_run_time_is_applied(ctrl):
+    probe, proc = ctrl['probe'], ctrl['proc']
+    node = f'{ctrl["ns"]}/force_controller'
+    (result,) = probe.set_parameters(node, {'kp_s_per_n': 1e-5}, procs=[proc])
+    assert result.successful
+    assert probe.get_parameters(node, ['kp_s_per_n'], procs=[proc]) == {'kp_s_per_n': 1e-5}
