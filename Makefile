@@ -30,5 +30,20 @@ demo: $(STAMP)
 figures: $(STAMP)
 	$(BIN)/hill-muscle figures --out runs/figures
 
+# Benchmark (issue 5): installs the bench-only peers (pymuscle, MuJoCo,
+# profilers) into .venv, profiles simulate() and writes BENCHMARKS.md.
+# Takes a few minutes; never part of `make test`.
+BENCH_STAMP := $(VENV)/.bench-installed
+
+.PHONY: bench
+
+$(BENCH_STAMP): $(STAMP) requirements-bench.txt
+	$(BIN)/python -m pip install --disable-pip-version-check -q -r requirements-bench.txt
+	touch $(BENCH_STAMP)
+
+bench: $(BENCH_STAMP)
+	$(BIN)/python benchmarks/profile_simulate.py
+	$(BIN)/python benchmarks/run_all.py --out BENCHMARKS.md --runs 7
+
 clean:
 	rm -rf $(VENV) build install log runs .pytest_cache .hypothesis *.egg-info

@@ -28,6 +28,7 @@ HERE = Path(__file__).resolve().parent
 REPO = HERE.parent
 sys.path.insert(0, str(HERE))
 
+import bench_node  # noqa: E402
 from naive import NaiveMuscle  # noqa: E402
 from timing import Stats, load_average, machine, repeat  # noqa: E402
 
@@ -176,7 +177,7 @@ def bench_rtf(runs):
         s_in = repeat(in_process, runs)
         cmd = [str(exe), *args]
         s_proc = repeat(lambda: subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL),
-                        runs)
+                        runs, children=True)
         label = 'II' if proto == 'II' else Path(proto).relative_to(REPO).as_posix()
         rows[(label, rate)] = (duration, s_in, s_proc, shlex.join(
             ['.venv/bin/hill-muscle', *cli_args(label, rate)]))
@@ -184,7 +185,7 @@ def bench_rtf(runs):
               flush=True)
     startup_cmd = [str(exe), *cli_args(PROTOCOL_STARTUP, RATE_HZ)]
     s_start = repeat(lambda: subprocess.run(startup_cmd, check=True,
-                                            stdout=subprocess.DEVNULL), runs)
+                                            stdout=subprocess.DEVNULL), runs, children=True)
     startup_label = shlex.join(['.venv/bin/hill-muscle', *cli_args(
         PROTOCOL_STARTUP.relative_to(REPO).as_posix(), RATE_HZ)])
     print(f'  start-up: {s_start.fmt()} s', flush=True)
@@ -226,10 +227,17 @@ def bench_batch(runs, protocol):
     return rows
 
 
-def node_status() -> str:
-    sim = REPO / 'hill_muscle_ros' / 'nodes' / 'simulator.py'
-    helpers = REPO / 'test' / 'ros_helpers.py'
-    return 'present' if sim.exists() and helpers.exists() else 'absent'
+def bench_nodes(seconds: float):
+    """Items 4 and 5: the simulator node at 1 kHz and the DDS latency (bench_node.py)."""
+    try:
+        return bench_node.run(seconds, REPO / 'runs' / 'bench_node'), None
+    except Exception as err:   # report the failure in BENCHMARKS.md, never fake a number
+        return None, f'{type(err).__name__}: {err}'
+
+
+def cpu(s: Stats) -> str:
+    """The CPU-time median of a measurement."""
+    return f'{s.cpu.median:.3g}' if s is not None and s.cpu is not None else '-'
 
 
 def met(ok: bool) -> str:
@@ -271,10 +279,11 @@ def write_report(path: Path, runs: int, started: dict, results: dict) -> None:
         '`Muscle.run`, over the whole protocol, incl. sampling the protocol and building '
         'the arrays). Both replay Protocol II from rest.')
     add('')
-    add('| variant | N units | `Muscle.step` [us/step] | `simulate()` [us/step] |')
-    add('| --- | ---: | ---: | ---: |')
+    add('| variant | N units | `Muscle.step` wall [us/step] | CPU | `simulate()` wall [us/step] | CPU |')
+    add('| --- | ---: | ---: | ---: | ---: | ---: |')
     for (units, length, n), (s_step, s_sim) in v.items():
-        add(f'| {units}/{length} | {n:,} | {s_step.fmt()} | {s_sim.fmt()} |')
+        add(f'| {units}/{length} | {n:,} | {s_step.fmt()} | {cpu(s_step)} | {s_sim.fmt()} | '
+            f'{cpu(s_sim)} |')
     add('')
     add('### Against a naive per-unit implementation and the peers')
     add('')
@@ -283,37 +292,42 @@ def write_report(path: Path, runs: int, started: dict, results: dict) -> None:
         'recruitment and summed every step, the same RK4 and the same scalar curves. '
         'Same protocol, one call per step, like the `Muscle.step` column.')
     add('')
-    add('| model | N units | cost [us/step] |')
-    add('| --- | ---: | ---: |')
+    add('| model | N units | wall [us/step] | CPU [us/step] |')
+    add('| --- | ---: | ---: | ---: |')
     for n, s in naive.items():
-        add(f'| naive per-unit NumPy (multi/initial) | {n:,} | {s.fmt()} |')
+        add(f'| naive per-unit NumPy (multi/initial) | {n:,} | {s.fmt()} | {cpu(s)} |')
     for n in UNIT_COUNTS:
-        add(f'| this package, `Muscle.step` multi/initial | {n:,} | '
-            f'{v[("multi", "initial", n)][0].fmt()} |')
+        s = v[("multi", "initial", n)][0]
+        add(f'| this package, `Muscle.step` multi/initial | {n:,} | {s.fmt()} | {cpu(s)} |')
     for name, (s, note) in peers.items():
         add(f'| {note} | {"1,000" if name == "pymuscle" else "-"} | '
-            f'{s.fmt() if s else "not measured"} |')
+            f'{s.fmt() if s else "not measured"} | {cpu(s)} |')
     add('')
     ours_1e6 = v[('multi', 'initial', 1_000_000)][0].median
     ours_1e3 = v[('multi', 'initial', 1_000)][0].median
     ratio_1e6 = naive[1_000_000].median / ours_1e6
     frac_1e3 = ours_1e3 / naive[1_000].median
+    cpu_ratio_1e6 = naive[1_000_000].cpu.median / v[('multi', 'initial', 1_000_000)][0].cpu.median
+    cpu_frac_1e3 = v[('multi', 'initial', 1_000)][0].cpu.median / naive[1_000].cpu.median
     add(f'- Target: multi/initial at N = 1e6 at least {TARGET_NAIVE_RATIO_1E6:g}x cheaper '
-        f'than naive at 1e6: **{ratio_1e6:.0f}x** (medians) — {met(ratio_1e6 >= TARGET_NAIVE_RATIO_1E6)}.')
+        f'than naive at 1e6: **{ratio_1e6:.0f}x** (wall medians; {cpu_ratio_1e6:.0f}x in CPU '
+        f'time) — {met(ratio_1e6 >= TARGET_NAIVE_RATIO_1E6)}.')
     add(f'- Target: at N = 1e3 at most {TARGET_NAIVE_FRACTION_1E3:g} of the naive cost: '
-        f'**{frac_1e3:.2f}** — {met(frac_1e3 <= TARGET_NAIVE_FRACTION_1E3)}.')
+        f'**{frac_1e3:.2f}** (wall medians; {cpu_frac_1e3:.2f} in CPU time) — '
+        f'{met(frac_1e3 <= TARGET_NAIVE_FRACTION_1E3)}.')
     add('')
     add('### Cost independent of N, with recruitment changing every step')
     add('')
     add('multi/initial, `Muscle.step`, Protocol II\'s length, R replaced by the pattern. '
         f'Target: N = 1e6 within {TARGET_N_SCALING:g}x of N = 1e3.')
     add('')
-    add('| R pattern | N = 1,000 [us/step] | N = 1,000,000 [us/step] | ratio of medians | target |')
-    add('| --- | ---: | ---: | ---: | --- |')
+    add('| R pattern | N = 1,000 wall [us/step] | N = 1,000,000 wall [us/step] | ratio (wall) | ratio (CPU) | target |')
+    add('| --- | ---: | ---: | ---: | ---: | --- |')
     for name in dict.fromkeys(k[0] for k in changing):
         a, b = changing[(name, 1_000)], changing[(name, 1_000_000)]
         ratio = b.median / a.median
-        add(f'| {name} | {a.fmt()} | {b.fmt()} | {ratio:.2f} | {met(ratio <= TARGET_N_SCALING)} |')
+        add(f'| {name} | {a.fmt()} | {b.fmt()} | {ratio:.2f} | '
+            f'{b.cpu.median / a.cpu.median:.2f} | {met(ratio <= TARGET_N_SCALING)} |')
     add('')
 
     add('## 2. Offline real-time factor of `hill-muscle simulate`')
@@ -324,19 +338,19 @@ def write_report(path: Path, runs: int, started: dict, results: dict) -> None:
         'Process: the console script run as a subprocess, start-up included. '
         'RTF = simulated duration / wall time.')
     add('')
-    add('| command | simulated | in-process wall [s] | RTF excl. start-up | process wall [s] | RTF incl. start-up |')
-    add('| --- | ---: | ---: | ---: | ---: | ---: |')
+    add('| command | simulated | in-process wall [s] | RTF excl. start-up | RTF by CPU time | process wall [s] | RTF incl. start-up |')
+    add('| --- | ---: | ---: | ---: | ---: | ---: | ---: |')
     rtf_ii = None
     for (label, rate), (duration, s_in, s_proc, cmd) in rtf.items():
         r_in, r_proc = s_in.inverted(duration), s_proc.inverted(duration)
         if label == 'II' and rate == 1000.0:
             rtf_ii = r_in
-        add(f'| `{cmd}` | {duration:g} s | {s_in.fmt()} | {r_in.fmt()}x | {s_proc.fmt()} | '
-            f'{r_proc.fmt()}x |')
+        add(f'| `{cmd}` | {duration:g} s | {s_in.fmt()} | {r_in.fmt()}x | {cpu(r_in)}x | '
+            f'{s_proc.fmt()} | {r_proc.fmt()}x |')
     s_start, start_cmd = startup
     add('')
     add(f'Process start-up (interpreter, imports, argument and YAML parsing; a 1 ms '
-        f'protocol): `{start_cmd}`: **{s_start.fmt()} s**.')
+        f'protocol): `{start_cmd}`: **{s_start.fmt()} s** wall, {cpu(s_start)} s CPU.')
     add('')
     mj = peers.get('mujoco', (None, ''))[0]
     if mj is not None:
@@ -345,7 +359,8 @@ def write_report(path: Path, runs: int, started: dict, results: dict) -> None:
         add('')
     if rtf_ii is not None:
         add(f'- Target: at least {TARGET_RTF:g}x real time for one muscle at 1 kHz excluding '
-            f'start-up (Protocol II, multi/initial): **{rtf_ii.median:.0f}x** — '
+            f'start-up (Protocol II, multi/initial): **{rtf_ii.median:.0f}x** (wall median; '
+            f'{rtf_ii.cpu.median:.0f}x by CPU time) — '
             f'{met(rtf_ii.median >= TARGET_RTF)}. Accuracy is unchanged: RK4 at 1 ms, '
             '`test/test_model_muscle.py::test_one_millisecond_step_is_within_10_mN_of_the_reference` '
             'passes.')
@@ -358,10 +373,10 @@ def write_report(path: Path, runs: int, started: dict, results: dict) -> None:
         'at 3 s, so every multi/initial memory changes once). Muscle-steps per second = '
         'K x steps / wall time.')
     add('')
-    add('| parameter sets | K | muscle-steps/s |')
-    add('| --- | ---: | ---: |')
+    add('| parameter sets | K | muscle-steps/s (wall) | by CPU time |')
+    add('| --- | ---: | ---: | ---: |')
     for (name, k), s in batch.items():
-        add(f'| {name} | {k:,} | {s.fmt()} |')
+        add(f'| {name} | {k:,} | {s.fmt()} | {cpu(s)} |')
     best = min(s.median for (name, k), s in batch.items() if k == 10_000)
     add('')
     add(f'- Target: at least 1e7 muscle-steps/s at K = 10,000: **{best:.3g}** (slower of the '
@@ -369,10 +384,58 @@ def write_report(path: Path, runs: int, started: dict, results: dict) -> None:
     add('- At K = 1 the batch is dominated by NumPy call overhead; use `Muscle` for one muscle.')
     add('')
 
-    add('## 4-6. The ROS nodes: rate, jitter, latency, faster than real time')
+    nodes, node_error = results['nodes']
+    seconds = results['node_seconds']
+    add(f'## 4. The simulator node at `rate_hz` 1000 for {seconds:g} s')
     add('')
-    add(f'Not measured by this version of the benchmark (simulator node {node_status()} '
-        'when it ran). See the issue note.')
+    add('`benchmarks/bench_node.py`: the `simulator` console script as its own process '
+        '(`input_timeout_s:=0.0`), observed from the benchmark process through DDS '
+        '(`ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`). One run (the run itself is '
+        f'{seconds:g} s long; the percentiles are over its ticks).')
+    add('')
+    if nodes is None:
+        add(f'Not measured: the run failed with `{node_error}`.')
+    else:
+        node, lat, echo = nodes
+        p50, p99, pmax = node.period_ms
+        add('| quantity | value | target |')
+        add('| --- | ---: | --- |')
+        add(f'| achieved step rate (steps in the wrench stamps / clock time) | '
+            f'{node.rate_hz:.1f} Hz ({node.steps} steps) | |')
+        add(f'| period between wrench messages at the subscriber, p50 / p99 / max | '
+            f'{p50:.3f} / {p99:.3f} / {pmax:.1f} ms | |')
+        add(f'| late ticks (message more than {bench_node.LATE_FACTOR:g} periods after the previous) | '
+            f'{node.late_ticks} of {node.ticks} | |')
+        add(f'| ticks that ran more than one step (catch-up) | {node.multi_step_ticks} | |')
+        add(f'| drift of simulated time against the clock over the run | '
+            f'{node.drift_steps:.2f} steps | every step computed, <= 2 steps: '
+            f'{met(abs(node.drift_steps) <= 2)} |')
+        add(f'| CPU of the simulator process | {node.cpu_percent:.1f} % of one core | '
+            f'<= 40 %: {met(node.cpu_percent <= 40)} |')
+        add(f'| stamp to receipt lag, p50 / p99 / max | {node.lag_ms[0]:.2f} / '
+            f'{node.lag_ms[1]:.2f} / {node.lag_ms[2]:.1f} ms | |')
+        add('')
+        add(f'Attached: {node.pubs_subs}. The tick period is seen from a subscriber, so it '
+            'includes DDS delivery and this Python observer\'s own scheduling: it bounds the '
+            'node\'s own tick jitter from above. Every step is computed: the node counts '
+            'steps against the steady clock and runs the ones that are due (catch-up), so the '
+            'step count follows the clock; that is what the drift row measures.')
+        add('')
+        add(f'## 5. Latency through DDS at 1 kHz ({lat.samples} probes each)')
+        add('')
+        add('| path | p50 [ms] | p99 [ms] | max [ms] | target |')
+        add('| --- | ---: | ---: | ---: | --- |')
+        add(f'| `pulse_width` publish -> first `force` that reflects it (R toggled 0 <-> 0.5) | '
+            f'{lat.p50_ms:.2f} | {lat.p99_ms:.2f} | {lat.max_ms:.1f} | p99 <= 3 ms: '
+            f'{met(lat.p99_ms <= 3.0)} |')
+        add(f'| bare rclpy echo node (`ping` -> `pong`), the floor | {echo.p50_ms:.2f} | '
+            f'{echo.p99_ms:.2f} | {echo.max_ms:.1f} | |')
+        add('')
+        add('The simulator path includes waiting for the next 1 ms tick (0.5 ms on average).')
+    add('')
+    add('## 6. Faster than real time (publish_clock, real_time_factor)')
+    add('')
+    add('Not measured by this version of the benchmark.')
     add('')
     add('## Profiles')
     add('')
@@ -389,6 +452,8 @@ def main(argv: list[str] | None = None) -> int:
                         help='Markdown file to write (default: BENCHMARKS.md)')
     parser.add_argument('--runs', type=int, default=7,
                         help=f'runs per measurement, at least {MIN_RUNS} (default: 7)')
+    parser.add_argument('--node-seconds', type=float, default=30.0,
+                        help='length of the simulator node run (default: 30)')
     args = parser.parse_args(argv)
     if args.runs < MIN_RUNS:
         parser.error(f'--runs must be at least {MIN_RUNS}, got {args.runs}')
@@ -411,6 +476,9 @@ def main(argv: list[str] | None = None) -> int:
     results['rtf'] = bench_rtf(args.runs)
     print('batch', flush=True)
     results['batch'] = bench_batch(args.runs, protocol)
+    print('ROS nodes', flush=True)
+    results['node_seconds'] = args.node_seconds
+    results['nodes'] = bench_nodes(args.node_seconds)
     results['elapsed'] = time.perf_counter() - t0
     write_report(args.out, args.runs, started, results)
     print(f'wrote {args.out}')

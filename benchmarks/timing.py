@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import os
 import platform
+import resource
 import statistics
 import time
 from dataclasses import dataclass
@@ -19,37 +20,56 @@ class Stats:
     low: float
     high: float
     runs: int
+    #: The same runs measured in CPU time (user + system) instead of wall time.
+    cpu: 'Stats | None' = None
 
     @classmethod
-    def of(cls, values: list[float]) -> 'Stats':
-        return cls(statistics.median(values), min(values), max(values), len(values))
+    def of(cls, values: list[float], cpu: list[float] | None = None) -> 'Stats':
+        return cls(statistics.median(values), min(values), max(values), len(values),
+                   cls.of(cpu) if cpu else None)
 
     def scaled(self, factor: float) -> 'Stats':
-        return Stats(self.median * factor, self.low * factor, self.high * factor, self.runs)
+        return Stats(self.median * factor, self.low * factor, self.high * factor, self.runs,
+                     self.cpu.scaled(factor) if self.cpu else None)
 
     def inverted(self, numerator: float) -> 'Stats':
         """numerator / value: turns times into rates (min and max swap)."""
         return Stats(numerator / self.median, numerator / self.high, numerator / self.low,
-                     self.runs)
+                     self.runs, self.cpu.inverted(numerator) if self.cpu else None)
 
     def fmt(self, digits: int = 3) -> str:
         return (f'{self.median:.{digits}g} ({self.low:.{digits}g} to '
                 f'{self.high:.{digits}g})')
 
 
+def _children_cpu_s() -> float:
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
 def repeat(fn: Callable[[], object], runs: int, setup: Callable[[], object] | None = None,
-           warmup: int = 1) -> Stats:
-    """Wall time [s] of ``fn()`` over ``runs`` runs, after ``warmup`` unrecorded ones."""
-    times = []
+           warmup: int = 1, children: bool = False) -> Stats:
+    """Wall time [s] of ``fn()`` over ``runs`` runs, after ``warmup`` unrecorded ones.
+
+    The CPU time of the same runs is kept in ``.cpu``: this process's
+    (``time.process_time``), or with ``children`` that of the subprocesses
+    ``fn`` ran. Other load on the machine inflates wall time far more than CPU
+    time, so the two together show how much of a number is interference.
+    """
+    cpu_clock = _children_cpu_s if children else time.process_time
+    times, cpu = [], []
     for i in range(warmup + runs):
         if setup is not None:
             setup()
+        c0 = cpu_clock()
         t0 = time.perf_counter()
         fn()
         elapsed = time.perf_counter() - t0
+        cpu_elapsed = cpu_clock() - c0
         if i >= warmup:
             times.append(elapsed)
-    return Stats.of(times)
+            cpu.append(cpu_elapsed)
+    return Stats.of(times, cpu)
 
 
 def cpu_model() -> str:

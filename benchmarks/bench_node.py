@@ -1,0 +1,272 @@
+"""ROS benchmarks of issue 5: the simulator node at 1 kHz, and DDS latency.
+
+Runs the package's ``simulator`` node and a bare rclpy echo node as separate
+processes and observes them from this process through DDS:
+
+- the node at ``rate_hz`` 1000 for ``--seconds`` (30 by default): achieved
+  step rate, the period between its ``wrench`` messages (one per tick) as
+  seen by a subscriber (p50, p99, max), late ticks, CPU % of one core
+  (from /proc), and the drift between simulated time (the wrench stamps) and
+  the clock;
+- latency from a ``pulse_width`` publish to the first ``force`` message that
+  reflects it (R toggled between 0, where the force is exactly 0, and 0.5),
+  against a bare rclpy echo node (``ping`` -> ``pong``) measured the same way.
+
+Usage (also called by run_all.py)::
+
+    .venv/bin/python benchmarks/bench_node.py [--seconds 30]
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+BIN = Path(sys.executable).parent
+
+#: DDS domain for the benchmark: above the range the tests draw from (1..100).
+DOMAIN_RANGE = (101, 200)
+RATE_HZ = 1000.0
+STEP_NS = round(1e9 / RATE_HZ)
+STARTUP_TIMEOUT_S = 60.0
+STOP_TIMEOUT_S = 10.0
+EDGE_TIMEOUT_S = 2.0
+LATENCY_EDGES = 200
+#: [s] random pause between latency probes, so they fall at every tick phase.
+PROBE_PAUSE_S = (0.005, 0.02)
+#: A pulse width that gives R = 0.5 with the default PW_max of 0.5 ms.
+PULSE_WIDTH_S = 0.00025
+#: A tick is late if its message comes this many periods after the previous one.
+LATE_FACTOR = 2.0
+QUEUE_DEPTH = 1000
+CONTROL_PERIOD_S = 0.01
+
+ECHO_NODE = '''
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from std_msgs.msg import Float64
+
+class Echo(Node):
+    def __init__(self):
+        super().__init__('echo')
+        qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        self.pub = self.create_publisher(Float64, 'pong', qos)
+        self.create_subscription(Float64, 'ping', self.pub.publish, qos)
+
+rclpy.init()
+node = Echo()
+try:
+    rclpy.spin(node)
+except (KeyboardInterrupt, ExternalShutdownException):
+    pass
+finally:
+    node.destroy_node()
+    rclpy.try_shutdown()
+'''
+
+
+def set_ros_env() -> dict[str, str]:
+    """Isolate the benchmark's DDS traffic on this host; subprocesses inherit it."""
+    if 'ROS_DOMAIN_ID' not in os.environ or int(os.environ['ROS_DOMAIN_ID']) < DOMAIN_RANGE[0]:
+        os.environ['ROS_DOMAIN_ID'] = str(random.Random(os.getpid()).randint(*DOMAIN_RANGE))
+    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    return os.environ.copy()
+
+
+def start(cmd: list[str], log: Path, env: dict[str, str]) -> subprocess.Popen:
+    with open(log, 'wb') as f:
+        return subprocess.Popen(cmd, env=env, stdout=f, stderr=subprocess.STDOUT,
+                                start_new_session=True)
+
+
+def stop(proc: subprocess.Popen) -> None:
+    """SIGINT, then SIGKILL after a timeout."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(STOP_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU time of a process [s], from /proc/<pid>/stat."""
+    with open(f'/proc/{pid}/stat', encoding='ascii') as f:
+        fields = f.read().rsplit(')', 1)[1].split()
+    # Fields 14 and 15 of stat(5); the split drops the first two.
+    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+
+
+def percentiles(values, *qs):
+    return [float(np.percentile(values, q)) for q in qs]
+
+
+@dataclass
+class NodeResult:
+    seconds: float
+    steps: int
+    rate_hz: float
+    period_ms: tuple[float, float, float]   # p50, p99, max between messages
+    late_ticks: int
+    multi_step_ticks: int
+    ticks: int
+    cpu_percent: float
+    drift_steps: float
+    lag_ms: tuple[float, float, float]      # stamp -> receipt, p50, p99, max
+    pubs_subs: str
+
+
+@dataclass
+class LatencyResult:
+    samples: int
+    p50_ms: float
+    p99_ms: float
+    max_ms: float
+
+
+def run(seconds: float, log_dir: Path) -> tuple[NodeResult, LatencyResult, LatencyResult]:
+    env = set_ros_env()
+    import rclpy
+    from geometry_msgs.msg import WrenchStamped
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from std_msgs.msg import Float64
+
+    ns = f'/bench_{os.getpid()}'
+    log_dir.mkdir(parents=True, exist_ok=True)
+    sim = start([str(BIN / 'simulator'), '--ros-args', '-r', f'__ns:={ns}',
+                 '-p', f'rate_hz:={RATE_HZ}', '-p', 'input_timeout_s:=0.0'],
+                log_dir / 'simulator.log', env)
+    echo = start([sys.executable, '-c', ECHO_NODE, '--ros-args', '-r', f'__ns:={ns}'],
+                 log_dir / 'echo.log', env)
+    rclpy.init()
+    node = rclpy.create_node('bench_observer', namespace=ns)
+    try:
+        qos = QoSProfile(depth=QUEUE_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
+        recv_ns, stamp_ns, forces, pongs = [], [], [], []
+        # Only the topics a phase needs are subscribed, so that this Python
+        # observer is not what falls behind.
+        wrench_sub = node.create_subscription(
+            WrenchStamped, 'wrench',
+            lambda m: (recv_ns.append(time.time_ns()),
+                       stamp_ns.append(m.header.stamp.sec * 1_000_000_000
+                                       + m.header.stamp.nanosec)), qos)
+        node.create_subscription(Float64, 'pong',
+                                 lambda m: pongs.append((time.perf_counter(), m.data)), qos)
+        pub_r = node.create_publisher(Float64, 'recruitment', qos)
+        pub_pw = node.create_publisher(Float64, 'pulse_width', qos)
+        pub_ping = node.create_publisher(Float64, 'ping', qos)
+
+        def spin_until(cond, timeout_s, what):
+            deadline = time.monotonic() + timeout_s
+            while not cond():
+                if time.monotonic() > deadline:
+                    raise TimeoutError(f'timed out waiting for {what}; logs in {log_dir}')
+                rclpy.spin_once(node, timeout_sec=0.01)
+
+        spin_until(lambda: len(recv_ns) > 0 and pub_r.get_subscription_count() > 0
+                   and pub_ping.get_subscription_count() > 0, STARTUP_TIMEOUT_S,
+                   'the simulator and echo nodes')
+
+        # -- the node at 1 kHz, with a controller-like recruitment stream -----
+        pub_r.publish(Float64(data=0.5))
+        del recv_ns[:], stamp_ns[:]
+        cpu0 = cpu_seconds(sim.pid)
+        t0 = time.monotonic()
+        next_control = t0
+        while time.monotonic() - t0 < seconds:
+            if time.monotonic() >= next_control:
+                pub_r.publish(Float64(data=0.5))
+                next_control += CONTROL_PERIOD_S
+            rclpy.spin_once(node, timeout_sec=0.001)
+        cpu1 = cpu_seconds(sim.pid)
+        wall = time.monotonic() - t0
+        recv = np.array(recv_ns, dtype=np.int64)
+        stamp = np.array(stamp_ns, dtype=np.int64)
+        periods_ms = np.diff(recv) / 1e6
+        step_gaps = np.diff(stamp) // STEP_NS
+        lag = (recv - stamp) / 1e6
+        steps = int((stamp[-1] - stamp[0]) // STEP_NS)
+        wall_span_s = (recv[-1] - recv[0]) / 1e9
+        # Drift: how far the simulated time fell behind the clock over the run
+        # (the change of stamp -> receipt lag; its constant part is DDS latency).
+        n_edge = max(1, len(lag) // 20)
+        drift_ms = float(np.median(lag[-n_edge:]) - np.median(lag[:n_edge]))
+        node_result = NodeResult(
+            seconds=wall, steps=steps, rate_hz=steps / wall_span_s,
+            period_ms=tuple(percentiles(periods_ms, 50, 99)) + (float(periods_ms.max()),),
+            late_ticks=int(np.sum(periods_ms > LATE_FACTOR * 1e3 / RATE_HZ)),
+            multi_step_ticks=int(np.sum(step_gaps > 1)), ticks=len(recv),
+            cpu_percent=100.0 * (cpu1 - cpu0) / wall,
+            drift_steps=drift_ms * RATE_HZ / 1e3,
+            lag_ms=tuple(percentiles(lag, 50, 99)) + (float(lag.max()),),
+            pubs_subs=('simulator: 3 publishers (force, ce_length, wrench), 3 subscriptions '
+                       '(pulse_width, recruitment, length_command); one observer subscribed '
+                       'to wrench and publishing recruitment at 100 Hz'))
+
+        # -- latency pulse_width -> force ------------------------------------
+        node.destroy_subscription(wrench_sub)
+        force_sub = node.create_subscription(
+            Float64, 'force', lambda m: forces.append((time.perf_counter(), m.data)), qos)
+        spin_until(lambda: len(forces) > 0, STARTUP_TIMEOUT_S, 'force messages')
+        rng = random.Random(1)
+        latencies = []
+        active = False
+        for _ in range(LATENCY_EDGES):
+            time.sleep(rng.uniform(*PROBE_PAUSE_S))
+            active = not active
+            mark = len(forces)
+            t_pub = time.perf_counter()
+            pub_pw.publish(Float64(data=PULSE_WIDTH_S if active else 0.0))
+
+            def reflected():
+                return any((f > 0.0) == active for _, f in forces[mark:])
+            spin_until(reflected, EDGE_TIMEOUT_S, 'force to reflect pulse_width')
+            t_recv = next(t for t, f in forces[mark:] if (f > 0.0) == active)
+            latencies.append((t_recv - t_pub) * 1e3)
+        sim_latency = LatencyResult(len(latencies), *percentiles(latencies, 50, 99),
+                                    max(latencies))
+        node.destroy_subscription(force_sub)
+
+        echo_lat = []
+        for i in range(LATENCY_EDGES):
+            time.sleep(rng.uniform(*PROBE_PAUSE_S))
+            t_pub = time.perf_counter()
+            pub_ping.publish(Float64(data=float(i)))
+            spin_until(lambda: pongs and pongs[-1][1] == float(i), EDGE_TIMEOUT_S, 'pong')
+            echo_lat.append((pongs[-1][0] - t_pub) * 1e3)
+        echo_latency = LatencyResult(len(echo_lat), *percentiles(echo_lat, 50, 99),
+                                     max(echo_lat))
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+        stop(sim)
+        stop(echo)
+    return node_result, sim_latency, echo_latency
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument('--seconds', type=float, default=30.0)
+    parser.add_argument('--logs', type=Path, default=REPO / 'runs' / 'bench_node')
+    args = parser.parse_args(argv)
+    node, lat, echo = run(args.seconds, args.logs)
+    print(node)
+    print('pulse_width -> force', lat)
+    print('echo', echo)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
