@@ -25,7 +25,6 @@ or ``hill-muscle record --ros-args ...``.
 from __future__ import annotations
 
 import datetime as _dt
-import functools
 import importlib
 import signal
 import struct
@@ -51,6 +50,18 @@ NODE_NAME = 'recorder'
 #: resolved in the recorder's namespace; /clock is global by ROS convention).
 DEFAULT_TOPICS = ('pulse_width', 'recruitment', 'length_command', 'force', 'ce_length',
                   'wrench', '/clock')
+#: Types of this package's own topics. These are subscribed at start-up,
+#: before any publisher exists, so that a player started right after the
+#: recorder loses no message to discovery; other topics wait for the graph.
+#: (/clock is left to discovery: its publisher may be best-effort elsewhere.)
+KNOWN_TYPES = {
+    'pulse_width': 'std_msgs/msg/Float64',
+    'recruitment': 'std_msgs/msg/Float64',
+    'length_command': 'std_msgs/msg/Float64',
+    'force': 'std_msgs/msg/Float64',
+    'ce_length': 'std_msgs/msg/Float64',
+    'wrench': 'geometry_msgs/msg/WrenchStamped',
+}
 #: Where bags go by default, one directory per run named by its UTC start time.
 DEFAULT_RUNS_DIR = 'runs'
 #: [s] how often the graph is polled for publishers of the wanted topics.
@@ -60,10 +71,12 @@ FLUSH_CHECK_PERIOD_S = 0.1
 #: Messages DDS keeps for the recorder while Python is busy: 10 s at 1 kHz.
 #: Reliable delivery only helps if the reader's history never overflows.
 QUEUE_DEPTH = 10_000
-#: Most messages taken from one subscription per executor callback. Taking a
-#: batch skips the executor's per-message wait-set overhead, which is what
-#: lets one Python process keep up with several 1 kHz topics.
-TAKE_BATCH = 500
+#: [s] how often queued messages are taken from DDS and written. The
+#: subscriptions are not spun by the executor: one wake-up per message costs
+#: rclpy ~0.2 ms, too much for several 1 kHz topics on a small machine, so a
+#: timer drains every queue in one go. Receive times come from DDS, so the
+#: polling delay does not show in ``log_time`` (except with sim time).
+TAKE_PERIOD_S = 0.01
 #: [s] after a stop signal, how long messages already delivered are drained.
 DRAIN_TIMEOUT_S = 2.0
 #: [s] executor wake-up period (checks the stop flag).
@@ -76,6 +89,10 @@ _STAMP_LE = struct.Struct('<iI')
 _STAMP_BE = struct.Struct('>iI')
 _HEADER_TYPE_LINE = 'std_msgs/Header header'
 _NS_PER_S = 1_000_000_000
+
+
+def _never_called(_msg: Any) -> None:
+    """Subscriptions are drained by :meth:`Recorder.take_all`, never by an executor."""
 
 
 def default_output(now: _dt.datetime | None = None) -> Path:
@@ -112,9 +129,13 @@ def request_qos(offered: list[QoSProfile]) -> QoSProfile:
 
     Reliable only if all publishers are, transient-local only if all are;
     a deep keep-last queue so DDS can hold bursts while Python writes.
+    Without publishers yet (a known topic subscribed early): reliable, volatile,
+    which the package's nodes offer.
     """
     reliable = all(q.reliability == ReliabilityPolicy.RELIABLE for q in offered)
-    latched = all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in offered)
+    # Volatile matches every publisher; transient-local only latched ones.
+    latched = bool(offered) and all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL
+                                    for q in offered)
     return QoSProfile(
         history=HistoryPolicy.KEEP_LAST, depth=QUEUE_DEPTH,
         reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
@@ -182,82 +203,108 @@ class Recorder(Node):
                         f'default {DEFAULT_RUNS_DIR}/<UTC timestamp>')).value
         self.output = Path(output) if output else default_output()
         self._wanted = []
+        known = {}
         for topic in topics:
             resolved = self.resolve_topic_name(topic)
             if resolved not in self._wanted:
                 self._wanted.append(resolved)
+                if topic in KNOWN_TYPES:
+                    known[resolved] = KNOWN_TYPES[topic]
         try:
             self._writer = BagWriter(self.output)
         except BagOutputError as err:
             raise StartupError(str(err)) from None
         self._use_sim_time = bool(self.get_parameter('use_sim_time').value)
+        # Holds the subscriptions; never spun (see TAKE_PERIOD_S). Hidden ('_'),
+        # and without global arguments so that a `__node:=` remap cannot give it
+        # this node's name. Topic names given to it are already resolved.
+        self._reader = rclpy.create_node(f'_{self.get_name()}_subscriptions',
+                                         use_global_arguments=False,
+                                         start_parameter_services=False)
         self._subs: dict[str, Any] = {}
+        self._types: dict[str, str] = {}
         self._stats: dict[str, _TopicStats] = {}
         self._warned_types: set[str] = set()
         self.failure: str = ''
         self.stop_requested = False
         self._discovery = self.create_timer(DISCOVERY_PERIOD_S, self._discover)
         self._flush_timer = self.create_timer(FLUSH_CHECK_PERIOD_S, self._flush_if_due)
+        self._take_timer = self.create_timer(TAKE_PERIOD_S, self.take_all)
         self.get_logger().info(f'recording {", ".join(self._wanted)} to {self.output}')
+        for name, type_name in known.items():
+            self._subscribe(name, type_name, request_qos([]))
         self._discover()
 
     # -- discovery ----------------------------------------------------------------
 
     def _discover(self) -> None:
+        done = True
         for name in self._wanted:
-            if name in self._subs:
+            if name in self._stats and self._writer.has_topic(name):
                 continue
+            done = False
             infos = self.get_publishers_info_by_topic(name)
             if not infos:
                 continue
             types = sorted({i.topic_type for i in infos})
-            if len(types) > 1:
+            subscribed = self._types.get(name)
+            if len(types) > 1 or (subscribed is not None and types != [subscribed]):
                 if name not in self._warned_types:
                     self._warned_types.add(name)
                     self.get_logger().error(
-                        f'{name}: publishers disagree on the type ({", ".join(types)}); '
-                        f'not recording it')
+                        f'{name}: publishers offer {", ".join(types)}, expected '
+                        f'{subscribed or "one type"}; not recording it')
                 continue
-            self._subscribe(name, types[0], [i.qos_profile for i in infos], len(infos))
-        if len(self._subs) == len(self._wanted):
+            if subscribed is None:
+                self._subscribe(name, types[0], request_qos([i.qos_profile for i in infos]))
+        if done:
             self._discovery.cancel()
 
-    def _subscribe(self, name: str, type_name: str, offered: list[QoSProfile],
-                   n_publishers: int) -> None:
+    def _subscribe(self, name: str, type_name: str, qos: QoSProfile) -> None:
         try:
             cls = message_class(type_name)
             stamped = has_header_first(type_name)
-            self._writer.add_topic(name, type_name, offered_qos_profiles=offered)
         except (ImportError, AttributeError, LookupError, ValueError) as err:
             if name not in self._warned_types:
                 self._warned_types.add(name)
                 self.get_logger().error(f'{name}: cannot record {type_name}: {err}')
             return
-        self._stats[name] = _TopicStats(name, stamped, publishers=n_publishers)
-        sub = self.create_subscription(cls, name, functools.partial(self._on_message, name),
-                                       request_qos(offered), raw=True)
-        self._subs[name] = sub
-        self.get_logger().info(f'recording {name} ({type_name}, {n_publishers} publisher(s))')
+        self._types[name] = type_name
+        self._stats[name] = _TopicStats(name, stamped)
+        self._subs[name] = self._reader.create_subscription(
+            cls, name, _never_called, qos, raw=True)
+
+    def _register(self, name: str) -> None:
+        """Add the topic to the bag at its first message, with the publishers' QoS."""
+        infos = self.get_publishers_info_by_topic(name)
+        self._writer.add_topic(name, self._types[name],
+                               offered_qos_profiles=[i.qos_profile for i in infos])
+        self._stats[name].publishers = len(infos) or 1  # graph may lag the data
+        self.get_logger().info(f'recording {name} ({self._types[name]}, '
+                               f'{len(infos)} publisher(s))')
 
     # -- messages -----------------------------------------------------------------
 
-    def _on_message(self, topic: str, data: bytes, info: dict[str, Any]) -> None:
-        if self.failure:
-            return
-        self._record(topic, data, info)
-        # Take what else is already queued on this topic in the same callback.
-        sub = self._subs[topic]
-        for _ in range(TAKE_BATCH):
-            if self.failure:
-                return
-            with sub.handle:
-                taken = sub.handle.take_message(sub.msg_type, True)
-            if taken is None:
-                return
-            self._record(topic, *taken)
+    def take_all(self) -> int:
+        """Take and write every message queued on every subscription.
+
+        :return: the number of messages written
+        """
+        written = 0
+        for topic, sub in list(self._subs.items()):
+            while not self.failure:
+                with sub.handle:
+                    taken = sub.handle.take_message(sub.msg_type, True)
+                if taken is None:
+                    break
+                self._record(topic, *taken)
+                written += 1
+        return written
 
     def _record(self, topic: str, data: bytes, info: dict[str, Any]) -> None:
         stats = self._stats[topic]
+        if not self._writer.has_topic(topic):
+            self._register(topic)
         if self._use_sim_time:
             log_ns = self.get_clock().now().nanoseconds
         else:
@@ -293,17 +340,15 @@ class Recorder(Node):
 
     # -- stopping -----------------------------------------------------------------
 
-    def drain(self, executor: SingleThreadedExecutor, timeout_s: float = DRAIN_TIMEOUT_S) -> None:
-        """Write what DDS already delivered: spin until no callback is ready.
+    def drain(self, timeout_s: float = DRAIN_TIMEOUT_S) -> None:
+        """Write what DDS already delivered, after a stop request.
 
-        Publishers may still be running, so this stops at the first quiet
-        spin, or after ``timeout_s``, whichever is first.
+        Publishers may still be running, so this stops at the first empty
+        pass over the queues, or after ``timeout_s``.
         """
         deadline = time.monotonic() + timeout_s
         while not self.failure and time.monotonic() < deadline:
-            before = sum(s.received for s in self._stats.values())
-            executor.spin_once(timeout_sec=0.0)
-            if sum(s.received for s in self._stats.values()) == before:
+            if not self.take_all():
                 return
 
     def report(self) -> str:
@@ -311,19 +356,23 @@ class Recorder(Node):
         lines = []
         for name in self._wanted:
             stats = self._stats.get(name)
-            if stats is None:
-                lines.append(f'{name}: no publisher seen, not recorded')
+            if stats is None or not stats.received:
+                lines.append(f'{name}: no message received')
                 continue
             sent = stats.sent
             sent_txt = f', publisher sent {sent}' if sent is not None else ''
+            if stats.first_seq is not None and stats.first_seq > 1 and stats.publishers == 1:
+                sent_txt += f' (and {stats.first_seq - 1} before the recorder matched)'
             lines.append(f'{name}: {stats.received} recorded{sent_txt}, {stats.lost} lost')
         return '\n'.join(lines)
 
     def close(self) -> int:
         """Close the bag (summary, metadata.yaml), log the counts; return the exit status."""
+        self._take_timer.cancel()
         for sub in self._subs.values():
-            self.destroy_subscription(sub)
+            self._reader.destroy_subscription(sub)
         self._subs.clear()
+        self._reader.destroy_node()
         try:
             self._writer.close()
         except OSError as err:
@@ -363,7 +412,7 @@ def main(args: list[str] | None = None) -> int:
         executor.add_node(node)
         while not node.stop_requested and rclpy.ok():
             executor.spin_once(timeout_sec=SPIN_PERIOD_S)
-        node.drain(executor)
+        node.drain()
     except StartupError as err:
         rclpy.logging.get_logger(NODE_NAME).error(str(err))
         status = EXIT_FAILURE

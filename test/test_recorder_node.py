@@ -1,0 +1,320 @@
+"""The recorder node over real DDS, against a test publisher process that numbers
+its messages, so that what was sent is known exactly."""
+import itertools
+import os
+import resource
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+import yaml
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+from rclpy.serialization import serialize_message
+from rosbags.highlevel import AnyReader
+from rosbags.rosbag2 import Reader
+from std_msgs.msg import Float64
+
+from hill_muscle_ros.recording.reader import read_bag
+from ros_helpers import DEFAULT_TIMEOUT_S, ProcessGroup, node_command, ros_env
+
+pytestmark = pytest.mark.ros
+
+RATE_HZ = 1000.0
+#: The simulator's three outputs and the player's two: five topics at 1 kHz.
+TOPICS = ('pulse_width', 'length_command', 'force', 'ce_length', 'wrench')
+NS_PER_MS = 1_000_000
+NS_PER_S = 1_000_000_000
+#: [s] poll period when waiting on a process's output.
+POLL_S = 0.05
+
+#: Publishes message k (k = 0, 1, ...) on every topic at RATE_HZ: Float64 data = k,
+#: WrenchStamped force.x = k stamped k ms. Starts once every topic has a
+#: subscriber, prints progress, and stays alive after the last message.
+PUBLISHER = r'''
+import sys, time
+import rclpy
+from rclpy.node import Node
+from std_msgs.msg import Float64
+from geometry_msgs.msg import WrenchStamped
+rate, n, topics = float(sys.argv[1]), int(sys.argv[2]), sys.argv[3].split(',')
+rclpy.init()
+node = Node('numbered_publisher')
+# A deep history lets reliable delivery recover the first messages when the
+# recorder's reader matches this writer a little after the writer matched it.
+pubs = [(t, node.create_publisher(WrenchStamped if t.endswith('wrench') else Float64, t, 1000))
+        for t in topics]
+while any(p.get_subscription_count() == 0 for _, p in pubs):
+    time.sleep(0.01)
+print('matched', flush=True)
+t0 = time.monotonic()
+wrench = WrenchStamped()
+wrench.header.frame_id = 'muscle'
+for k in range(n):
+    delay = t0 + k / rate - time.monotonic()
+    if delay > 0:
+        time.sleep(delay)
+    for t, p in pubs:
+        if t.endswith('wrench'):
+            wrench.header.stamp.sec, wrench.header.stamp.nanosec = divmod(k * 1000000, 10**9)
+            wrench.wrench.force.x = float(k)
+            p.publish(wrench)
+        else:
+            p.publish(Float64(data=float(k)))
+    if k % 250 == 0:
+        print('published', k, flush=True)
+from rclpy.duration import Duration
+acked = all(p.wait_for_all_acked(Duration(seconds=10)) for _, p in pubs)
+print('done', n, 'acked' if acked else 'not acked', flush=True)
+try:
+    while True:
+        time.sleep(1.0)
+except KeyboardInterrupt:
+    pass
+'''
+
+
+_namespaces = itertools.count()
+
+
+@pytest.fixture
+def ns():
+    """A namespace of its own per test: other test runs on this machine may share
+    the DDS domain and publish /force too."""
+    return f'/rec{os.getpid()}_{next(_namespaces)}'
+
+
+def publisher_cmd(n: int, ns: str, topics=TOPICS):
+    names = [t if t.startswith('/') else f'{ns}/{t}' for t in topics]
+    return [sys.executable, '-c', PUBLISHER, str(RATE_HZ), str(n), ','.join(names)]
+
+
+def wait_for_output(proc, text, timeout_s=DEFAULT_TIMEOUT_S, procs=()):
+    """Wait until ``text`` appears in a process's log; fail if a watched process exits."""
+    deadline = time.monotonic() + timeout_s
+    while text not in proc.output():
+        for p in (proc, *procs):
+            if p.returncode is not None and text not in proc.output():
+                raise AssertionError(f'{p.name} exited while waiting for {text!r}\n'
+                                     + '\n'.join(q.describe() for q in (proc, *procs)))
+        if time.monotonic() > deadline:
+            raise AssertionError(f'timed out waiting for {text!r}\n'
+                                 + '\n'.join(q.describe() for q in (proc, *procs)))
+        time.sleep(POLL_S)
+
+
+def published_count(proc) -> int:
+    """The highest progress count the publisher has printed."""
+    counts = [int(line.split()[1]) for line in proc.output().splitlines()
+              if line.startswith('published ')]
+    return max(counts, default=-1)
+
+
+def recorder_cmd(output, ns):
+    return node_command('recorder', ns=ns, params={'output': str(output)})
+
+
+def stop(proc, sig, timeout_s=DEFAULT_TIMEOUT_S):
+    proc.popen.send_signal(sig)
+    return proc.wait(timeout_s)
+
+
+@pytest.fixture(scope='module')
+def full_run(tmp_path_factory):
+    """3 s of five 1 kHz topics, recorded, then the recorder stopped with SIGINT."""
+    tmp = tmp_path_factory.mktemp('full_run')
+    n = 3000
+    bag = tmp / 'bag'
+    ns = f'/rec{os.getpid()}_full'
+    with ProcessGroup(tmp) as procs:
+        rec = procs.start('recorder', recorder_cmd(bag, ns))
+        pub = procs.start('publisher', publisher_cmd(n, ns))
+        # 'done' comes after every message was acknowledged by the recorder's reader.
+        wait_for_output(pub, f'done {n}', timeout_s=60, procs=[rec])
+        status = stop(rec, signal.SIGINT)
+    return bag, n, status, rec.output(), ns
+
+
+def test_recorder_exits_zero_on_sigint(full_run):
+    _, _, status, log, _ = full_run
+    assert status == 0, log
+
+
+def test_every_message_sent_at_1khz_is_recorded(full_run):
+    bag, n, _, log, ns = full_run
+    data = read_bag(bag)
+    assert data.counts() == {f'{ns}/{t}': n for t in TOPICS}, log
+    for topic in TOPICS:
+        assert list(data.topic(f'{ns}/{topic}').values()) == [float(k) for k in range(n)]
+
+
+def test_recorder_reports_sent_against_recorded(full_run):
+    _, n, _, log, ns = full_run
+    for topic in TOPICS:
+        assert f'{ns}/{topic}: {n} recorded, publisher sent {n}, 0 lost' in log
+
+
+def test_recorded_bytes_are_the_published_cdr(full_run):
+    bag, n, _, _, ns = full_run
+    with Reader(bag) as reader:
+        conns = [c for c in reader.connections if c.topic == f'{ns}/force']
+        raw = [bytes(data) for _, _, data in reader.messages(connections=conns)]
+    assert raw == [serialize_message(Float64(data=float(k))) for k in range(n)]
+
+
+def test_publish_time_is_the_header_stamp_and_log_time_the_receive_time(full_run):
+    bag, n, _, _, ns = full_run
+    wrench = read_bag(bag).topic(f'{ns}/wrench')
+    assert list(wrench.publish_time_ns) == [k * NS_PER_MS for k in range(n)]
+    force = read_bag(bag).topic(f'{ns}/force')
+    # Float64 has no header: publish time is the receive time, in wall-clock ns.
+    np.testing.assert_array_equal(force.publish_time_ns, force.log_time_ns)
+    assert abs(force.log_time_ns[-1] / NS_PER_S - time.time()) < 3600
+    assert np.all(np.diff(force.log_time_ns) >= 0)
+
+
+def test_live_bag_opens_with_anyreader(full_run):
+    bag, n, _, _, ns = full_run
+    with AnyReader([bag]) as reader:
+        conns = [c for c in reader.connections if c.topic == f'{ns}/wrench']
+        values = [reader.deserialize(raw, c.msgtype).wrench.force.x
+                  for c, _, raw in reader.messages(connections=conns)]
+    assert values == [float(k) for k in range(n)]
+
+
+def test_live_bag_opens_with_mcap_ros2(full_run):
+    bag, n, _, _, ns = full_run
+    with open(bag / 'bag_0.mcap', 'rb') as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        assert reader.get_header().profile == 'ros2'
+        values = [d.data for *_, d in
+                  reader.iter_decoded_messages(topics=[f'{ns}/pulse_width'])]
+    assert values == [float(k) for k in range(n)]
+
+
+def test_channels_carry_the_publishers_qos(full_run):
+    bag, *_ = full_run
+    info = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    for topic in info['topics_with_message_count']:
+        qos = topic['topic_metadata']['offered_qos_profiles']
+        assert len(qos) == 1 and qos[0]['reliability'] == 'reliable'
+
+
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM], ids=['SIGINT', 'SIGTERM'])
+def test_stop_signal_mid_run_leaves_a_complete_bag_without_holes(tmp_path, sig, ns):
+    bag = tmp_path / 'bag'
+    with ProcessGroup(tmp_path) as procs:
+        rec = procs.start('recorder', recorder_cmd(bag, ns))
+        pub = procs.start('publisher', publisher_cmd(60_000, ns))
+        wait_for_output(pub, 'published 1500', timeout_s=60, procs=[rec])
+        sent_before_signal = published_count(pub)
+        status = stop(rec, sig)
+    assert status == 0, rec.output()
+    data = read_bag(bag)
+    assert data.complete
+    info = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    assert info['message_count'] == sum(data.counts().values())
+    for topic in TOPICS:
+        values = data.topic(f'{ns}/{topic}').values()
+        # Every message from the first up to the stop is there, none skipped,
+        # including those published before the signal was sent.
+        assert len(values) >= sent_before_signal + 1
+        assert list(values) == [float(k) for k in range(len(values))]
+
+
+def test_sigkill_leaves_the_closed_chunks_readable(tmp_path, ns):
+    bag = tmp_path / 'bag'
+    with ProcessGroup(tmp_path) as procs:
+        rec = procs.start('recorder', recorder_cmd(bag, ns))
+        pub = procs.start('publisher', publisher_cmd(60_000, ns))
+        wait_for_output(pub, 'published 3000', timeout_s=60, procs=[rec])
+        rec.popen.send_signal(signal.SIGKILL)
+        rec.wait()
+    assert not (bag / 'metadata.yaml').exists()
+    data = read_bag(bag)
+    assert not data.complete
+    for topic in TOPICS:
+        values = data.topic(f'{ns}/{topic}').values()
+        # Chunks close at least every second: of 3 s, at least 1 s is on disk.
+        assert len(values) >= RATE_HZ, topic
+        assert list(values) == [float(k) for k in range(len(values))]
+
+
+def test_non_empty_output_is_refused_and_left_alone(tmp_path, ns):
+    bag = tmp_path / 'bag'
+    bag.mkdir()
+    (bag / 'old_run.mcap').write_bytes(b'precious')
+    with ProcessGroup(tmp_path) as procs:
+        rec = procs.start('recorder', recorder_cmd(bag, ns))
+        status = rec.wait()
+    assert status != 0
+    assert 'not empty' in rec.output()
+    assert [p.name for p in bag.iterdir()] == ['old_run.mcap']
+    assert (bag / 'old_run.mcap').read_bytes() == b'precious'
+
+
+def test_unwritable_output_is_a_clear_start_up_error(tmp_path, ns):
+    blocker = tmp_path / 'a_file'
+    blocker.write_text('')
+    with ProcessGroup(tmp_path) as procs:
+        rec = procs.start('recorder', recorder_cmd(blocker / 'bag', ns))
+        status = rec.wait()
+    assert status != 0
+    assert 'cannot create bag directory' in rec.output()
+    assert 'Traceback' not in rec.output()
+
+
+#: [B] the recorder's largest file: a full disk after about two chunks.
+FILE_SIZE_LIMIT = 400_000
+
+
+def _limit_file_size():
+    # Python ignores SIGXFSZ, so writes past the limit fail with EFBIG (an OSError),
+    # as they would with ENOSPC on a full disk.
+    resource.setrlimit(resource.RLIMIT_FSIZE, (FILE_SIZE_LIMIT, FILE_SIZE_LIMIT))
+
+
+def test_write_error_mid_run_stops_cleanly_keeping_what_was_written(tmp_path, ns):
+    bag = tmp_path / 'bag'
+    log = open(tmp_path / 'recorder.log', 'wb')
+    with ProcessGroup(tmp_path) as procs:
+        rec = subprocess.Popen(recorder_cmd(bag, ns), stdout=log, stderr=subprocess.STDOUT,
+                               env=ros_env(), preexec_fn=_limit_file_size,
+                               start_new_session=True)
+        try:
+            procs.start('publisher', publisher_cmd(60_000, ns))
+            status = rec.wait(timeout=120)
+        finally:
+            if rec.poll() is None:
+                os.killpg(rec.pid, signal.SIGKILL)
+                rec.wait()
+            log.close()
+    output = (tmp_path / 'recorder.log').read_text()
+    assert status != 0, output
+    assert 'stopping' in output and 'Traceback' not in output
+    data = read_bag(bag)
+    force = data.topic(f'{ns}/force').values()
+    assert len(force) > 0
+    assert list(force) == [float(k) for k in range(len(force))]
+    info = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    counts = {t['topic_metadata']['name']: t['message_count']
+              for t in info['topics_with_message_count']}
+    assert counts == data.counts()
+
+
+def test_topics_resolve_in_the_namespace_and_unknown_types_are_discovered(tmp_path, ns):
+    bag = tmp_path / 'bag'
+    n = 500
+    elsewhere = f'{ns}_elsewhere'
+    with ProcessGroup(tmp_path) as procs:
+        rec = procs.start('recorder', node_command(
+            'recorder', ns=f'{ns}/left', params={'output': str(bag)},
+            extra_ros_args=['-p', f'topics:=[force, {elsewhere}]']))
+        pub = procs.start('publisher', publisher_cmd(n, ns, topics=(
+            f'{ns}/left/force', elsewhere)))
+        wait_for_output(pub, f'done {n}', timeout_s=60, procs=[rec])
+        assert stop(rec, signal.SIGINT) == 0
+    assert read_bag(bag).counts() == {f'{ns}/left/force': n, elsewhere: n}
