@@ -309,7 +309,12 @@ class Probe:
                 if predicate(rec.messages[i].data):
                     return i + 1  # truthy even for index 0
             return 0
-        return self.spin_until(found, f'{rec.topic}: {what}', timeout_s, procs) - 1
+        def describe():
+            return f'{rec.topic}: {what} (last values: {rec.data_since(len(rec.messages) - 5)})'
+        try:
+            return self.spin_until(found, f'{rec.topic}: {what}', timeout_s, procs) - 1
+        except AssertionError as err:
+            raise AssertionError(f'{describe()}\n{err}') from None
 
     # -- topics -----------------------------------------------------------------
 

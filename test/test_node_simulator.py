@@ -132,7 +132,7 @@ def test_read_only_rate_is_rejected_live(sim):
     assert 'rate_hz' in results[0].reason
 
 
-def test_live_stiffness_change_applies_with_state_kept(sim):
+def test_live_stiffness_change_rebuilds_at_rest_and_applies(sim):
     _publish(sim, '/left/length_command', STRETCH_M)
     _settle(sim, 'left', 'force', lambda f: abs(f - PE_FORCE_N) < FORCE_TOL_N, 'PE force')
     k_new = 2.0 * DEFAULTS.k_pe_n_per_m
@@ -140,11 +140,30 @@ def test_live_stiffness_change_applies_with_state_kept(sim):
         results = sim['probe'].set_parameters('/left/simulator', {'k_pe_n_per_m': k_new},
                                               procs=sim['procs'])
         assert results[0].successful, results[0].reason
-        # The held stretch survives the change: F = k_pe_new * dl, not 0 (rest).
+        _settle(sim, 'left', 'force', lambda f: f == 0.0, 'zero force at rest')
+        _publish(sim, '/left/length_command', STRETCH_M)
         _settle(sim, 'left', 'force', lambda f: abs(f - k_new * STRETCH_M) < FORCE_TOL_N,
                 'force with the new k_pe')
     finally:
         sim['probe'].set_parameters('/left/simulator', {'k_pe_n_per_m': DEFAULTS.k_pe_n_per_m},
+                                    procs=sim['procs'])
+
+
+def test_live_pw_max_change_keeps_state(sim):
+    _publish(sim, '/left/length_command', STRETCH_M)
+    _settle(sim, 'left', 'force', lambda f: abs(f - PE_FORCE_N) < FORCE_TOL_N, 'PE force')
+    rec = sim['recs']['left']['force']
+    try:
+        results = sim['probe'].set_parameters('/left/simulator',
+                                              {'pw_max_s': 2.0 * DEFAULTS.pw_max_s},
+                                              procs=sim['procs'])
+        assert results[0].successful, results[0].reason
+        mark = rec.mark()
+        sim['probe'].spin_for(WATCH_S)
+        forces = rec.data_since(mark)
+        assert forces and max(abs(f - PE_FORCE_N) for f in forces) < FORCE_TOL_N
+    finally:
+        sim['probe'].set_parameters('/left/simulator', {'pw_max_s': DEFAULTS.pw_max_s},
                                     procs=sim['procs'])
 
 

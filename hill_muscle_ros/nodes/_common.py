@@ -165,11 +165,12 @@ def declare_checked(node: Node, name: str, default: Any,
 
 
 #: What a live change of a muscle parameter does (README "ROS 2 nodes").
-LIVE_KEEPS_STATE = ('k_se_n_per_m', 'k_pe_n_per_m', 'fv_a_n', 'fv_b_m_per_s',
-                    'fv_a_ecc_n', 'fv_b_ecc_m_per_s', 'pw_max_s')
-#: These fields shape the motor-unit memory or the resting state itself, so a
-#: live change rebuilds the muscle at rest.
-LIVE_RESETS = ('f_iso_max_n', 'l_rest_m', 'l_opt_m', 'n_units', 'units', 'length')
+#: ``pw_max_s`` only maps pulse widths to recruitment in the node, so it can
+#: change with the state kept.
+LIVE_KEEPS_STATE = ('pw_max_s',)
+#: The model core builds its step from the other parameters once, when the
+#: muscle is made, so a live change rebuilds the muscle at rest.
+LIVE_RESETS = tuple(n for n in MuscleParams.field_names() if n not in LIVE_KEEPS_STATE)
 
 
 def declare_muscle_parameters(node: Node) -> MuscleParams:

@@ -89,6 +89,7 @@ class Simulator(Node):
                 raise StartupError(f'parameter `{name}` must be finite, got {value!r}')
         warn_unknown_overrides(self)
 
+        self._params = params        # current MuscleParams (pw_max_s may differ from the muscle's)
         self._muscle = Muscle(params)
         self._rate_hz = rate_hz
         self._dt_s = 1.0 / rate_hz
@@ -198,7 +199,7 @@ class Simulator(Node):
                                     f'{self._dl_mt_m:g} m')
 
     def _on_pulse_width(self, msg: Float64) -> None:
-        pw_max_s = self._muscle.params.pw_max_s
+        pw_max_s = self._params.pw_max_s
         try:
             if msg.data > PULSE_WIDTH_UNIT_HINT_FACTOR * pw_max_s:
                 raise ValueError(f'`pulse_width` is more than {PULSE_WIDTH_UNIT_HINT_FACTOR:g} '
@@ -252,7 +253,7 @@ class Simulator(Node):
 
     def _candidate(self, parameters: list[Parameter]) -> MuscleParams:
         changes = {p.name: p.value for p in parameters if p.name in MuscleParams.field_names()}
-        return self._muscle.params.replace(**changes) if changes else self._muscle.params
+        return self._params.replace(**changes) if changes else self._params
 
     def _validate_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
         """Accept a change only if the model accepts it; the reason names the value."""
@@ -267,7 +268,7 @@ class Simulator(Node):
         return SetParametersResult(successful=True)
 
     def _apply_parameters(self, parameters: list[Parameter]) -> None:
-        old = self._muscle.params
+        old = self._params
         new = self._candidate(parameters)
         for p in parameters:
             if p.name == 'input_timeout_s':
@@ -276,14 +277,13 @@ class Simulator(Node):
                 self._frame_id = p.value
         if new == old:
             return
+        self._params = new
         changed = [n for n in MuscleParams.field_names() if getattr(new, n) != getattr(old, n)]
         if any(n in LIVE_RESETS for n in changed):
             self._muscle = Muscle(new)
             self._reset_to_rest()
-            self.get_logger().info(f'{", ".join(changed)} changed: muscle reset to rest')
+            self.get_logger().info(f'{", ".join(changed)} changed: muscle rebuilt at rest')
         else:
-            # Muscle reads these constants at every step, so the state is kept.
-            self._muscle.params = new
             self.get_logger().info(f'{", ".join(changed)} changed, state kept')
 
     def on_exit(self) -> None:
