@@ -1,0 +1,98 @@
+"""Fault case 6: bad parameters, at start-up and at run time.
+
+What must hold:
+
+- At start-up, a params file with a negative stiffness, an unknown key, or a
+  value of the wrong type makes the node exit non-zero, with a message naming
+  the parameter and no traceback (simulator and force controller).
+- At run time, each bad value is rejected (the reason names it), the node
+  keeps running and its parameters are unchanged.
+"""
+from __future__ import annotations
+
+import itertools
+import os
+import time
+
+import pytest
+import yaml
+from std_msgs.msg import Float64
+
+from hill_muscle_ros.model import MuscleParams
+from ros_helpers import Probe, ProcessGroup, node_command
+
+pytestmark = [pytest.mark.faults, pytest.mark.ros]
+
+_RUNS = itertools.count()
+#: What a node logs when it ignores unknown parameters and starts anyway.
+IGNORED_WARNING = 'ignoring parameters this node does not have'
+#: [s] poll period of a process's exit status (no ROS here to spin).
+POLL_S = 0.05
+#: [s] for a node to fail on a bad parameter.
+EXIT_TIMEOUT_S = 60.0
+#: Known gap (nodes/_common.py, not this suite's file): an unknown key is only
+#: warned about, since a `/**` section may carry other nodes' keys.
+UNKNOWN_KEY_GAP = ('_common.warn_unknown_overrides only warns about an unknown key; '
+                   'issue 6 asks for a non-zero exit naming it')
+
+STARTUP_CASES = [
+    ('simulator', 'k_se_n_per_m', -10000.0),
+    ('simulator', 'k_se_n_per_m', 'stiff'),
+    ('simulator', 'n_units', 1000.0),
+    pytest.param('simulator', 'k_se_typo_n_per_m', 10000.0,
+                 marks=pytest.mark.xfail(strict=True, reason=UNKNOWN_KEY_GAP)),
+    ('force_controller', 'kp_s_per_n', -1e-5),
+    ('force_controller', 'ki_s_per_n_s', 'high'),
+    pytest.param('force_controller', 'kd_s', 1e-5,
+                 marks=pytest.mark.xfail(strict=True, reason=UNKNOWN_KEY_GAP)),
+]
+
+
+@pytest.mark.parametrize('executable, name, value', STARTUP_CASES)
+def test_bad_params_file_exits_non_zero_naming_the_parameter(tmp_path, executable, name,
+                                                             value):
+    params = tmp_path / 'params.yaml'
+    params.write_text(yaml.safe_dump({'/**': {'ros__parameters': {name: value}}}))
+    with ProcessGroup(tmp_path) as procs:
+        proc = procs.start(executable, node_command(executable, params_files=[params]))
+        deadline = time.monotonic() + EXIT_TIMEOUT_S
+        # Exited, or went past parameter checking (it warned and runs on).
+        while (proc.returncode is None and time.monotonic() < deadline
+               and IGNORED_WARNING not in proc.output()):
+            time.sleep(POLL_S)
+        status = proc.returncode
+        out = proc.output()
+    assert status is not None and status != 0, out
+    assert name in out
+    assert 'Traceback' not in out
+
+
+RUNTIME_CASES = [
+    ('k_se_n_per_m', -1.0), ('k_pe_n_per_m', float('inf')), ('fv_b_m_per_s', 0.0),
+    ('units', 'triple'), ('length', 'current'), ('n_units', 0), ('pw_max_s', -5e-4),
+    ('rate_hz', 2000.0), ('input_timeout_s', float('nan')),
+]
+
+
+@pytest.fixture(scope='module')
+def sim(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp('bad_params')
+    ns = f'/badp_{os.getpid()}_{next(_RUNS)}'
+    with ProcessGroup(tmp) as procs, Probe('bad_params_probe') as probe:
+        proc = procs.start('simulator', node_command('simulator', ns=ns,
+                                                     params={'rate_hz': 200.0}))
+        force = probe.record(f'{ns}/force', Float64)
+        probe.wait_for_messages(force, procs=[proc])
+        yield {'probe': probe, 'proc': proc, 'node': f'{ns}/simulator', 'force': force}
+
+
+@pytest.mark.parametrize('name, value', RUNTIME_CASES)
+def test_bad_value_at_run_time_is_rejected_and_the_node_is_unchanged(sim, name, value):
+    probe, proc, node = sim['probe'], sim['proc'], sim['node']
+    names = [*MuscleParams.field_names(), 'rate_hz', 'input_timeout_s', 'frame_id']
+    before = probe.get_parameters(node, names, procs=[proc])
+    (result,) = probe.set_parameters(node, {name: value}, procs=[proc])
+    assert not result.successful
+    assert name in result.reason
+    assert probe.get_parameters(node, names, procs=[proc]) == before
+    probe.wait_for_messages(sim['force'], mark=sim['force'].mark(), procs=[proc])
