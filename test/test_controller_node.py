@@ -73,9 +73,6 @@ def test_stimulation_resumes_when_feedback_returns(ctrl):
     probe.wait_for_value(pw, lambda v: v > 0.0, 'stimulation again', mark=mark, procs=[proc])
 
 
-@pytest.mark.xfail(strict=True, reason='rclpy\'s signal handler shuts the context down '
-                   'before _common.run_node calls on_exit, so the zero cannot be published '
-                   '("publisher\'s context is invalid"); to be fixed in run_node')
 @pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM], ids=['SIGINT', 'SIGTERM'])
 def test_stop_signal_publishes_zero_stimulation_last(ctrl, sig):
     probe, pw, proc = ctrl['probe'], ctrl['pw'], ctrl['proc']

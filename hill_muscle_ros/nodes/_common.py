@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import signal
 import time
 from typing import Any, Callable
 
@@ -25,6 +26,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile,
                        ReliabilityPolicy)
+from rclpy.signals import SignalHandlerOptions
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange,
                                 ParameterDescriptor)
 
@@ -66,8 +68,15 @@ def run_node(node_factory: Callable[[], Node], args: list[str] | None = None) ->
     :param args: command-line arguments for ``rclpy.init`` (``--ros-args ...``);
         ``None`` means ``sys.argv``
     :return: the process exit status
+
+    SIGINT and SIGTERM are taken here rather than by rclpy: rclpy's handlers
+    shut the context down before ``finally`` runs, and a node's ``on_exit``
+    (the controller and the player publish zero stimulation there) could no
+    longer publish. Both signals raise :class:`KeyboardInterrupt` once; the
+    handlers are restored before the context shuts down.
     """
-    rclpy.init(args=args)
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    previous = {sig: signal.signal(sig, _interrupt_once) for sig in _STOP_SIGNALS}
     node = None
     status = EXIT_SUCCESS
     try:
@@ -91,8 +100,22 @@ def run_node(node_factory: Callable[[], Node], args: list[str] | None = None) ->
             if on_exit is not None:
                 on_exit()
             node.destroy_node()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
         rclpy.try_shutdown()
     return status
+
+
+#: Signals that stop a node cleanly (Ctrl-C, and what process managers send).
+_STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+def _interrupt_once(signum: int, _frame: Any) -> None:
+    """Turn the first stop signal into KeyboardInterrupt; ignore repeats while
+    the node is already stopping, so its clean-up is not cut short."""
+    for sig in _STOP_SIGNALS:
+        signal.signal(sig, signal.SIG_IGN)
+    raise KeyboardInterrupt(f'signal {signal.Signals(signum).name}')
 
 
 # -- parameters -----------------------------------------------------------------
