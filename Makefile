@@ -20,12 +20,17 @@ $(STAMP): setup.py setup.cfg package.xml requirements-dev.txt requirements-ros.t
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
-# Until the ROS nodes exist the demo is offline: Protocol II as a table and a
-# CSV, plus the paper's Figures 8-11. Every run overwrites the same files.
+# The live demo: simulator, protocol player and recorder as three ROS 2
+# processes on a DDS domain of their own; the bag is read back, plotted
+# (runs/<name>/force.png) and summarised. Options pass through:
+#   make demo PROTOCOL=I UNITS=single LENGTH=instantaneous
+#   make demo PROTOCOL=path/to/protocol.yaml
+PROTOCOL ?= II
+UNITS    ?=
+LENGTH   ?=
 demo: $(STAMP)
-	$(BIN)/hill-muscle simulate --protocol II
-	$(BIN)/hill-muscle simulate --protocol II --csv runs/demo/protocol_II.csv
-	$(BIN)/hill-muscle figures --out runs/figures
+	$(BIN)/python -m hill_muscle_ros.demo --protocol '$(PROTOCOL)' \
+	    --units '$(UNITS)' --length '$(LENGTH)'
 
 figures: $(STAMP)
 	$(BIN)/hill-muscle figures --out runs/figures

@@ -81,6 +81,8 @@ TAKE_PERIOD_S = 0.01
 DRAIN_TIMEOUT_S = 2.0
 #: [s] executor wake-up period (checks the stop flag).
 SPIN_PERIOD_S = 0.05
+#: Start of the log line that says the recorder is subscribed and writing.
+READY_MESSAGE = 'ready: recording'
 #: Bytes of the CDR encapsulation header before the payload.
 CDR_HEADER_BYTES = 4
 #: Stamp layout at the start of a message whose first field is a std_msgs/Header:
@@ -230,10 +232,11 @@ class Recorder(Node):
         self._discovery = self.create_timer(DISCOVERY_PERIOD_S, self._discover)
         self._flush_timer = self.create_timer(FLUSH_CHECK_PERIOD_S, self._flush_if_due)
         self._take_timer = self.create_timer(TAKE_PERIOD_S, self.take_all)
-        self.get_logger().info(f'recording {", ".join(self._wanted)} to {self.output}')
         for name, type_name in known.items():
             self._subscribe(name, type_name, request_qos([]))
         self._discover()
+        # Logged once the known topics are subscribed: a launcher may wait for it.
+        self.get_logger().info(f'{READY_MESSAGE} {", ".join(self._wanted)} to {self.output}')
 
     # -- discovery ----------------------------------------------------------------
 
@@ -314,7 +317,7 @@ class Recorder(Node):
         publish_ns = header_stamp_ns(data) if stats.stamped else log_ns
         seq = info.get('publication_sequence_number')
         try:
-            self._writer.write(topic, data, log_ns, publish_ns)
+            self._writer.write(topic, data, log_ns, publish_ns, sequence=seq or 0)
         except OSError as err:
             self._fail(f'writing {self._writer.mcap_path} failed: {err.strerror or err}')
             return

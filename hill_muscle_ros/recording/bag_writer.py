@@ -13,7 +13,8 @@ and what this writer reproduces:
 - one channel per topic, message encoding ``cdr``, with channel metadata
   ``offered_qos_profiles`` (the YAML list of the publishers' QoS, policies
   spelled as rmw strings) and ``topic_type_hash`` (RIHS01);
-- messages with ``log_time`` = receive time and ``publish_time`` = send time;
+- messages with ``log_time`` = receive time, ``publish_time`` = send time
+  and ``sequence`` = the publisher's sequence number (0 if unknown);
 - at close, a metadata record named ``rosbag2`` whose ``serialized_metadata``
   is the bag metadata in YAML.
 
@@ -363,13 +364,14 @@ class BagWriter:
 
     # ----------------------------------------------------------------- writing
     def write(self, topic: str, data: bytes, log_time_ns: int,
-              publish_time_ns: int | None = None) -> None:
+              publish_time_ns: int | None = None, sequence: int = 0) -> None:
         """Append one serialized (CDR) message.
 
         :param topic: a registered topic
         :param data: the CDR bytes, exactly as received
         :param log_time_ns: [ns] receive time
         :param publish_time_ns: [ns] send time (header stamp); defaults to log time
+        :param sequence: the publisher's sequence number, 0 if unknown
         :raises OSError: if the file cannot be written (the bag stays readable
             up to the last closed chunk)
         """
@@ -380,7 +382,8 @@ class BagWriter:
             self._chunk.first_log_ns = log_time_ns
         self._writer.add_message(
             channel_id=info.channel_id, log_time=log_time_ns, data=data,
-            publish_time=log_time_ns if publish_time_ns is None else publish_time_ns)
+            publish_time=log_time_ns if publish_time_ns is None else publish_time_ns,
+            sequence=sequence)
         info.count += 1
         self._chunk.messages += 1
         self._chunk.per_topic[topic] = self._chunk.per_topic.get(topic, 0) + 1

@@ -33,6 +33,7 @@ class TopicData:
     :param log_time_ns: [ns] receive times (MCAP ``log_time``)
     :param publish_time_ns: [ns] publish times (header stamp where there is one)
     :param messages: the decoded messages (``mcap_ros2`` dynamic objects)
+    :param sequence: the publisher's sequence numbers (0 where unknown)
     """
 
     name: str
@@ -40,6 +41,8 @@ class TopicData:
     log_time_ns: np.ndarray
     publish_time_ns: np.ndarray
     messages: list[Any] = field(repr=False)
+    sequence: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64),
+                                 repr=False)
 
     @property
     def count(self) -> int:
@@ -139,7 +142,7 @@ def read_bag(bag_dir: str | Path, topics: list[str] | None = None) -> Bag:
     mcap_path = _mcap_file(bag_dir, metadata)
     decoders = DecoderFactory()
     cache: dict[int, Any] = {}
-    rows: dict[str, tuple[str, list, list, list]] = {}
+    rows: dict[str, tuple[str, list, list, list, list]] = {}
     problem = ''
     with open(mcap_path, 'rb') as stream:
         complete = _has_summary(stream)
@@ -154,18 +157,20 @@ def read_bag(bag_dir: str | Path, topics: list[str] | None = None) -> Bag:
                     decoder = decoders.decoder_for(channel.message_encoding, schema)
                     cache[channel.id] = decoder
                 entry = rows.setdefault(channel.topic,
-                                        (schema.name if schema else '', [], [], []))
+                                        (schema.name if schema else '', [], [], [], []))
                 entry[1].append(message.log_time)
                 entry[2].append(message.publish_time)
                 entry[3].append(decoder(message.data))
+                entry[4].append(message.sequence)
         except (McapError, EOFError, struct.error, ValueError) as err:
             if complete:
                 raise
             # An unclosed file ends in a partial record: keep what came before it.
             problem = f'{type(err).__name__}: {err}'
     data = {name: TopicData(name, type_, np.asarray(log, dtype=np.int64),
-                            np.asarray(pub, dtype=np.int64), msgs)
-            for name, (type_, log, pub, msgs) in rows.items()}
+                            np.asarray(pub, dtype=np.int64), msgs,
+                            np.asarray(seq, dtype=np.int64))
+            for name, (type_, log, pub, msgs, seq) in rows.items()}
     for entry in (metadata or {}).get('topics_with_message_count', []):
         meta = entry['topic_metadata']
         if meta['name'] not in data and (topics is None or meta['name'] in topics):

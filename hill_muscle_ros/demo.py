@@ -1,0 +1,339 @@
+"""``make demo``: a live run over ROS 2, recorded, read back, plotted and summarised.
+
+1. starts the simulator, the recorder and then the protocol player as three
+   separate ROS processes, on a DDS domain of their own, localhost only;
+2. waits for the protocol to end (the player exits);
+3. stops the recorder with SIGINT, so the bag is closed properly;
+4. reads the bag back with :func:`hill_muscle_ros.recording.reader.read_bag`;
+5. writes ``<bag>/force.png``: force and inputs against time, from the bag;
+6. prints the force at the end of each second (next to the offline
+   simulation of the same protocol), the message count per topic and the bag.
+
+Every child runs in its own process group and is stopped (SIGINT, then
+SIGKILL of the group) when the demo ends, whatever the reason: normal end,
+error, Ctrl-C, SIGTERM or SIGHUP. Children also get SIGTERM from the kernel
+if the demo itself dies (``PR_SET_PDEATHSIG``).
+
+Run: ``python -m hill_muscle_ros.demo [--protocol I|II|PATH] [--units ...] [--length ...]``.
+"""
+from __future__ import annotations
+
+import argparse
+import ctypes
+import datetime as _dt
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from .model import LENGTH_CHOICES, UNITS_CHOICES, MuscleParams, Protocol, simulate
+from .params_file import load_muscle_params
+from .resources import default_params_file, protocol_path
+
+PROG = 'python -m hill_muscle_ros.demo'
+DEFAULT_RUNS_DIR = Path('runs')
+#: Domains 101..199: clear of 0 (most users' default) and of the 1..100 the
+#: test suite uses, within the range Fast DDS maps to valid UDP ports.
+DEMO_DOMAIN_BASE, DEMO_DOMAIN_SPAN = 101, 99
+#: [s] how long the simulator and the recorder may take to start.
+STARTUP_TIMEOUT_S = 60.0
+#: [s] allowance beyond the protocol's duration for the player to start and end.
+PLAYER_SLACK_S = 60.0
+#: [s] how long a child may take to exit after SIGINT before its group is killed.
+STOP_TIMEOUT_S = 15.0
+#: [s] poll period while waiting on children.
+POLL_S = 0.05
+#: Units on the plot (the bag and the topics are SI).
+US_PER_S, MM_PER_M = 1e6, 1e3
+NS_PER_S = 1_000_000_000
+#: prctl option that sends a signal to a child when its parent dies (Linux).
+_PR_SET_PDEATHSIG = 1
+
+
+class DemoError(RuntimeError):
+    """The demo could not complete; the message says which step and why."""
+
+
+# --------------------------------------------------------------------------- processes
+
+def _die_with_parent() -> None:  # runs in the child between fork and exec
+    # A demo started in the background of a script inherits SIGINT ignored;
+    # the nodes must still stop cleanly on the SIGINT the demo sends them.
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+    except (OSError, AttributeError):
+        pass  # not Linux: the try/finally in the parent still stops the children
+
+
+class Child:
+    """One ROS process of the demo, in its own process group, logging to a file."""
+
+    def __init__(self, name: str, cmd: list[str], log_path: Path, env: dict[str, str]) -> None:
+        self.name = name
+        self.log_path = log_path
+        self._log = open(log_path, 'wb')
+        self.popen = subprocess.Popen(cmd, stdout=self._log, stderr=subprocess.STDOUT, env=env,
+                                      start_new_session=True, preexec_fn=_die_with_parent)
+
+    def output(self) -> str:
+        return self.log_path.read_text(encoding='utf-8', errors='replace')
+
+    def poll(self) -> int | None:
+        return self.popen.poll()
+
+    def stop(self, timeout_s: float = STOP_TIMEOUT_S) -> int:
+        """SIGINT (a clean stop), then SIGKILL of the whole group after ``timeout_s``."""
+        if self.popen.poll() is None:
+            try:
+                self.popen.send_signal(signal.SIGINT)
+                self.popen.wait(timeout=timeout_s)
+            except subprocess.TimeoutExpired:
+                self.kill()
+        self._log.close()
+        return self.popen.returncode
+
+    def kill(self) -> None:
+        try:
+            os.killpg(self.popen.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        self.popen.wait()
+
+    def tail(self, chars: int = 2000) -> str:
+        return f'--- {self.name} log ({self.log_path}):\n{self.output()[-chars:]}'
+
+
+def _wait(condition, what: str, timeout_s: float, children: Sequence[Child]) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        dead = [c for c in children if c.poll() is not None]
+        if dead:
+            raise DemoError(f'{dead[0].name} exited ({dead[0].poll()}) while waiting for '
+                            f'{what}\n{dead[0].tail()}')
+        if time.monotonic() > deadline:
+            raise DemoError(f'timed out after {timeout_s:g} s waiting for {what}\n'
+                            + '\n'.join(c.tail() for c in children))
+        time.sleep(POLL_S)
+
+
+def ros_environment(domain_id: int | None = None) -> dict[str, str]:
+    """The children's environment: an isolated DDS domain, discovery on this host only."""
+    env = os.environ.copy()
+    if domain_id is None:
+        domain_id = int(env.get('HILL_MUSCLE_DEMO_DOMAIN',
+                                DEMO_DOMAIN_BASE + os.getpid() % DEMO_DOMAIN_SPAN))
+    env.update(ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+               PYTHONUNBUFFERED='1', RCUTILS_LOGGING_BUFFERED_STREAM='0',
+               RCUTILS_COLORIZED_OUTPUT='0')
+    env.pop('ROS_STATIC_PEERS', None)
+    return env
+
+
+def _node(module: str, *ros_args: str) -> list[str]:
+    return [sys.executable, '-m', f'hill_muscle_ros.nodes.{module}', '--ros-args', *ros_args]
+
+
+# --------------------------------------------------------------------------- the run
+
+@dataclass
+class DemoConfig:
+    protocol: str = 'II'
+    units: str | None = None
+    length: str | None = None
+    runs_dir: Path = DEFAULT_RUNS_DIR
+    name: str | None = None
+
+
+def _run_name(config: DemoConfig) -> str:
+    stamp = _dt.datetime.now(_dt.timezone.utc).strftime('%Y-%m-%dT%H-%M-%SZ')
+    label = config.protocol if config.protocol in ('I', 'II') else Path(config.protocol).stem
+    return config.name or f'demo_protocol_{label}_{stamp}'
+
+
+def record_live_run(config: DemoConfig, bag_dir: Path, protocol: Protocol,
+                    log_dir: Path) -> None:
+    """Run simulator, recorder and player; return once the bag is closed."""
+    from .nodes.recorder import READY_MESSAGE
+    env = ros_environment()
+    spec = config.protocol if config.protocol in ('I', 'II') else str(Path(config.protocol)
+                                                                        .resolve())
+    muscle = [f'{k}:={v}' for k, v in (('units', config.units), ('length', config.length)) if v]
+    sim_args = ['--params-file', str(default_params_file())]
+    for override in muscle:
+        sim_args += ['-p', override]
+    children: list[Child] = []
+    try:
+        sim = Child('simulator', _node('simulator', *sim_args), log_dir / 'simulator.log', env)
+        children.append(sim)
+        rec = Child('recorder', _node('recorder', '-p', f'output:={bag_dir}'),
+                    log_dir / 'recorder.log', env)
+        children.append(rec)
+        _wait(lambda: READY_MESSAGE in rec.output(), 'the recorder', STARTUP_TIMEOUT_S,
+              children)
+        player = Child('protocol_player', _node('protocol_player', '-p', f'protocol:={spec}'),
+                       log_dir / 'protocol_player.log', env)
+        children.append(player)
+        print(f'running {protocol.name} ({protocol.duration_s:g} s) over ROS 2 '
+              f'(ROS_DOMAIN_ID={env["ROS_DOMAIN_ID"]}) ...', flush=True)
+        _wait(lambda: player.poll() is not None, 'the protocol to end',
+              protocol.duration_s + PLAYER_SLACK_S, [sim, rec])
+        if player.poll() != 0:
+            raise DemoError(f'the protocol player failed ({player.poll()})\n{player.tail()}')
+        if rec.stop() != 0:
+            raise DemoError(f'the recorder failed ({rec.popen.returncode})\n{rec.tail()}')
+    finally:
+        for child in reversed(children):
+            child.stop()
+
+
+def _protocol_start_ns(stim) -> int:
+    """[ns] when the player sent its first message, from the first one recorded.
+
+    If the recorder matched the player a little late, the sequence number of
+    the first recorded message says how many periods were missed.
+    """
+    first_seq = int(stim.sequence[0]) if len(stim.sequence) else 0
+    period_ns = int(np.median(np.diff(stim.log_time_ns))) if stim.count > 1 else 0
+    return int(stim.log_time_ns[0]) - max(first_seq - 1, 0) * period_ns
+
+
+def summary_times(duration_s: float) -> list[float]:
+    """[s] the end of each whole second of the protocol."""
+    return [float(s) for s in range(1, int(np.floor(duration_s)) + 1)] or [duration_s]
+
+
+def analyse(bag_dir: Path, protocol: Protocol, params: MuscleParams,
+            rate_hz: float, plot_path: Path) -> str:
+    """Read the bag, write the plot, and return the summary text."""
+    from .recording.reader import read_bag
+    bag = read_bag(bag_dir)
+    stim_name = next((t for t in ('pulse_width', 'recruitment') if bag.has_topic(t)), None)
+    if stim_name is None or not bag.has_topic('wrench') or not bag.topic('wrench').count:
+        raise DemoError(f'{bag_dir}: the bag lacks the player\'s or the simulator\'s '
+                        f'messages: {bag.counts()}')
+    stim, length, wrench = bag.topic(stim_name), bag.topic('length_command'), bag.topic('wrench')
+    t0 = _protocol_start_ns(stim)
+    t_force = (wrench.stamps_ns() - t0) / NS_PER_S
+    force = wrench.values()
+    offline = simulate(protocol, params, rate_hz)
+
+    lines = [f'{protocol.name}: units={params.units}, length={params.length}; live run over '
+             f'ROS 2 vs the offline simulation',
+             f'{"t_s":>6}  {"live_force_n":>12}  {"offline_force_n":>15}  {"diff_n":>7}']
+    for t in summary_times(protocol.duration_s):
+        i = int(np.searchsorted(t_force, t, side='right')) - 1
+        live = float(force[i]) if i >= 0 else float('nan')
+        off = float(offline.force_n[offline.at(t)])
+        lines.append(f'{t:6.3f}  {live:12.3f}  {off:15.3f}  {live - off:+7.3f}')
+    lines.append('messages per topic:')
+    lines += [f'  {name:<20} {count:6d}' for name, count in bag.counts().items()]
+    _plot(plot_path, protocol, t_force, force, (stim.log_time_ns - t0) / NS_PER_S,
+          stim.values(), stim_name, (length.log_time_ns - t0) / NS_PER_S, length.values(),
+          offline)
+    lines.append(f'bag:  {bag_dir}  (open with `ros2 bag info`, Foxglove, PlotJuggler, rosbags)')
+    lines.append(f'plot: {plot_path}')
+    return '\n'.join(lines)
+
+
+def _plot(path: Path, protocol: Protocol, t_force, force, t_stim, stim, stim_name,
+          t_length, length, offline) -> None:
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    fig, (ax_f, ax_s, ax_l) = plt.subplots(3, 1, sharex=True, figsize=(8, 7),
+                                           gridspec_kw={'height_ratios': [3, 1, 1]})
+    ax_f.plot(offline.t_s, offline.force_n, color='0.6', lw=3, label='offline simulation')
+    ax_f.plot(t_force, force, color='C0', lw=1, label='live, recorded (wrench)')
+    ax_f.set_ylabel('force [N]')
+    ax_f.set_title(f'{protocol.name}: live run read back from the bag')
+    ax_f.legend(loc='best')
+    if stim_name == 'pulse_width':
+        ax_s.step(t_stim, stim * US_PER_S, where='post', color='C1')
+        ax_s.set_ylabel('pulse width [µs]')
+    else:
+        ax_s.step(t_stim, stim, where='post', color='C1')
+        ax_s.set_ylabel('recruitment [-]')
+    ax_l.plot(t_length, length * MM_PER_M, color='C2')
+    ax_l.set_ylabel('length command [mm]')
+    ax_l.set_xlabel('time since the protocol started [s]')
+    for ax in (ax_f, ax_s, ax_l):
+        ax.grid(True, alpha=0.3)
+    ax_l.set_xlim(-0.2, protocol.duration_s + 0.5)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def run_demo(config: DemoConfig) -> int:
+    """The whole demo; returns the exit status."""
+    start = time.monotonic()
+    try:
+        protocol = Protocol.from_yaml(protocol_path(config.protocol))
+        params, node_settings = load_muscle_params(default_params_file())
+        overrides = {k: v for k, v in (('units', config.units), ('length', config.length)) if v}
+        params = params.replace(**overrides) if overrides else params
+    except ValueError as err:
+        raise DemoError(str(err)) from None
+    rate_hz = float(node_settings.get('rate_hz', 1000.0))
+    bag_dir = config.runs_dir / _run_name(config)
+    if bag_dir.exists():
+        raise DemoError(f'{bag_dir} exists: choose another name')
+    log_dir = config.runs_dir / 'logs' / bag_dir.name
+    log_dir.mkdir(parents=True, exist_ok=True)
+    record_live_run(config, bag_dir, protocol, log_dir)
+    print(analyse(bag_dir, protocol, params, rate_hz, bag_dir / 'force.png'))
+    print(f'logs: {log_dir}')
+    print(f'demo wall time: {time.monotonic() - start:.1f} s')
+    return 0
+
+
+class _Stop(Exception):
+    pass
+
+
+def _raise_stop(signum, _frame):
+    raise _Stop(signal.Signals(signum).name)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog=PROG, description=__doc__.split('\n\n')[0])
+    parser.add_argument('--protocol', default='II', metavar='{I,II,PATH}',
+                        help='protocol to play (default: II)')
+    parser.add_argument('--units', choices=UNITS_CHOICES + ('',), default='',
+                        help='motor units (default: config/muscle.yaml)')
+    parser.add_argument('--length', choices=LENGTH_CHOICES + ('',), default='',
+                        help='length in FL (default: config/muscle.yaml)')
+    parser.add_argument('--runs-dir', type=Path, default=DEFAULT_RUNS_DIR, metavar='DIR',
+                        help='where the run directory goes (default: runs)')
+    parser.add_argument('--name', help='run directory name (default: demo_protocol_<P>_<UTC>)')
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    config = DemoConfig(args.protocol, args.units or None, args.length or None,
+                        args.runs_dir, args.name)
+    # SIGINT (even if inherited ignored), SIGTERM and SIGHUP unwind like
+    # Ctrl-C, so the finally blocks stop the children.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    for sig in (signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, _raise_stop)
+    try:
+        return run_demo(config)
+    except DemoError as err:
+        print(f'demo failed: {err}', file=sys.stderr)
+        return 1
+    except (KeyboardInterrupt, _Stop):
+        print('demo interrupted; every process it started has been stopped', file=sys.stderr)
+        return 130
+
+
+if __name__ == '__main__':
+    sys.exit(main())
