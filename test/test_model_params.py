@@ -92,3 +92,8 @@ def test_mapping_may_carry_known_non_muscle_keys():
 def test_replace_validates_like_construction():
     with pytest.raises(ValueError, match='`l_opt_m`'):
         MuscleParams().replace(l_opt_m=-0.1)
+
+
+def test_integer_too_large_for_a_float_is_rejected_by_name():
+    with pytest.raises(ValueError, match='`k_se_n_per_m` must be positive and finite'):
+        MuscleParams(k_se_n_per_m=10 ** 400)

@@ -155,3 +155,11 @@ def test_round_trip_through_yaml_text(tmp_path):
     path = tmp_path / 'p.yaml'
     path.write_text(yaml.safe_dump(GOOD))
     assert Protocol.from_yaml(path).recruitment(3.0, 5e-4) == 1.0
+
+
+@pytest.mark.parametrize('change', [{'duration_s': 10 ** 400},
+                                    {'dl_mt_m': [[0.0, 10 ** 400]]},
+                                    {'recruitment': [[10 ** 400, 0.5]]}])
+def test_integer_too_large_for_a_float_is_not_finite(change):
+    with pytest.raises(ProtocolError, match='finite'):
+        Protocol.from_mapping(dict(GOOD, **change), source='my.yaml')

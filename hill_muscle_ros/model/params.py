@@ -22,6 +22,19 @@ _FLOAT_MAX = 1.0e12
 N_UNITS_MAX = 1_000_000_000
 
 
+def finite_float(value: Any) -> float | None:
+    """``float(value)`` if that is a finite number, else ``None``.
+
+    Integers too large for a float (YAML reads ``1e400`` written without a
+    point as an int) overflow rather than becoming inf; they count as not finite.
+    """
+    try:
+        f = float(value)
+    except (OverflowError, TypeError, ValueError):
+        return None
+    return f if math.isfinite(f) else None
+
+
 def _spec(unit: str, description: str, *, low: float | None = None,
           high: float | None = None, choices: tuple[str, ...] | None = None) -> dict:
     return {'unit': unit, 'description': description, 'low': low, 'high': high,
@@ -97,11 +110,12 @@ class MuscleParams:
             else:
                 if isinstance(value, bool) or not isinstance(value, (int, float)):
                     raise ValueError(f'`{f.name}` must be a number, got {value!r}')
-                if not math.isfinite(value) or value <= 0.0:
+                number = finite_float(value)
+                if number is None or number <= 0.0:
                     raise ValueError(f'`{f.name}` must be positive and finite, '
                                      f'got {value!r}')
                 # Integers from YAML (``45`` for ``45.0``) are accepted as floats.
-                object.__setattr__(self, f.name, float(value))
+                object.__setattr__(self, f.name, number)
 
     @classmethod
     def field_names(cls) -> tuple[str, ...]:

@@ -17,6 +17,7 @@ import numpy as np
 import yaml
 
 from .muscle import DL_MT_LIMIT_M
+from .params import finite_float
 
 #: Keys a protocol file may have; exactly one stimulation key is required.
 STIMULATION_KEYS = ('recruitment', 'pulse_width_s')
@@ -125,8 +126,9 @@ class Protocol:
         if not isinstance(name, str) or not name.strip():
             raise ProtocolError(f'{source}: `name` must be a non-empty string, got {name!r}')
         duration = data['duration_s']
-        if (isinstance(duration, bool) or not isinstance(duration, (int, float))
-                or not math.isfinite(duration) or duration <= 0):
+        duration_s = (None if isinstance(duration, bool) or not isinstance(duration, (int, float))
+                      else finite_float(duration))
+        if duration_s is None or duration_s <= 0:
             raise ProtocolError(f'{source}: `duration_s` must be a positive finite '
                                 f'number, got {duration!r}')
         key = given[0]
@@ -136,7 +138,7 @@ class Protocol:
             stim = _parse_knots(data[key], source, key, 0.0, math.inf, 'non-negative')
         dl = _parse_knots(data['dl_mt_m'], source, 'dl_mt_m', -DL_MT_LIMIT_M,
                           DL_MT_LIMIT_M, f'within ±{DL_MT_LIMIT_M} m')
-        return cls(name=name, duration_s=float(duration), stimulation=stim,
+        return cls(name=name, duration_s=duration_s, stimulation=stim,
                    stimulation_key=key, dl_mt_m=dl)
 
     @classmethod
@@ -172,8 +174,8 @@ def _parse_knots(raw: Any, source: str, key: str, low: float, high: float,
             raise ProtocolError(f'{where}: must be a pair [time_s, value]')
         if any(isinstance(x, bool) or not isinstance(x, (int, float)) for x in knot):
             raise ProtocolError(f'{where}: time and value must be numbers')
-        t, v = float(knot[0]), float(knot[1])
-        if not (math.isfinite(t) and math.isfinite(v)):
+        t, v = finite_float(knot[0]), finite_float(knot[1])
+        if t is None or v is None:
             raise ProtocolError(f'{where}: time and value must be finite')
         if t < 0.0:
             raise ProtocolError(f'{where}: time must be >= 0, got {t!r}')
