@@ -26,6 +26,8 @@ SHORT = {'name': 'short', 'duration_s': 0.5,
 #: [s] the end-to-end sample instants after the player's first message: each
 #: in a hold phase of Protocol II, where a few ms of latency do not matter
 E2E_TIMES_S = (0.9, 2.9, 3.9, 5.9)
+#: [s] farthest sample from an instant that still counts for it
+SAMPLE_WINDOW_S = 0.1
 #: [N] allowed difference between the ROS run and the offline simulation
 E2E_TOL_N = 0.5
 #: Reliable with room for 5 s of 1 kHz messages, so a busy probe loses none.
@@ -122,9 +124,15 @@ def test_protocol_ii_through_dds_matches_offline_simulation(tmp_path):
     # The step that produced the first force started when the message arrived.
     t_s = stamps_s - (stamps_s[first] - offline.t_s[1])
     for t in E2E_TIMES_S:
-        got = f_ros[np.argmin(np.abs(t_s - t))]
+        nearest = int(np.argmin(np.abs(t_s - t)))
+        # The probe may lose messages when the machine is busy (keep-last 10 on
+        # the simulator's side); in a hold phase a sample 0.1 s off still
+        # agrees to 0.01 N, but further off it would not be evidence.
+        assert abs(t_s[nearest] - t) <= SAMPLE_WINDOW_S, \
+            f'the probe received no force within {SAMPLE_WINDOW_S} s of t = {t} s'
         want = offline.force_n[offline.at(t)]
-        assert got == pytest.approx(want, abs=E2E_TOL_N), f't = {t} s'
+        assert f_ros[nearest] == pytest.approx(want, abs=E2E_TOL_N), \
+            f't = {t} s (sample at {t_s[nearest]:.4f} s)'
 
 
 def test_player_on_sim_time_follows_published_clock(tmp_path):
