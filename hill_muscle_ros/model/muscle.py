@@ -23,6 +23,8 @@ from .params import MuscleParams
 #: a unit error (mm for m) rather than an experiment.
 DL_MT_LIMIT_M = 1.0
 
+_tuple_new = tuple.__new__
+
 
 class MuscleOutputs(NamedTuple):
     """The muscle's outputs at one instant (all SI).
@@ -287,10 +289,15 @@ class Muscle:
         :raises ValueError: on a NaN, infinite or out-of-range input; the state
             is unchanged
         """
-        dl = check_dl_mt(dl_mt_m)
-        if not (math.isfinite(dt_s) and dt_s > 0.0):
-            raise ValueError(f'`dt_s` must be positive and finite, got {dt_s!r}')
-        r = check_recruitment(recruitment)
+        r, dl = float(recruitment), float(dl_mt_m)
+        # One combined check (false for NaN too) keeps the node's tick cheap;
+        # the helpers run only to raise the error that names the culprit.
+        if not (0.0 <= r <= 1.0 and -DL_MT_LIMIT_M <= dl <= DL_MT_LIMIT_M
+                and 0.0 < dt_s < math.inf):
+            check_dl_mt(dl_mt_m)
+            if not (math.isfinite(dt_s) and dt_s > 0.0):
+                raise ValueError(f'`dt_s` must be positive and finite, got {dt_s!r}')
+            check_recruitment(recruitment)
         return self._run((r,), (dl,), dt_s, None, None)
 
 
@@ -411,7 +418,9 @@ def _hot_loop(muscle: Muscle) -> Callable[..., MuscleOutputs]:
         stretch = dl0 - (l - l_rest)
         f_se = k_se * stretch if stretch > 0.0 else 0.0
         f_pe = k_pe * dl0 if dl0 > 0.0 else 0.0
-        return MuscleOutputs(t, r_now, m_now, dl0, l, v, f_se, f_pe,
-                             f_se + f_pe, f0)
+        # NamedTuple's generated __new__ is a Python function; building the
+        # tuple directly gives the same object at a quarter of the cost.
+        return _tuple_new(MuscleOutputs, (t, r_now, m_now, dl0, l, v, f_se, f_pe,
+                                          f_se + f_pe, f0))
 
     return run
