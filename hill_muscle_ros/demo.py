@@ -193,20 +193,88 @@ def record_live_run(config: DemoConfig, bag_dir: Path, protocol: Protocol,
             child.stop()
 
 
-def _protocol_start_ns(stim) -> int:
-    """[ns] when the player sent its first message, from the first one recorded.
+def protocol_start_ns(bag) -> int:
+    """[ns] when the protocol started, on the recorder's receive clock.
 
-    If the recorder matched the player a little late, the sequence number of
-    the first recorded message says how many periods were missed.
+    The player's first message, if the bag has it (its sequence number is 1).
+    If the recorder matched the player late (slow DDS discovery) and the
+    protocol starts with stimulation, the simulator's first non-zero force
+    marks the start instead, to within a step and the DDS latency. Otherwise
+    the first recorded message minus the missed periods (approximate).
     """
-    first_seq = int(stim.sequence[0]) if len(stim.sequence) else 0
+    stim = stimulation_topic(bag)
+    first_seq = int(stim.sequence[0]) if len(stim.sequence) else 1
+    if first_seq <= 1:
+        return int(stim.log_time_ns[0])
+    wrench = bag.topic('wrench')
+    active = np.flatnonzero(wrench.values() > 0.0)
+    if stim.values()[0] > 0.0 and len(active):
+        return int(wrench.stamps_ns()[active[0]])
     period_ns = int(np.median(np.diff(stim.log_time_ns))) if stim.count > 1 else 0
-    return int(stim.log_time_ns[0]) - max(first_seq - 1, 0) * period_ns
+    return int(stim.log_time_ns[0]) - (first_seq - 1) * period_ns
+
+
+def stimulation_topic(bag):
+    """The player's stimulation topic in a bag: ``pulse_width`` or ``recruitment``."""
+    for name in ('pulse_width', 'recruitment'):
+        if bag.has_topic(name) and bag.topic(name).count:
+            return bag.topic(name)
+    raise DemoError(f'{bag.path}: no pulse_width or recruitment messages: {bag.counts()}')
+
+
+def live_force_at(bag, times_s: Sequence[float]) -> list[float]:
+    """[N] the recorded force at each time since the protocol started.
+
+    The force is the last ``wrench`` stamped at or before that time; time 0
+    is the player's first message (:func:`protocol_start_ns`). NaN before
+    the first wrench.
+    """
+    wrench = bag.topic('wrench')
+    t_force = (wrench.stamps_ns() - protocol_start_ns(bag)) / NS_PER_S
+    force = wrench.values()
+    out = []
+    for t in times_s:
+        i = int(np.searchsorted(t_force, t, side='right')) - 1
+        out.append(float(force[i]) if i >= 0 else float('nan'))
+    return out
+
+
+def simulator_lag_s(bag) -> float | None:
+    """[s] from the player's first non-zero stimulation to the simulator's first force.
+
+    A healthy run reacts within a few steps. The player starts when *a*
+    subscriber matches, which may be the recorder; if DDS discovery between
+    the player and the simulator is slow (a heavily loaded machine), the
+    simulator misses the start of the protocol and this lag shows it.
+    ``None`` if the protocol does not start with stimulation.
+    """
+    stim = stimulation_topic(bag)
+    values = stim.values()
+    if not len(values) or values[0] <= 0.0 or stim.sequence[0] > 1:
+        return None
+    wrench = bag.topic('wrench')
+    active = np.flatnonzero(wrench.values() > 0.0)
+    if not len(active):
+        return float('inf')
+    return (int(wrench.log_time_ns[active[0]]) - int(stim.log_time_ns[0])) / NS_PER_S
+
+
+#: [s] a simulator reacting later than this to the first stimulation missed the start.
+SIMULATOR_LAG_LIMIT_S = 0.1
+
+
+#: [s] the force "at the end of each second" is read this long before the
+#: whole second: protocol events fall on whole seconds (an R step at 3 s makes
+#: the force rise at ~150 N/s), so a few ms of DDS and scheduling jitter would
+#: swing a reading taken exactly there, and the player's final zero
+#: stimulation arrives at the last one.
+END_OF_SECOND_MARGIN_S = 0.05
 
 
 def summary_times(duration_s: float) -> list[float]:
-    """[s] the end of each whole second of the protocol."""
-    return [float(s) for s in range(1, int(np.floor(duration_s)) + 1)] or [duration_s]
+    """[s] the end of each whole second of the protocol (see :data:`END_OF_SECOND_MARGIN_S`)."""
+    seconds = [float(s) for s in range(1, int(np.floor(duration_s)) + 1)] or [duration_s]
+    return [round(s - END_OF_SECOND_MARGIN_S, 6) for s in seconds]
 
 
 def analyse(bag_dir: Path, protocol: Protocol, params: MuscleParams,
@@ -214,24 +282,32 @@ def analyse(bag_dir: Path, protocol: Protocol, params: MuscleParams,
     """Read the bag, write the plot, and return the summary text."""
     from .recording.reader import read_bag
     bag = read_bag(bag_dir)
-    stim_name = next((t for t in ('pulse_width', 'recruitment') if bag.has_topic(t)), None)
-    if stim_name is None or not bag.has_topic('wrench') or not bag.topic('wrench').count:
-        raise DemoError(f'{bag_dir}: the bag lacks the player\'s or the simulator\'s '
-                        f'messages: {bag.counts()}')
-    stim, length, wrench = bag.topic(stim_name), bag.topic('length_command'), bag.topic('wrench')
-    t0 = _protocol_start_ns(stim)
+    if not bag.has_topic('wrench') or not bag.topic('wrench').count:
+        raise DemoError(f'{bag_dir}: no wrench messages from the simulator: {bag.counts()}')
+    stim, length, wrench = stimulation_topic(bag), bag.topic('length_command'), bag.topic('wrench')
+    stim_name = stim.name.rsplit('/', 1)[-1]
+    t0 = protocol_start_ns(bag)
     t_force = (wrench.stamps_ns() - t0) / NS_PER_S
     force = wrench.values()
     offline = simulate(protocol, params, rate_hz)
+    times = summary_times(protocol.duration_s)
+    live_at = live_force_at(bag, times)
 
     lines = [f'{protocol.name}: units={params.units}, length={params.length}; live run over '
              f'ROS 2 vs the offline simulation',
              f'{"t_s":>6}  {"live_force_n":>12}  {"offline_force_n":>15}  {"diff_n":>7}']
-    for t in summary_times(protocol.duration_s):
-        i = int(np.searchsorted(t_force, t, side='right')) - 1
-        live = float(force[i]) if i >= 0 else float('nan')
+    for t, live in zip(times, live_at):
         off = float(offline.force_n[offline.at(t)])
         lines.append(f'{t:6.3f}  {live:12.3f}  {off:15.3f}  {live - off:+7.3f}')
+    lag = simulator_lag_s(bag)
+    if lag is not None and lag > SIMULATOR_LAG_LIMIT_S:
+        lines.append(f'WARNING: the simulator reacted {lag:.3f} s after the first stimulation: '
+                     'DDS discovery was slow and it missed the start of the protocol '
+                     '(the player starts on its first subscriber). Run the demo again.')
+    first_seq = int(stim.sequence[0]) if len(stim.sequence) else 0
+    if first_seq > 1:
+        lines.append(f'WARNING: the recorder matched the player late (slow DDS discovery); '
+                     f'its first {first_seq - 1} messages are not in the bag.')
     lines.append('messages per topic:')
     lines += [f'  {name:<20} {count:6d}' for name, count in bag.counts().items()]
     _plot(plot_path, protocol, t_force, force, (stim.log_time_ns - t0) / NS_PER_S,

@@ -8,9 +8,10 @@ so ``ros2 bag info``, Foxglove, PlotJuggler and rosbags open it as it is.
   every topic of the simulator and the protocol player) and ``output`` (the
   bag directory; default ``runs/<UTC timestamp>``; an existing non-empty
   directory is an error, never overwritten).
-- Topics are subscribed when a publisher appears (the graph is polled), with
-  the type and QoS the publishers offer, as serialized messages: the CDR bytes
-  go to disk exactly as received.
+- Topics are subscribed when a publisher appears (the graph is polled every
+  20 ms), with the type and QoS the publishers offer; the package's own
+  topics are subscribed at start-up (:data:`KNOWN_TYPES`). Messages stay serialized:
+  the CDR bytes go to disk exactly as received.
 - ``log_time`` is the receive time on the node's clock (sim time with
   ``use_sim_time``), ``publish_time`` the header stamp where there is one.
 - Each message's publisher sequence number is checked: a gap means DDS lost
@@ -51,9 +52,9 @@ NODE_NAME = 'recorder'
 DEFAULT_TOPICS = ('pulse_width', 'recruitment', 'length_command', 'force', 'ce_length',
                   'wrench', '/clock')
 #: Types of this package's own topics. These are subscribed at start-up,
-#: before any publisher exists, so that a player started right after the
-#: recorder loses no message to discovery; other topics wait for the graph.
-#: (/clock is left to discovery: its publisher may be best-effort elsewhere.)
+#: before any publisher exists, so that a player or simulator started after
+#: the recorder loses no message to discovery; other topics (and /clock, whose
+#: publisher may be best-effort elsewhere) wait for the graph.
 KNOWN_TYPES = {
     'pulse_width': 'std_msgs/msg/Float64',
     'recruitment': 'std_msgs/msg/Float64',
@@ -64,8 +65,9 @@ KNOWN_TYPES = {
 }
 #: Where bags go by default, one directory per run named by its UTC start time.
 DEFAULT_RUNS_DIR = 'runs'
-#: [s] how often the graph is polled for publishers of the wanted topics.
-DISCOVERY_PERIOD_S = 0.1
+#: [s] how often the graph is polled for publishers of the wanted topics:
+#: often, since a topic's first messages are lost until it is subscribed.
+DISCOVERY_PERIOD_S = 0.02
 #: [s] how often an open chunk is checked against its wall-time limit.
 FLUSH_CHECK_PERIOD_S = 0.1
 #: Messages DDS keeps for the recorder while Python is busy: 10 s at 1 kHz.

@@ -94,11 +94,20 @@ class Bag:
         return {name: t.count for name, t in self.topics.items()}
 
     def topic(self, name: str) -> TopicData:
-        """A topic by name, with or without the leading ``/``."""
+        """A topic by name.
+
+        A relative name (``force``) finds ``/force``, or else the one topic
+        of that name in any namespace (``/left/force``).
+        """
         for key in (name, '/' + name.lstrip('/')):
             if key in self.topics:
                 return self.topics[key]
-        raise KeyError(f'{self.path}: no topic {name!r} (has {", ".join(self.topics)})')
+        if not name.startswith('/'):
+            matches = [t for n, t in self.topics.items() if n.endswith('/' + name)]
+            if len(matches) == 1:
+                return matches[0]
+        raise KeyError(f'{self.path}: no single topic {name!r} '
+                       f'(has {", ".join(self.topics)})')
 
     def has_topic(self, name: str) -> bool:
         try:
