@@ -28,9 +28,10 @@ test: $(STAMP)
 PROTOCOL ?= II
 UNITS    ?=
 LENGTH   ?=
+RUNS_DIR ?= runs
 demo: $(STAMP)
 	$(BIN)/python -m hill_muscle_ros.demo --protocol '$(PROTOCOL)' \
-	    --units '$(UNITS)' --length '$(LENGTH)'
+	    --units '$(UNITS)' --length '$(LENGTH)' --runs-dir '$(RUNS_DIR)'
 
 figures: $(STAMP)
 	$(BIN)/hill-muscle figures --out runs/figures

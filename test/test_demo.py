@@ -1,0 +1,139 @@
+"""`make demo` end to end: three ROS processes, a bag, a plot, a summary, and no
+process left behind, even when it is interrupted. Runs in `make test` (marked
+ros and slow, not skipped)."""
+import os
+import re
+import signal
+import subprocess
+import time
+import uuid
+from pathlib import Path
+
+import pytest
+from rosbags.rosbag2 import Reader
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
+
+REPO = Path(__file__).resolve().parents[1]
+#: [s] generous: `make` may first check the venv, and the box is shared.
+DEMO_TIMEOUT_S = 300
+PNG_MAGIC = b'\x89PNG\r\n\x1a\n'
+POLL_S = 0.1
+
+
+def _env(marker: str) -> dict:
+    env = os.environ.copy()
+    # A marker every child inherits, to find any process the demo left behind.
+    env['HILL_MUSCLE_DEMO_TEST_MARKER'] = marker
+    return env
+
+
+def _processes_with(marker: str) -> list[int]:
+    """PIDs of live processes whose environment carries ``marker``."""
+    found = []
+    needle = f'HILL_MUSCLE_DEMO_TEST_MARKER={marker}'.encode()
+    for entry in Path('/proc').iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            if needle in (entry / 'environ').read_bytes():
+                status = (entry / 'stat').read_text().split()[2]
+                if status != 'Z':
+                    found.append(int(entry.name))
+        except OSError:
+            continue
+    return found
+
+
+def _make_demo(tmp_path, *make_vars, marker=None):
+    marker = marker or uuid.uuid4().hex
+    start = time.monotonic()
+    proc = subprocess.run(['make', '--no-print-directory', 'demo', f'RUNS_DIR={tmp_path}',
+                           *make_vars], cwd=REPO, env=_env(marker), capture_output=True,
+                          text=True, timeout=DEMO_TIMEOUT_S)
+    print(f'make demo took {time.monotonic() - start:.1f} s')  # measured, not asserted
+    return proc, marker
+
+
+@pytest.fixture(scope='module')
+def demo(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp('demo')
+    proc, marker = _make_demo(tmp)
+    return proc, tmp, marker
+
+
+def test_make_demo_succeeds(demo):
+    proc, *_ = demo
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+
+
+def test_demo_writes_a_readable_bag_and_the_plot_inside_it(demo):
+    proc, tmp, _ = demo
+    bag = Path(re.search(r'^bag:\s+(\S+)', proc.stdout, re.M).group(1))
+    assert bag.parent == tmp
+    assert (bag / 'force.png').read_bytes()[:8] == PNG_MAGIC
+    with Reader(bag) as reader:
+        counts = {c.topic: c.msgcount for c in reader.connections}
+    for topic in ('/pulse_width', '/length_command', '/force', '/ce_length', '/wrench'):
+        assert counts[topic] > 1000, counts
+        # The summary prints the counts it read back from the bag.
+        assert re.search(rf'^\s+{re.escape(topic)}\s+{counts[topic]}$', proc.stdout, re.M)
+
+
+def test_demo_prints_the_force_at_the_end_of_each_second(demo):
+    proc, *_ = demo
+    rows = re.findall(r'^\s*(\d+\.\d+)\s+(-?\d+\.\d+)\s+(-?\d+\.\d+)\s+([+-]\d+\.\d+)$',
+                      proc.stdout, re.M)
+    assert [round(float(t)) for t, *_ in rows] == [1, 2, 3, 4, 5, 6]
+    for _, live, offline, diff in rows:
+        assert float(diff) == pytest.approx(float(live) - float(offline), abs=2e-3)
+
+
+def test_demo_leaves_no_process(demo):
+    *_, marker = demo
+    assert _processes_with(marker) == []
+
+
+def test_demo_passes_protocol_units_and_length_through(tmp_path):
+    proc, _ = _make_demo(tmp_path, 'PROTOCOL=I', 'UNITS=single', 'LENGTH=instantaneous')
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert 'Protocol I: units=single, length=instantaneous' in proc.stdout
+
+
+def test_bad_protocol_fails_clearly_without_starting_anything(tmp_path):
+    proc, marker = _make_demo(tmp_path, f'PROTOCOL={tmp_path / "missing.yaml"}')
+    assert proc.returncode != 0
+    assert 'missing.yaml' in proc.stderr
+    assert _processes_with(marker) == []
+
+
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM], ids=['SIGINT', 'SIGTERM'])
+def test_interrupted_demo_leaves_no_process(tmp_path, sig):
+    marker = uuid.uuid4().hex
+    # Its own process group, as a terminal's Ctrl-C reaches make and the demo.
+    proc = subprocess.Popen(['make', '--no-print-directory', 'demo', f'RUNS_DIR={tmp_path}'],
+                            cwd=REPO, env=_env(marker), stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    try:
+        deadline = time.monotonic() + DEMO_TIMEOUT_S
+        line = ''
+        while 'running' not in line:
+            line = proc.stdout.readline()
+            assert line or proc.poll() is None, 'demo ended before the run started'
+            assert time.monotonic() < deadline
+        os.killpg(proc.pid, sig)
+        proc.wait(timeout=60)
+        # Children stop within the demo's SIGINT-then-SIGKILL grace period.
+        deadline = time.monotonic() + 30
+        while _processes_with(marker) and time.monotonic() < deadline:
+            time.sleep(POLL_S)
+        assert _processes_with(marker) == []
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+        for pid in _processes_with(marker):
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
