@@ -24,27 +24,19 @@ from ros_helpers import Probe, ProcessGroup, node_command
 pytestmark = [pytest.mark.faults, pytest.mark.ros]
 
 _RUNS = itertools.count()
-#: What a node logs when it ignores unknown parameters and starts anyway.
-IGNORED_WARNING = 'ignoring parameters this node does not have'
 #: [s] poll period of a process's exit status (no ROS here to spin).
 POLL_S = 0.05
 #: [s] for a node to fail on a bad parameter.
 EXIT_TIMEOUT_S = 60.0
-#: Known gap (nodes/_common.py, not this suite's file): an unknown key is only
-#: warned about, since a `/**` section may carry other nodes' keys.
-UNKNOWN_KEY_GAP = ('_common.warn_unknown_overrides only warns about an unknown key; '
-                   'issue 6 asks for a non-zero exit naming it')
 
 STARTUP_CASES = [
     ('simulator', 'k_se_n_per_m', -10000.0),
     ('simulator', 'k_se_n_per_m', 'stiff'),
     ('simulator', 'n_units', 1000.0),
-    pytest.param('simulator', 'k_se_typo_n_per_m', 10000.0,
-                 marks=pytest.mark.xfail(strict=True, reason=UNKNOWN_KEY_GAP)),
+    ('simulator', 'k_se_typo_n_per_m', 10000.0),
     ('force_controller', 'kp_s_per_n', -1e-5),
     ('force_controller', 'ki_s_per_n_s', 'high'),
-    pytest.param('force_controller', 'kd_s', 1e-5,
-                 marks=pytest.mark.xfail(strict=True, reason=UNKNOWN_KEY_GAP)),
+    ('force_controller', 'kd_s', 1e-5),
 ]
 
 
@@ -56,9 +48,7 @@ def test_bad_params_file_exits_non_zero_naming_the_parameter(tmp_path, executabl
     with ProcessGroup(tmp_path) as procs:
         proc = procs.start(executable, node_command(executable, params_files=[params]))
         deadline = time.monotonic() + EXIT_TIMEOUT_S
-        # Exited, or went past parameter checking (it warned and runs on).
-        while (proc.returncode is None and time.monotonic() < deadline
-               and IGNORED_WARNING not in proc.output()):
+        while proc.returncode is None and time.monotonic() < deadline:
             time.sleep(POLL_S)
         status = proc.returncode
         out = proc.output()

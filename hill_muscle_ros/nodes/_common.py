@@ -31,6 +31,7 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange,
                                 ParameterDescriptor)
 
 from ..model import MuscleParams
+from ..params_file import SIMULATOR_NODE_KEYS
 
 #: Exit status of a node that could not start (bad parameter, bad file).
 EXIT_FAILURE = 1
@@ -217,16 +218,38 @@ def declare_muscle_parameters(node: Node) -> MuscleParams:
         raise StartupError(f'parameter {err}') from None
 
 
-def warn_unknown_overrides(node: Node) -> None:
-    """Warn about overrides no parameter was declared for: usually a typo.
+#: Parameters of this package's nodes other than the muscle's and the
+#: controller's fields. A shared ``/**`` section of a params file may carry any
+#: of them, so a node passes over the other nodes' names.
+OTHER_NODE_PARAMETERS = frozenset((
+    *SIMULATOR_NODE_KEYS,                                   # simulator
+    'protocol', 'output', 'wait_for_subscribers_s',         # protocol_player
+    'topics',                                               # recorder (and `output`)
+))
 
-    Not an error: a ``/**`` section may legitimately carry other nodes' keys.
+
+def reject_unknown_overrides(node: Node) -> None:
+    """Stop start-up on an override that no node of this package has.
+
+    Such a key is a typo (``k_se`` for ``k_se_n_per_m``): running on would
+    silently use the default in its place. Keys of this package's other nodes
+    are passed over, since one ``/**`` section may configure them all.
+
+    :raises StartupError: naming the first unknown parameter and its value
     """
-    declared = set(node._parameters)  # noqa: SLF001 - rclpy has no public listing
-    unknown = sorted(set(node._parameter_overrides) - declared)  # noqa: SLF001
+    from ..control import ControllerParams  # the controller's field names
+
+    known = (set(node._parameters)  # noqa: SLF001 - rclpy has no public listing
+             | set(MuscleParams.field_names())
+             | {f.name for f in dataclasses.fields(ControllerParams)}
+             | OTHER_NODE_PARAMETERS)
+    overrides = node._parameter_overrides  # noqa: SLF001
+    unknown = sorted(set(overrides) - known)
     if unknown:
-        node.get_logger().warning(
-            f'ignoring parameters this node does not have: {", ".join(unknown)}')
+        name = unknown[0]
+        raise StartupError(
+            f'unknown parameter `{name}` (got {overrides[name].value!r}); '
+            f'this node has: {", ".join(sorted(node._parameters))}')  # noqa: SLF001
 
 
 # -- bad input ------------------------------------------------------------------

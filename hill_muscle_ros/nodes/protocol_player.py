@@ -24,7 +24,7 @@ from ..model import MuscleParams, Protocol, ProtocolError
 from ..resources import BUILTIN_PROTOCOLS, protocol_path
 from ._common import (EXIT_FAILURE, EXIT_SUCCESS, RELIABLE_QOS, StartupError,
                       declare_checked, field_descriptor, number_descriptor,
-                      run_node)
+                      reject_unknown_overrides, run_node)
 
 NODE_NAME = 'protocol_player'
 
@@ -72,6 +72,7 @@ class ProtocolPlayer(Node):
         self._pw_max_s = declare_checked(
             self, 'pw_max_s', MuscleParams().pw_max_s, field_descriptor(
                 pw_field, read_only=True, note='to turn recruitment into pulse width'))
+        reject_unknown_overrides(self)
         if self._output not in OUTPUT_CHOICES:
             raise StartupError(f'parameter `output` must be one of '
                                f'{", ".join(OUTPUT_CHOICES)}, got {self._output!r}')

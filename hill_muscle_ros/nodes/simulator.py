@@ -30,7 +30,7 @@ from ..model import Muscle, MuscleParams
 from ..model.muscle import check_dl_mt, check_recruitment, recruitment_from_pulse_width
 from ._common import (LIVE_RESETS, RELIABLE_QOS, BadInputWarner, StartupError,
                       StepSchedule, declare_checked, declare_muscle_parameters,
-                      number_descriptor, run_node, warn_unknown_overrides)
+                      number_descriptor, run_node, reject_unknown_overrides)
 
 NODE_NAME = 'simulator'
 
@@ -87,7 +87,7 @@ class Simulator(Node):
         for name, value in (('rate_hz', rate_hz), ('real_time_factor', rtf)):
             if not math.isfinite(value):
                 raise StartupError(f'parameter `{name}` must be finite, got {value!r}')
-        warn_unknown_overrides(self)
+        reject_unknown_overrides(self)
 
         self._params = params        # current MuscleParams (pw_max_s may differ from the muscle's)
         self._muscle = Muscle(params)
