@@ -21,7 +21,7 @@ from std_msgs.msg import Float64
 
 from ..control import ControllerParams, ForceController
 from ._common import (RELIABLE_QOS, BadInputWarner, StartupError, declare_checked,
-                      number_descriptor, run_node, warn_unknown_overrides)
+                      number_descriptor, run_node, reject_unknown_overrides)
 
 NODE_NAME = 'force_controller'
 _NS_PER_S = 1e9
@@ -44,7 +44,7 @@ class ForceControllerNode(Node):
             self.controller = ForceController(ControllerParams(**values))
         except ValueError as err:
             raise StartupError(f'parameter {err}') from None
-        warn_unknown_overrides(self)
+        reject_unknown_overrides(self)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         self._warner = BadInputWarner(self.get_logger())
