@@ -28,6 +28,8 @@ DEFAULT_FF_FORCE_N = _DEFAULTS.f_iso_max_n * force_length(_DEFAULTS.l_rest_m / _
 #: few units left cannot lengthen as fast as the ramp (the eccentric branch of
 #: FV saturates at v = F0 b' / a'), force shoots up and the loop collapses once
 #: the delay passes about 8 ms.
+#: [N] no FES-driven muscle comes near this; a larger input is a unit error or garbage.
+DEFAULT_FORCE_LIMIT_N = 1.0e4
 DEFAULT_KP_S_PER_N = 2.0e-5
 DEFAULT_KI_S_PER_N_S = 3.0e-4
 
@@ -47,6 +49,7 @@ class ControllerParams:
     :param pw_max_s: [s] largest pulse width the stimulator may send (PW_max)
     :param rate_hz: [Hz] control and stimulation rate
     :param feedback_timeout_s: [s] stop stimulating if no force arrives this long
+    :param force_limit_n: [N] inputs beyond this are rejected (see :meth:`ForceController.check_target`)
     """
 
     kp_s_per_n: float = field(default=DEFAULT_KP_S_PER_N, metadata=_spec(
@@ -61,6 +64,9 @@ class ControllerParams:
         'Hz', 'control and stimulation rate', 1e-3, 1e5))
     feedback_timeout_s: float = field(default=0.2, metadata=_spec(
         's', 'stop stimulating when force feedback is older than this', 1e-3, 1e3))
+    force_limit_n: float = field(default=DEFAULT_FORCE_LIMIT_N, metadata=_spec(
+        'N', 'a force target above this, or a force feedback beyond +-this, is '
+        'rejected as garbage', 1e-3, 1e9))
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
@@ -90,6 +96,33 @@ class ForceController:
     def reset(self) -> None:
         """Forget the integral; the next output starts from the feedforward."""
         self.integral_s = 0.0  # [s] integral term, in pulse-width units
+
+    def check_target(self, target_n: float) -> float:
+        """Validate a force target (F*).
+
+        :param target_n: [N] force target
+        :return: ``target_n``
+        :raises ValueError: if it is not finite, negative, or above ``force_limit_n``
+        """
+        limit = self.params.force_limit_n
+        if not (math.isfinite(target_n) and 0.0 <= target_n <= limit):
+            raise ValueError(f'`force_target` must be finite and in [0, {limit:g}] N, '
+                             f'got {target_n!r}')
+        return target_n
+
+    def check_force(self, force_n: float) -> float:
+        """Validate a force measurement (F). A slightly negative reading is
+        accepted: a real load cell gives one at rest.
+
+        :param force_n: [N] measured force
+        :return: ``force_n``
+        :raises ValueError: if it is not finite or beyond +-``force_limit_n``
+        """
+        limit = self.params.force_limit_n
+        if not (math.isfinite(force_n) and abs(force_n) <= limit):
+            raise ValueError(f'`force` must be finite and within +-{limit:g} N, '
+                             f'got {force_n!r}')
+        return force_n
 
     def feedforward(self, target_n: float) -> float:
         """[s] pulse width expected to hold ``target_n`` newtons (inverse recruitment curve)."""

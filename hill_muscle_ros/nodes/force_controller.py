@@ -12,7 +12,6 @@ Run: ``ros2 run hill_muscle_ros force_controller`` or ``hill-muscle controller``
 from __future__ import annotations
 
 import dataclasses
-import math
 import sys
 
 from rcl_interfaces.msg import SetParametersResult
@@ -54,24 +53,30 @@ class ForceControllerNode(Node):
         self._last_tick_ns: int | None = None
         self._starved = False
         self._pub = self.create_publisher(Float64, 'pulse_width', RELIABLE_QOS)
-        self.create_subscription(Float64, 'force_target', self._on_target, RELIABLE_QOS)
-        self.create_subscription(Float64, 'force', self._on_force, RELIABLE_QOS)
+        self._sub_target = self.create_subscription(Float64, 'force_target', self._on_target,
+                                                    RELIABLE_QOS)
+        self._sub_force = self.create_subscription(Float64, 'force', self._on_force,
+                                                   RELIABLE_QOS)
         self.create_timer(1.0 / self.controller.params.rate_hz, self._on_tick)
 
     # -- inputs ---------------------------------------------------------------
 
     def _on_target(self, msg: Float64) -> None:
-        if not math.isfinite(msg.data) or msg.data < 0.0:
-            self._warner.warn('force_target', f'ignoring force_target {msg.data!r} N: '
-                              f'must be finite and >= 0; keeping {self._target_n!r} N')
-            return
-        self._target_n = msg.data
+        try:
+            self._target_n = self.controller.check_target(msg.data)
+        except ValueError as err:
+            self._warner.warn(self._sub_target.topic_name,
+                              f'ignoring {self._sub_target.topic_name} = {msg.data!r}: {err}; '
+                              f'keeping {self._target_n!r} N')
 
     def _on_force(self, msg: Float64) -> None:
-        if not math.isfinite(msg.data):
-            self._warner.warn('force', f'ignoring force {msg.data!r} N: not finite')
+        try:
+            self._force_n = self.controller.check_force(msg.data)
+        except ValueError as err:
+            self._warner.warn(self._sub_force.topic_name,
+                              f'ignoring {self._sub_force.topic_name} = {msg.data!r}: {err}; '
+                              f'keeping {self._force_n!r} N')
             return
-        self._force_n = msg.data
         self._force_stamp_ns = self.get_clock().now().nanoseconds
 
     def _on_set_parameters(self, params) -> SetParametersResult:

@@ -1,0 +1,235 @@
+"""Fault case 3: garbage on every input topic.
+
+What must hold, for the simulator's ``pulse_width``, ``recruitment`` and
+``length_command`` and the controller's ``force_target`` and ``force``, when
+they receive NaN, +-inf, huge values, negative values, and bursts that
+alternate good and bad values (ending on a bad one):
+
+- every output stays finite (simulator: force, ce_length, wrench;
+  controller: pulse width, also within [0, PW_max]);
+- bad values are logged, throttled: a warning names the topic and the value,
+  at most one per topic per second plus one (the rest are counted);
+- the last good value is used: the simulator ends at the steady state the
+  offline core reaches with the last good inputs; the controller, fed a
+  force equal to its target, keeps sending exactly the feedforward pulse
+  width (any accepted bad value would move its output or its integral).
+"""
+from __future__ import annotations
+
+import itertools
+import math
+import os
+import re
+import time
+
+import numpy as np
+import pytest
+from geometry_msgs.msg import WrenchStamped
+from std_msgs.msg import Float64
+
+from hill_muscle_ros.control import ForceController
+from hill_muscle_ros.model import Muscle, MuscleParams
+from ros_helpers import Probe, ProcessGroup, node_command
+
+pytestmark = [pytest.mark.faults, pytest.mark.ros]
+
+_RUNS = itertools.count()
+RATE_HZ = 1000.0
+DT_S = 1.0 / RATE_HZ
+PW_MAX_S = MuscleParams().pw_max_s
+HUGE = 1e300
+STRETCH_M = 0.004
+PW_FIRST_S = 2e-4
+#: The good value inside the bursts differs from the first, so that "last good
+#: value" is told apart from "first value kept".
+PW_LAST_S = 3e-4
+#: Alternating good/bad messages per burst.
+BURST = 200
+#: [s] the simulator needs to reach its steady state (many CE time constants).
+SETTLE_S = 1.5
+#: [N] agreement with the offline steady state (DDS timing does not matter there).
+STEADY_TOL_N = 1e-6
+#: The throttle period of the nodes' bad-input warnings (BadInputWarner).
+THROTTLE_S = 1.0
+#: [s] between two messages to one node.
+PACE_S = 0.005
+#: The suffix with which a warning counts those suppressed before it.
+MORE = re.compile(r'\((\d+) more since the last warning\)')
+
+BAD = {
+    'pulse_width': [math.nan, math.inf, -math.inf, HUGE, -HUGE, -1e-4, 0.5],
+    'recruitment': [math.nan, math.inf, -math.inf, HUGE, -HUGE, -0.5, 1.5],
+    'length_command': [math.nan, math.inf, -math.inf, HUGE, -HUGE, -5.0, 5.0],
+    'force_target': [math.nan, math.inf, -math.inf, HUGE, -HUGE, -10.0],
+    'force': [math.nan, math.inf, -math.inf, HUGE, -HUGE],
+}
+
+
+def wait_sim_time(probe, wrench, duration_s: float, proc) -> None:
+    """Spin until ``duration_s`` more of simulated time (wrench stamps) has passed."""
+    def now_s():
+        stamp = wrench.messages[-1].header.stamp
+        return stamp.sec + stamp.nanosec * 1e-9
+    probe.wait_for_messages(wrench, procs=[proc])
+    end = now_s() + duration_s
+    probe.spin_until(lambda: now_s() >= end, f'{duration_s} s of simulated time', procs=[proc])
+
+
+def offline_steady_force() -> float:
+    """Stretch at R = 0, recruit at PW_FIRST, then raise to PW_LAST, as the test does."""
+    muscle = Muscle(MuscleParams())
+    muscle.step(0.0, STRETCH_M, DT_S)
+    for pw in (PW_FIRST_S, PW_LAST_S):
+        muscle.set_pulse_width(pw)
+        for _ in range(round(2 * SETTLE_S * RATE_HZ)):
+            out = muscle.step(muscle.recruitment, STRETCH_M, DT_S)
+    return out.force_n
+
+
+def publish_acked(probe, pub, value: float) -> None:
+    """Publish, then keep receiving for :data:`PACE_S`.
+
+    Pacing keeps the node's keep-last-10 queue from dropping messages (it
+    would take a 10-message stall of the node), so that every bad value sent
+    is one the node saw. (``Publisher.wait_for_all_acked`` would be exact,
+    but it can block far beyond its timeout in this rclpy.)
+    """
+    pub.publish(Float64(data=value))
+    probe.spin_for(PACE_S)
+
+
+def send_garbage(probe, pub, bad_values, good_value) -> int:
+    """Each bad value, then a burst alternating good and bad, ending bad.
+
+    :return: how many bad values were sent
+    """
+    sent = 0
+    for value in bad_values:
+        publish_acked(probe, pub, value)
+        sent += 1
+    for i in range(BURST):
+        bad = i % 2 == 1
+        publish_acked(probe, pub, bad_values[i // 2 % len(bad_values)] if bad else good_value)
+        sent += bad
+    publish_acked(probe, pub, bad_values[0])
+    return sent + 1
+
+
+def warnings_for(log: str, topic: str) -> list[str]:
+    return [line for line in log.splitlines()
+            if '[WARN]' in line and f'ignoring {topic} = ' in line]
+
+
+def flush_throttled_counts(probe, proc, pubs, bad) -> dict[str, int]:
+    """After a throttle period, one more bad value per topic: its warning
+    carries the count of those suppressed since the last one.
+
+    :return: the bad values sent here, per topic (1 each)
+    """
+    probe.spin_for(THROTTLE_S)
+    for topic, pub in pubs.items():
+        before = len(warnings_for(proc.output(), pub.topic_name))
+        publish_acked(probe, pub, bad[topic][0])
+        probe.spin_until(lambda: len(warnings_for(proc.output(), pub.topic_name)) > before,
+                         f'the warning on {pub.topic_name}', procs=[proc])
+    return {topic: 1 for topic in pubs}
+
+
+def accounted(lines: list[str]) -> int:
+    """Bad values the log accounts for: one per line plus the "(N more ...)" counts."""
+    return len(lines) + sum(int(m) for line in lines for m in MORE.findall(line))
+
+
+def assert_logged_throttled(log: str, topic: str, first_bad: float, sent: int,
+                            elapsed_s: float) -> None:
+    lines = warnings_for(log, topic)
+    assert lines, f'no warning for {topic}'
+    assert repr(first_bad) in lines[0]
+    assert len(lines) <= elapsed_s / THROTTLE_S + 1, lines
+    assert accounted(lines) == sent, lines
+
+
+def test_simulator_ignores_garbage_on_every_input_and_keeps_the_last_good_value(tmp_path):
+    ns = f'/garbage_{os.getpid()}_{next(_RUNS)}'
+    with ProcessGroup(tmp_path) as procs, Probe('garbage_probe') as probe:
+        sim = procs.start('simulator', node_command('simulator', ns=ns, params={
+            'rate_hz': RATE_HZ, 'input_timeout_s': 0.0}))
+        force = probe.record(f'{ns}/force', Float64)
+        ce_length = probe.record(f'{ns}/ce_length', Float64)
+        wrench = probe.record(f'{ns}/wrench', WrenchStamped)
+        pubs = {t: probe.publisher(f'{ns}/{t}', Float64)
+                for t in ('pulse_width', 'recruitment', 'length_command')}
+        probe.spin_until(lambda: all(p.get_subscription_count() for p in pubs.values()),
+                         'the simulator to subscribe', procs=[sim])
+        # Stretch first, at R = 0, so that the units are recruited at a known length.
+        pubs['length_command'].publish(Float64(data=STRETCH_M))
+        l_stretched = MuscleParams().l_rest_m + STRETCH_M
+        probe.wait_for_value(ce_length, lambda v: abs(v - l_stretched) < 1e-12, 'stretch',
+                             procs=[sim])
+        pubs['pulse_width'].publish(Float64(data=PW_FIRST_S))
+        probe.wait_for_value(force, lambda v: v > MuscleParams().k_pe_n_per_m * STRETCH_M + 1.0,
+                             'stimulation', mark=force.mark(), procs=[sim])
+        wait_sim_time(probe, wrench, 2 * SETTLE_S, sim)  # steady before the garbage
+        start = time.monotonic()
+        good = {'pulse_width': PW_LAST_S, 'recruitment': PW_LAST_S / PW_MAX_S,
+                'length_command': STRETCH_M}
+        sent = {topic: send_garbage(probe, pub, BAD[topic], good[topic])
+                for topic, pub in pubs.items()}
+        for topic, n in flush_throttled_counts(probe, sim, pubs, BAD).items():
+            sent[topic] += n
+        wait_sim_time(probe, wrench, 2 * SETTLE_S, sim)
+        elapsed = time.monotonic() - start
+        log = sim.output()
+        assert sim.returncode is None
+        values = np.array(force.data_since(0) + ce_length.data_since(0))
+        final = force.messages[-1].data
+
+    assert np.all(np.isfinite(values))
+    expected = offline_steady_force()
+    print(f'\nMEASURED garbage (simulator, {elapsed:.1f} s): final force {final:.6f} N, '
+          f'offline {expected:.6f} N; '
+          + ', '.join(f'{t}: {len(warnings_for(log, f"{ns}/{t}"))} warning line(s) for '
+                      f'{sent[t]} bad values' for t in pubs))
+    for topic in pubs:
+        assert_logged_throttled(log, f'{ns}/{topic}', BAD[topic][0], sent[topic], elapsed)
+    assert final == pytest.approx(expected, abs=STEADY_TOL_N)
+
+
+def test_controller_ignores_garbage_on_every_input_and_keeps_the_last_good_value(tmp_path):
+    ns = f'/garbage_ctrl_{os.getpid()}_{next(_RUNS)}'
+    target_n = 10.0
+    expected_pw = ForceController().feedforward(target_n)
+    with ProcessGroup(tmp_path) as procs, Probe('garbage_ctrl_probe') as probe:
+        ctrl = procs.start('controller', node_command('force_controller', ns=ns))
+        pw = probe.record(f'{ns}/pulse_width', Float64)
+        pubs = {t: probe.publisher(f'{ns}/{t}', Float64) for t in ('force_target', 'force')}
+        probe.spin_until(lambda: all(p.get_subscription_count() for p in pubs.values()),
+                         'the controller to subscribe', procs=[ctrl])
+        # The probe plays a muscle that holds exactly the target: zero error.
+        feedback = probe.node.create_timer(0.02, lambda: pubs['force'].publish(
+            Float64(data=target_n)))
+        pubs['force_target'].publish(Float64(data=target_n))
+        probe.wait_for_value(pw, lambda v: v > 0.0, 'stimulation', procs=[ctrl])
+        start = time.monotonic()
+        good = {'force_target': target_n, 'force': target_n}
+        sent = {topic: send_garbage(probe, pub, BAD[topic], good[topic])
+                for topic, pub in pubs.items()}
+        for topic, n in flush_throttled_counts(probe, ctrl, pubs, BAD).items():
+            sent[topic] += n
+        mark = pw.mark()
+        probe.wait_for_messages(pw, 50, mark=mark, procs=[ctrl])
+        feedback.cancel()
+        elapsed = time.monotonic() - start
+        log = ctrl.output()
+        assert ctrl.returncode is None
+        stimulating = [v for v in pw.data_since(0) if v > 0.0]
+        after = pw.data_since(mark)
+
+    assert all(math.isfinite(v) and 0.0 <= v <= PW_MAX_S for v in pw.data_since(0))
+    print(f'\nMEASURED garbage (controller, {elapsed:.1f} s): {len(stimulating)} pulse widths '
+          f'while stimulating, all {set(stimulating)} s; feedforward {expected_pw} s; '
+          + ', '.join(f'{t}: {len(warnings_for(log, f"{ns}/{t}"))} warning line(s) for '
+                      f'{sent[t]} bad values' for t in pubs))
+    for topic in pubs:
+        assert_logged_throttled(log, f'{ns}/{topic}', BAD[topic][0], sent[topic], elapsed)
+    assert set(after) == {expected_pw}
