@@ -58,6 +58,12 @@ class ForceControllerNode(Node):
         self._sub_force = self.create_subscription(Float64, 'force', self._on_force,
                                                    RELIABLE_QOS)
         self.create_timer(1.0 / self.controller.params.rate_hz, self._on_tick)
+        p = self.controller.params
+        self.get_logger().info(
+            f'controlling {self._sub_force.topic_name} to {self._sub_target.topic_name} on '
+            f'{self._pub.topic_name} at {p.rate_hz:g} Hz: kp {p.kp_s_per_n:g} s/N, '
+            f'ki {p.ki_s_per_n_s:g} s/(N s), feedforward {p.ff_force_n:g} N at PW_max '
+            f'{p.pw_max_s:g} s, feedback timeout {p.feedback_timeout_s:g} s')
 
     # -- inputs ---------------------------------------------------------------
 
