@@ -110,6 +110,16 @@ class Loop:
         return (np.array([stamp_s(m) for m in msgs]),
                 np.array([m.wrench.force.x for m in msgs]))
 
+    def timing(self) -> str:
+        """How regularly the loop ran: gaps between wrench stamps (the
+        simulator's ticks) and between pulse widths (the controller's ticks),
+        as seen here. On a loaded machine these, not the gains, decide."""
+        stamps = np.diff([stamp_s(m) for m in self.wrench.messages])
+        pw = np.diff(self.pulse_width.times_s)
+        return (f'simulator tick gaps p99 {np.percentile(stamps, 99) * 1e3:.0f} ms, max '
+                f'{stamps.max() * 1e3:.0f} ms; controller output gaps p99 '
+                f'{np.percentile(pw, 99) * 1e3:.0f} ms, max {pw.max() * 1e3:.0f} ms')
+
     def mean_pulse_width(self, t_from_s: float, t_to_s: float) -> float:
         """[s] mean pulse width received while the simulator was in [t_from, t_to].
 
@@ -143,7 +153,9 @@ def run_step(procs, probe, length: str) -> tuple[dict, Loop]:
     metrics = step_metrics(t, f, t0, STEP_TARGET_N)
     metrics['pw_steady_s'] = loop.mean_pulse_width(t0 + STEP_WATCH_S - PW_AVERAGE_S,
                                                     t0 + STEP_WATCH_S)
-    print(f'\nMEASURED step {length}: ' + ', '.join(f'{k} {v:.4g}' for k, v in metrics.items()))
+    metrics['timing'] = loop.timing()
+    print(f'\nMEASURED step {length}: ' + ', '.join(f'{k} {v:.4g}' if isinstance(v, float)
+                                                  else v for k, v in metrics.items()))
     return metrics, loop
 
 
@@ -180,8 +192,9 @@ def run_stretch(procs, probe, length: str) -> dict:
         'pw_after_s': loop.mean_pulse_width(ramp_end + WATCH_AFTER_RAMP_S - PW_AVERAGE_S,
                                             ramp_end + WATCH_AFTER_RAMP_S),
     }
+    metrics['timing'] = loop.timing()
     print(f'\nMEASURED stretch {length}: '
-          + ', '.join(f'{k} {v:.4g}' for k, v in metrics.items()))
+          + ', '.join(f'{k} {v:.4g}' if isinstance(v, float) else v for k, v in metrics.items()))
     return metrics
 
 
@@ -195,11 +208,11 @@ def loop_env(tmp_path):
 def test_step_to_20N_settles_within_2_percent_in_under_1_5_s_with_under_10_percent_overshoot(
         loop_env, length):
     metrics, _ = run_step(*loop_env, length)
-    assert metrics['settling_s'] < MAX_SETTLING_S
-    assert metrics['overshoot'] < MAX_OVERSHOOT
+    assert metrics['settling_s'] < MAX_SETTLING_S, metrics
+    assert metrics['overshoot'] < MAX_OVERSHOOT, metrics
 
 
 @pytest.mark.parametrize('length', VARIANTS)
 def test_15N_is_held_within_1N_after_the_stretch_onset_settles(loop_env, length):
     metrics = run_stretch(*loop_env, length)
-    assert metrics['max_abs_error_after_settling_n'] <= HOLD_TOL_N
+    assert metrics['max_abs_error_after_settling_n'] <= HOLD_TOL_N, metrics

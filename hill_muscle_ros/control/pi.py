@@ -18,20 +18,22 @@ _DEFAULTS = MuscleParams()
 DEFAULT_FF_FORCE_N = _DEFAULTS.f_iso_max_n * force_length(_DEFAULTS.l_rest_m / _DEFAULTS.l_opt_m)
 
 
-#: [s/N] and [s/(N s)] default gains. Tuned offline (muscle at 1 kHz, controller
-#: at 100 Hz) for robustness to the loop delay of DDS on a loaded machine, not
-#: for the fastest step: with 3-8 ms of feedback delay, 2-5 ms of command delay
-#: and jitter, the step 0 -> 20 N overshoots 5-9 % and settles in about 0.25 s,
-#: and the 10 mm/s stretch at 15 N stays within 0.75-1.25 N after its first
-#: 100 ms. A stiffer loop (kp 4e-5, ki 2e-4) settles in 0.08 s with 2 % overshoot
-#: at 5 ms, but during the stretch it drives the pulse width so low that the
-#: few units left cannot lengthen as fast as the ramp (the eccentric branch of
-#: FV saturates at v = F0 b' / a'), force shoots up and the loop collapses once
-#: the delay passes about 8 ms.
+#: [s/N] and [s/(N s)] default gains, and [s] the reference model's time
+#: constant. Tuned offline (muscle at 1 kHz, controller at 100 Hz) for
+#: robustness to the loop delay of DDS on a loaded machine rather than for the
+#: fastest step: with 3-10 ms of feedback delay, 2-5 ms of command delay and up
+#: to 10 ms of jitter, the step 0 -> 20 N overshoots < 1 % and settles within
+#: 2 % in about 0.22 s, and the 10 mm/s stretch at 15 N stays within 0.72-1.05 N
+#: after its first 100 ms (0.72-0.82 N up to 5 ms of delay and 8 ms of jitter).
+#: Why not stiffer: during a fast stretch with few units recruited the CE
+#: cannot lengthen faster than F0 b' / a' (Eq. 3 saturates), the muscle turns
+#: soft and fast, and a larger kp (4e-5) drives the pulse width to zero there
+#: and collapses the loop once the delay passes about 8 ms.
 #: [N] no FES-driven muscle comes near this; a larger input is a unit error or garbage.
 DEFAULT_FORCE_LIMIT_N = 1.0e4
-DEFAULT_KP_S_PER_N = 2.0e-5
+DEFAULT_KP_S_PER_N = 1.5e-5
 DEFAULT_KI_S_PER_N_S = 3.0e-4
+DEFAULT_REFERENCE_TAU_S = 0.06
 
 
 def _spec(unit: str, description: str, low: float, high: float) -> dict:
@@ -49,6 +51,11 @@ class ControllerParams:
     :param pw_max_s: [s] largest pulse width the stimulator may send (PW_max)
     :param rate_hz: [Hz] control and stimulation rate
     :param feedback_timeout_s: [s] stop stimulating if no force arrives this long
+    :param reference_tau_s: [s] the PI loop tracks the target through a first-order
+        lag of this time constant (a two-degree-of-freedom design): the
+        feedforward moves the muscle at once, and the feedback only corrects
+        the deviation from the expected rise, so the integral does not wind up
+        during a step. 0 makes the feedback track the target itself.
     :param force_limit_n: [N] inputs beyond this are rejected (see :meth:`ForceController.check_target`)
     """
 
@@ -64,6 +71,9 @@ class ControllerParams:
         'Hz', 'control and stimulation rate', 1e-3, 1e5))
     feedback_timeout_s: float = field(default=0.2, metadata=_spec(
         's', 'stop stimulating when force feedback is older than this', 1e-3, 1e3))
+    reference_tau_s: float = field(default=DEFAULT_REFERENCE_TAU_S, metadata=_spec(
+        's', 'time constant of the reference model the feedback tracks (0: the target itself)',
+        0.0, 10.0))
     force_limit_n: float = field(default=DEFAULT_FORCE_LIMIT_N, metadata=_spec(
         'N', 'a force target above this, or a force feedback beyond +-this, is '
         'rejected as garbage', 1e-3, 1e9))
@@ -82,7 +92,9 @@ class ControllerParams:
 class ForceController:
     """PI force control with feedforward and conditional-integration anti-windup.
 
-    ``PW = clip(PW_ff(F*) + kp e + ki ∫e, 0, PW_max)`` with ``e = F* - F``.
+    ``PW = clip(PW_ff(F*) + kp e + ki ∫e, 0, PW_max)`` with ``e = F_ref - F``,
+    where ``F_ref`` follows the target ``F*`` through a first-order lag of
+    time constant ``reference_tau_s`` (``F_ref = F*`` when it is 0).
     The integrator only moves when the output is not saturated in the
     direction the error pushes, so it never winds up against the clamp.
 
@@ -96,6 +108,7 @@ class ForceController:
     def reset(self) -> None:
         """Forget the integral; the next output starts from the feedforward."""
         self.integral_s = 0.0  # [s] integral term, in pulse-width units
+        self.reference_n: float | None = None  # [N] F_ref; starts at the measured force
 
     def check_target(self, target_n: float) -> float:
         """Validate a force target (F*).
@@ -146,7 +159,11 @@ class ForceController:
         if dt_s <= 0.0:
             raise ValueError(f'`dt_s` must be positive, got {dt_s!r}')
         p = self.params
-        error = target_n - force_n
+        if self.reference_n is None:
+            self.reference_n = force_n
+        blend = 1.0 if p.reference_tau_s == 0.0 else -math.expm1(-dt_s / p.reference_tau_s)
+        self.reference_n += (target_n - self.reference_n) * blend
+        error = self.reference_n - force_n
         unclamped = self.feedforward(target_n) + p.kp_s_per_n * error + self.integral_s
         pushing_up = error > 0.0
         saturated = (unclamped >= p.pw_max_s and pushing_up) or (unclamped <= 0.0 and not pushing_up)

@@ -24,6 +24,8 @@ from ._common import (RELIABLE_QOS, BadInputWarner, StartupError, declare_checke
 
 NODE_NAME = 'force_controller'
 _NS_PER_S = 1e9
+#: Longest time step, in control periods, that one update integrates over.
+MAX_DT_PERIODS = 2.0
 
 
 class ForceControllerNode(Node):
@@ -102,8 +104,11 @@ class ForceControllerNode(Node):
     def _on_tick(self) -> None:
         now_ns = self.get_clock().now().nanoseconds
         p = self.controller.params
+        # After a stall of this process the force read now says nothing about
+        # the gap: integrate over at most a couple of periods, not the whole gap.
         dt_s = (1.0 / p.rate_hz if self._last_tick_ns is None
-                else (now_ns - self._last_tick_ns) / _NS_PER_S)
+                else min((now_ns - self._last_tick_ns) / _NS_PER_S,
+                         MAX_DT_PERIODS / p.rate_hz))
         self._last_tick_ns = now_ns
         fresh = (self._force_stamp_ns is not None
                  and (now_ns - self._force_stamp_ns) / _NS_PER_S <= p.feedback_timeout_s)
