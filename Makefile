@@ -51,5 +51,12 @@ bench: $(BENCH_STAMP)
 	$(BIN)/python benchmarks/profile_simulate.py
 	$(BIN)/python benchmarks/run_all.py --out BENCHMARKS.md --runs 7
 
+# The force controller closed around the simulator (README "Force controller"):
+# a target profile through controller, simulator and recorder; a bag and a plot.
+# PROFILE= a target-profile YAML (default config/target_profile.yaml), OUT= a new directory.
+.PHONY: demo-closed-loop
+demo-closed-loop: $(STAMP)
+	$(BIN)/python -m hill_muscle_ros.demo_closed_loop $(if $(PROFILE),--profile $(PROFILE)) $(if $(OUT),--out $(OUT))
+
 clean:
 	rm -rf $(VENV) build install log runs .pytest_cache .hypothesis *.egg-info
