@@ -19,6 +19,11 @@ this test, which plays the user (``force_target``) and the length rig
   and reported, not bounded.
 
 Both the ``initial`` and the ``instantaneous`` model variants are run.
+
+On a shared 2-core machine a process can be descheduled for 0.1-0.3 s. A
+failed run in which the simulator or the controller stalled for longer than
+:data:`STALL_S` inside the measured window is repeated, up to
+:data:`ATTEMPTS` runs; a failed run without such a stall fails at once.
 Measured numbers are printed (``pytest -s``) for the README.
 """
 from __future__ import annotations
@@ -57,6 +62,11 @@ RAMP_TO_M = 0.010
 SETTLE_WINDOW_S = 0.1
 #: [s] of simulated time watched after the ramp's end.
 WATCH_AFTER_RAMP_S = 1.5
+#: [s] a gap this long in the simulator's stamps or the controller's output
+#: (five control periods) means the machine stalled a process: such a run
+#: may be repeated (see :func:`assert_on_a_run_that_ran`).
+STALL_S = 0.05
+ATTEMPTS = 3
 #: [s] window over which the steady pulse width is averaged.
 PW_AVERAGE_S = 0.5
 
@@ -110,6 +120,23 @@ class Loop:
         return (np.array([stamp_s(m) for m in msgs]),
                 np.array([m.wrench.force.x for m in msgs]))
 
+    def stall_s(self, t_from_s: float, t_to_s: float) -> float:
+        """[s] longest gap, while the simulator was in [t_from, t_to], between
+        two wrench stamps (a simulator stall) or two pulse-width arrivals here
+        (a controller stall, or this process's own)."""
+        stamps = np.array([stamp_s(m) for m in self.wrench.messages])
+        arrivals = np.array(self.wrench.times_s)
+        sel = (stamps >= t_from_s) & (stamps <= t_to_s)
+        sim_gap = np.diff(stamps[sel]).max()
+        lo, hi = arrivals[sel][0], arrivals[sel][-1]
+        pw_t = np.array(self.pulse_width.times_s)
+        pw_t = pw_t[(pw_t >= lo) & (pw_t <= hi)]
+        return float(max(sim_gap, np.diff(np.concatenate([[lo], pw_t, [hi]])).max()))
+
+    def stop(self) -> None:
+        for proc in self.procs:
+            proc.stop()
+
     def timing(self) -> str:
         """How regularly the loop ran: gaps between wrench stamps (the
         simulator's ticks) and between pulse widths (the controller's ticks),
@@ -153,7 +180,9 @@ def run_step(procs, probe, length: str) -> tuple[dict, Loop]:
     metrics = step_metrics(t, f, t0, STEP_TARGET_N)
     metrics['pw_steady_s'] = loop.mean_pulse_width(t0 + STEP_WATCH_S - PW_AVERAGE_S,
                                                     t0 + STEP_WATCH_S)
+    metrics['stall_s'] = loop.stall_s(t0, t0 + STEP_WATCH_S)
     metrics['timing'] = loop.timing()
+    loop.stop()
     print(f'\nMEASURED step {length}: ' + ', '.join(f'{k} {v:.4g}' if isinstance(v, float)
                                                   else v for k, v in metrics.items()))
     return metrics, loop
@@ -192,10 +221,32 @@ def run_stretch(procs, probe, length: str) -> dict:
         'pw_after_s': loop.mean_pulse_width(ramp_end + WATCH_AFTER_RAMP_S - PW_AVERAGE_S,
                                             ramp_end + WATCH_AFTER_RAMP_S),
     }
+    metrics['stall_s'] = loop.stall_s(t_ramp, ramp_end + WATCH_AFTER_RAMP_S)
     metrics['timing'] = loop.timing()
+    loop.stop()
     print(f'\nMEASURED stretch {length}: '
           + ', '.join(f'{k} {v:.4g}' if isinstance(v, float) else v for k, v in metrics.items()))
     return metrics
+
+
+def assert_on_a_run_that_ran(run, check, *args) -> dict:
+    """Run and check; if the check fails on a run in which a process stalled
+    for more than :data:`STALL_S`, try again, up to :data:`ATTEMPTS` runs.
+
+    A stall is the machine's doing, not the loop's: no 100 Hz controller can
+    hold a muscle it does not hear from. A run without a stall decides; the
+    criteria themselves are never relaxed.
+    """
+    tried = []
+    for _ in range(ATTEMPTS):
+        metrics = run(*args)
+        failure = check(metrics)
+        if failure is None:
+            return metrics
+        tried.append(metrics)
+        assert metrics['stall_s'] > STALL_S, f'{failure}: {metrics}'
+    raise AssertionError(f'every one of {ATTEMPTS} runs had a process stall longer than '
+                         f'{STALL_S} s in the measured window, and failed: {tried}')
 
 
 @pytest.fixture
@@ -207,12 +258,19 @@ def loop_env(tmp_path):
 @pytest.mark.parametrize('length', VARIANTS)
 def test_step_to_20N_settles_within_2_percent_in_under_1_5_s_with_under_10_percent_overshoot(
         loop_env, length):
-    metrics, _ = run_step(*loop_env, length)
-    assert metrics['settling_s'] < MAX_SETTLING_S, metrics
-    assert metrics['overshoot'] < MAX_OVERSHOOT, metrics
+    def check(m):
+        if not m['settling_s'] < MAX_SETTLING_S:
+            return f'settling {m["settling_s"]:.3f} s'
+        if not m['overshoot'] < MAX_OVERSHOOT:
+            return f'overshoot {m["overshoot"]:.3f}'
+        return None
+    assert_on_a_run_that_ran(lambda *a: run_step(*a)[0], check, *loop_env, length)
 
 
 @pytest.mark.parametrize('length', VARIANTS)
 def test_15N_is_held_within_1N_after_the_stretch_onset_settles(loop_env, length):
-    metrics = run_stretch(*loop_env, length)
-    assert metrics['max_abs_error_after_settling_n'] <= HOLD_TOL_N, metrics
+    def check(m):
+        if not m['max_abs_error_after_settling_n'] <= HOLD_TOL_N:
+            return f'error {m["max_abs_error_after_settling_n"]:.3f} N after settling'
+        return None
+    assert_on_a_run_that_ran(run_stretch, check, *loop_env, length)
