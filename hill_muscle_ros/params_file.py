@@ -11,6 +11,7 @@ from typing import Any
 import yaml
 
 from .model import MuscleParams
+from .model.protocol import safe_load_yaml
 
 #: Parameters of the simulator node that are not muscle parameters. They are
 #: valid in the file; the offline CLI reads ``rate_hz`` and ignores the rest.
@@ -35,7 +36,7 @@ def read_ros_parameters(path: str | Path) -> dict[str, Any]:
     """
     path = Path(path)
     try:
-        doc = yaml.safe_load(path.read_text(encoding='utf-8'))
+        doc = safe_load_yaml(path.read_text(encoding='utf-8'))
     except (OSError, UnicodeDecodeError) as err:
         raise ValueError(f'{path}: cannot read parameters file: {err}') from None
     except yaml.YAMLError as err:
