@@ -2,27 +2,51 @@
 
 DDS isolation: every test run gets its own ROS_DOMAIN_ID and keeps discovery
 on this host, so parallel runs (or a developer's live session) never cross-talk.
-Subprocesses inherit these variables.
+The domain is claimed with an exclusive lock file held for the whole run, so
+two concurrent runs on one machine never draw the same one. Subprocesses
+inherit these variables.
 """
+import fcntl
 import os
 import random
-
+import tempfile
 from pathlib import Path
 
 import pytest
 
-#: Domain IDs 1..100 stay clear of 0 (the default most people use) and within
-#: the range Fast DDS maps to valid UDP ports on Linux.
+#: Domain IDs 1..100 stay clear of 0 (the default most people use), of the
+#: demo's 101..199, and within the range Fast DDS maps to valid UDP ports.
 _DOMAIN_LOW, _DOMAIN_HIGH = 1, 100
+_LOCK_PATTERN = 'hill_muscle_ros_test_domain_{}.lock'
 
 REPO = Path(__file__).resolve().parents[1]
 PROTOCOLS = REPO / 'config' / 'protocols'
 
+#: The open lock file of the claimed domain; the lock lasts while it is open.
+_domain_lock = None
+
+
+def _claim_domain() -> int:
+    """Lock and return a domain ID no other test run on this machine holds."""
+    global _domain_lock
+    candidates = list(range(_DOMAIN_LOW, _DOMAIN_HIGH + 1))
+    random.Random(os.getpid()).shuffle(candidates)
+    for domain in candidates:
+        lock = open(Path(tempfile.gettempdir()) / _LOCK_PATTERN.format(domain), 'w')
+        try:
+            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            lock.close()
+            continue
+        _domain_lock = lock
+        return domain
+    raise RuntimeError(f'every ROS_DOMAIN_ID in {_DOMAIN_LOW}..{_DOMAIN_HIGH} is held by '
+                       f'another test run')
+
 
 def pytest_configure(config):
     if 'HILL_MUSCLE_TEST_DOMAIN' not in os.environ:
-        domain = random.Random(os.getpid()).randint(_DOMAIN_LOW, _DOMAIN_HIGH)
-        os.environ['HILL_MUSCLE_TEST_DOMAIN'] = str(domain)
+        os.environ['HILL_MUSCLE_TEST_DOMAIN'] = str(_claim_domain())
     os.environ['ROS_DOMAIN_ID'] = os.environ['HILL_MUSCLE_TEST_DOMAIN']
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     os.environ.pop('ROS_STATIC_PEERS', None)

@@ -72,8 +72,8 @@ PW_AVERAGE_S = 0.5
 
 
 def unique_namespace() -> str:
-    """A namespace no other test run uses, even one that drew the same
-    ROS_DOMAIN_ID (conftest picks one of 100): the loop must hear only itself."""
+    """A namespace of this test alone: the loop must hear only itself, even
+    from other tests of the same run (conftest's domain is per run)."""
     return f'/cl_{os.getpid()}_{next(_RUNS)}'
 
 
