@@ -9,7 +9,8 @@
   names, units and ranges have a single source.
 - :class:`BadInputWarner`: a throttled warning per topic for rejected input.
 - :class:`StepSchedule`: how many fixed steps are due at a given clock reading.
-- :data:`RELIABLE_QOS`: the QoS every topic of the package uses.
+- :data:`RELIABLE_QOS` and :data:`OUTPUT_QOS`: the QoS of every subscription
+  and every publisher of the package.
 """
 from __future__ import annotations
 
@@ -38,14 +39,23 @@ EXIT_FAILURE = 1
 #: Exit status of a node that ran to its end or was interrupted.
 EXIT_SUCCESS = 0
 
-#: Depth of every publisher and subscription queue.
+#: Depth of every subscription queue.
 QUEUE_DEPTH = 10
-#: Reliable, volatile, keep-last 10: what ``create_publisher(..., 10)`` gives.
-#: A reliable publisher also matches best-effort subscribers (such as the
-#: sensor-data QoS), so every subscriber receives the outputs.
+#: Reliable, volatile, keep-last 10: what ``create_subscription(..., 10)`` gives.
 RELIABLE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=QUEUE_DEPTH,
                           reliability=ReliabilityPolicy.RELIABLE,
                           durability=DurabilityPolicy.VOLATILE)
+#: History a publisher keeps for reliable redelivery: 1 s of messages at 1 kHz.
+#: With only 10, a subscriber that is descheduled for 10 ms (a recorder
+#: writing a chunk on a busy machine) loses messages that DDS had to drop
+#: before the subscriber acknowledged them; the cost is memory only.
+OUTPUT_HISTORY_DEPTH = 1000
+#: Reliable, volatile, keep-last 1000: every output of the package's nodes.
+#: A reliable publisher also matches best-effort subscribers (such as the
+#: sensor-data QoS), so every subscriber receives the outputs.
+OUTPUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=OUTPUT_HISTORY_DEPTH,
+                        reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.VOLATILE)
 
 #: [s] at most one bad-input warning per topic in this period.
 BAD_INPUT_THROTTLE_S = 1.0

@@ -19,8 +19,9 @@ from rclpy.node import Node
 from std_msgs.msg import Float64
 
 from ..control import ControllerParams, ForceController
-from ._common import (RELIABLE_QOS, BadInputWarner, StartupError, declare_checked,
-                      number_descriptor, run_node, reject_unknown_overrides)
+from ._common import (OUTPUT_QOS, RELIABLE_QOS, BadInputWarner, StartupError,
+                      declare_checked, number_descriptor, reject_unknown_overrides,
+                      run_node)
 
 NODE_NAME = 'force_controller'
 _NS_PER_S = 1e9
@@ -54,7 +55,7 @@ class ForceControllerNode(Node):
         self._force_stamp_ns: int | None = None
         self._last_tick_ns: int | None = None
         self._starved = False
-        self._pub = self.create_publisher(Float64, 'pulse_width', RELIABLE_QOS)
+        self._pub = self.create_publisher(Float64, 'pulse_width', OUTPUT_QOS)
         self._sub_target = self.create_subscription(Float64, 'force_target', self._on_target,
                                                     RELIABLE_QOS)
         self._sub_force = self.create_subscription(Float64, 'force', self._on_force,

@@ -22,9 +22,9 @@ from std_msgs.msg import Float64
 
 from ..model import MuscleParams, Protocol, ProtocolError
 from ..resources import BUILTIN_PROTOCOLS, protocol_path
-from ._common import (EXIT_FAILURE, EXIT_SUCCESS, RELIABLE_QOS, StartupError,
-                      declare_checked, field_descriptor, number_descriptor,
-                      reject_unknown_overrides, run_node)
+from ._common import (EXIT_FAILURE, EXIT_SUCCESS, OUTPUT_QOS,
+                      StartupError, declare_checked, field_descriptor,
+                      number_descriptor, reject_unknown_overrides, run_node)
 
 NODE_NAME = 'protocol_player'
 
@@ -82,8 +82,8 @@ class ProtocolPlayer(Node):
         except (ValueError, ProtocolError) as err:
             raise StartupError(str(err)) from None
 
-        self._pub_stim = self.create_publisher(Float64, self._output, RELIABLE_QOS)
-        self._pub_dl = self.create_publisher(Float64, 'length_command', RELIABLE_QOS)
+        self._pub_stim = self.create_publisher(Float64, self._output, OUTPUT_QOS)
+        self._pub_dl = self.create_publisher(Float64, 'length_command', OUTPUT_QOS)
         self.done = Future()
         self._period_s = 1.0 / rate_hz
         self._t0 = None

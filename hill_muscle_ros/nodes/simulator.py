@@ -28,9 +28,10 @@ from std_srvs.srv import Trigger
 
 from ..model import Muscle, MuscleParams
 from ..model.muscle import check_dl_mt, check_recruitment, recruitment_from_pulse_width
-from ._common import (LIVE_RESETS, RELIABLE_QOS, BadInputWarner, StartupError,
-                      StepSchedule, declare_checked, declare_muscle_parameters,
-                      number_descriptor, run_node, reject_unknown_overrides)
+from ._common import (LIVE_RESETS, OUTPUT_QOS, RELIABLE_QOS, BadInputWarner,
+                      StartupError, StepSchedule, declare_checked,
+                      declare_muscle_parameters, number_descriptor,
+                      reject_unknown_overrides, run_node)
 
 NODE_NAME = 'simulator'
 
@@ -99,11 +100,11 @@ class Simulator(Node):
         self._watchdog_tripped = False
         self._bad_input = BadInputWarner(self.get_logger())
 
-        self._pub_force = self.create_publisher(Float64, 'force', RELIABLE_QOS)
-        self._pub_ce_length = self.create_publisher(Float64, 'ce_length', RELIABLE_QOS)
-        self._pub_wrench = self.create_publisher(WrenchStamped, 'wrench', RELIABLE_QOS)
+        self._pub_force = self.create_publisher(Float64, 'force', OUTPUT_QOS)
+        self._pub_ce_length = self.create_publisher(Float64, 'ce_length', OUTPUT_QOS)
+        self._pub_wrench = self.create_publisher(WrenchStamped, 'wrench', OUTPUT_QOS)
         # /clock is absolute by ROS convention: one time source per graph.
-        self._pub_clock = (self.create_publisher(ClockMsg, '/clock', RELIABLE_QOS)
+        self._pub_clock = (self.create_publisher(ClockMsg, '/clock', OUTPUT_QOS)
                            if self._publish_clock else None)
         self._sub_pw = self.create_subscription(Float64, 'pulse_width', self._on_pulse_width,
                                                 RELIABLE_QOS)
