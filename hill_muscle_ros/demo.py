@@ -175,8 +175,10 @@ def record_live_run(config: DemoConfig, bag_dir: Path, protocol: Protocol,
         rec = Child('recorder', _node('recorder', '-p', f'output:={bag_dir}'),
                     log_dir / 'recorder.log', env)
         children.append(rec)
-        _wait(lambda: READY_MESSAGE in rec.output(), 'the recorder', STARTUP_TIMEOUT_S,
-              children)
+        # The recorder is subscribed, and receives the simulator's outputs (the
+        # muscle at rest), before the player starts the protocol.
+        _wait(lambda: READY_MESSAGE in rec.output() and '/wrench (' in rec.output(),
+              'the recorder to receive the simulator', STARTUP_TIMEOUT_S, children)
         player = Child('protocol_player', _node('protocol_player', '-p', f'protocol:={spec}'),
                        log_dir / 'protocol_player.log', env)
         children.append(player)
@@ -208,7 +210,8 @@ def protocol_start_ns(bag) -> int:
         return int(stim.log_time_ns[0])
     wrench = bag.topic('wrench')
     active = np.flatnonzero(wrench.values() > 0.0)
-    if stim.values()[0] > 0.0 and len(active):
+    # Valid only if the bag holds the muscle at rest before the onset.
+    if stim.values()[0] > 0.0 and len(active) and active[0] > 0:
         return int(wrench.stamps_ns()[active[0]])
     period_ns = int(np.median(np.diff(stim.log_time_ns))) if stim.count > 1 else 0
     return int(stim.log_time_ns[0]) - (first_seq - 1) * period_ns
