@@ -30,6 +30,9 @@ from ros_helpers import Probe, ProcessGroup, Recording, node_command
 
 pytestmark = [pytest.mark.faults, pytest.mark.ros]
 
+#: Wrenches (at 1 kHz) the first life runs on after the recorder subscribed.
+FIRST_LIFE_AFTER_MATCH_MSGS = 200
+
 _RUNS = itertools.count()
 _NS_PER_S = 1e9
 TARGET_N = 10.0
@@ -78,6 +81,12 @@ def test_simulator_restart_is_survived_and_both_lives_are_recorded(tmp_path):
         probe.wait_for_value(
             force, lambda f: abs(f - TARGET_N) < HOLD_TOL_N,
             'the target held', procs=[sim, ctrl, rec, player])
+        # The recorder must have the first life too: wait until it subscribes
+        # to the wrench (the probe is the other subscriber), then a while more.
+        probe.spin_until(lambda: probe.node.count_subscribers(f'{ns}/wrench') >= 2,
+                         'the recorder to subscribe to the wrench', procs=[sim, ctrl, rec, player])
+        probe.wait_for_messages(wrench, FIRST_LIFE_AFTER_MATCH_MSGS, mark=wrench.mark(),
+                                procs=[sim, ctrl, rec, player])
         # First life: kill while stimulating.
         t_kill = stamp_s(wrench.messages[-1])
         sim.popen.send_signal(signal.SIGKILL)
