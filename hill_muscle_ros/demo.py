@@ -14,7 +14,15 @@ SIGKILL of the group) when the demo ends, whatever the reason: normal end,
 error, Ctrl-C, SIGTERM or SIGHUP. Children also get SIGTERM from the kernel
 if the demo itself dies (``PR_SET_PDEATHSIG``).
 
-Run: ``python -m hill_muscle_ros.demo [--protocol I|II|PATH] [--units ...] [--length ...]``.
+With ``--real-time-factor X`` the run goes faster (or slower) than real
+time on simulated time: the simulator publishes ``/clock`` and runs X
+simulated seconds per second of the steady clock (``publish_clock:=true``,
+``real_time_factor:=X``); the player and the recorder use it
+(``use_sim_time:=true``), so the bag's times are simulated seconds from the
+simulator's start.
+
+Run: ``python -m hill_muscle_ros.demo [--protocol I|II|PATH] [--units ...] [--length ...]
+[--real-time-factor X]``.
 """
 from __future__ import annotations
 
@@ -22,6 +30,7 @@ import argparse
 import ctypes
 import datetime as _dt
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -149,6 +158,9 @@ class DemoConfig:
     length: str | None = None
     runs_dir: Path = DEFAULT_RUNS_DIR
     name: str | None = None
+    #: [-] simulated seconds per clock second on sim time (/clock); None: the
+    #: default run on the wall clock, as without the option.
+    real_time_factor: float | None = None
 
 
 def _run_name(config: DemoConfig) -> str:
@@ -168,35 +180,53 @@ def record_live_run(config: DemoConfig, bag_dir: Path, protocol: Protocol,
     sim_args = ['--params-file', str(default_params_file())]
     for override in muscle:
         sim_args += ['-p', override]
+    rtf = config.real_time_factor
+    # On sim time the simulator is the clock; the others follow /clock.
+    sim_time_args = [] if rtf is None else ['-p', 'use_sim_time:=true']
+    if rtf is not None:
+        sim_args += ['-p', 'publish_clock:=true', '-p', f'real_time_factor:={float(rtf)!r}']
     children: list[Child] = []
     try:
         sim = Child('simulator', _node('simulator', *sim_args), log_dir / 'simulator.log', env)
         children.append(sim)
-        rec = Child('recorder', _node('recorder', '-p', f'output:={bag_dir}'),
+        rec = Child('recorder', _node('recorder', '-p', f'output:={bag_dir}', *sim_time_args),
                     log_dir / 'recorder.log', env)
         children.append(rec)
         # The recorder is subscribed, and receives the simulator's outputs (the
         # muscle at rest), before the player starts the protocol.
         _wait(lambda: READY_MESSAGE in rec.output() and '/wrench (' in rec.output(),
               'the recorder to receive the simulator', STARTUP_TIMEOUT_S, children)
-        player = Child('protocol_player', _node('protocol_player', '-p', f'protocol:={spec}'),
+        player = Child('protocol_player', _node('protocol_player', '-p', f'protocol:={spec}',
+                                                *sim_time_args),
                        log_dir / 'protocol_player.log', env)
         children.append(player)
+        on_sim_time = '' if rtf is None else f', sim time at real_time_factor {rtf:g}'
         print(f'running {protocol.name} ({protocol.duration_s:g} s) over ROS 2 '
-              f'(ROS_DOMAIN_ID={env["ROS_DOMAIN_ID"]}) ...', flush=True)
+              f'(ROS_DOMAIN_ID={env["ROS_DOMAIN_ID"]}{on_sim_time}) ...', flush=True)
         _wait(lambda: player.poll() is not None, 'the protocol to end',
-              protocol.duration_s + PLAYER_SLACK_S, [sim, rec])
+              protocol.duration_s / (rtf or 1.0) + PLAYER_SLACK_S, [sim, rec])
         if player.poll() != 0:
             raise DemoError(f'the protocol player failed ({player.poll()})\n{player.tail()}')
         if rec.stop() != 0:
             raise DemoError(f'the recorder failed ({rec.popen.returncode})\n{rec.tail()}')
+        # The simulator logs its timing statistics as it exits.
+        sim.stop()
     finally:
         for child in reversed(children):
             child.stop()
 
 
-def protocol_start_ns(bag) -> int:
+def protocol_start_ns(bag, sim_time: bool = False) -> int:
     """[ns] when the protocol started, on the recorder's receive clock.
+
+    With ``sim_time`` (a run on /clock) and a protocol that starts with
+    stimulation, the simulator's time instead: the stamp of its last
+    ``wrench`` at rest before the first non-zero force. The recorder's sim
+    time receive clock only advances with its polling and /clock (coarse at
+    a high real-time factor), and the first non-zero force may be stamped up
+    to a tick's worth of steps late (a tick runs real_time_factor steps and
+    publishes the last one); but the stimulation arrived between the two
+    ticks, so it acted from the step after the last rest stamp.
 
     The player's first message, if the bag has it (its sequence number is 1).
     If the recorder matched the player late (slow DDS discovery) and the
@@ -205,6 +235,11 @@ def protocol_start_ns(bag) -> int:
     the first recorded message minus the missed periods (approximate).
     """
     stim = stimulation_topic(bag)
+    if sim_time and stim.values()[0] > 0.0:
+        wrench = bag.topic('wrench')
+        active = np.flatnonzero(wrench.values() > 0.0)
+        if len(active) and active[0] > 0:
+            return int(wrench.stamps_ns()[active[0] - 1])
     first_seq = int(stim.sequence[0]) if len(stim.sequence) else 1
     if first_seq <= 1:
         return int(stim.log_time_ns[0])
@@ -225,15 +260,15 @@ def stimulation_topic(bag):
     raise DemoError(f'{bag.path}: no pulse_width or recruitment messages: {bag.counts()}')
 
 
-def live_force_at(bag, times_s: Sequence[float]) -> list[float]:
+def live_force_at(bag, times_s: Sequence[float], sim_time: bool = False) -> list[float]:
     """[N] the recorded force at each time since the protocol started.
 
     The force is the last ``wrench`` stamped at or before that time; time 0
-    is the player's first message (:func:`protocol_start_ns`). NaN before
-    the first wrench.
+    is the player's first message (:func:`protocol_start_ns`, with
+    ``sim_time`` for a run on /clock). NaN before the first wrench.
     """
     wrench = bag.topic('wrench')
-    t_force = (wrench.stamps_ns() - protocol_start_ns(bag)) / NS_PER_S
+    t_force = (wrench.stamps_ns() - protocol_start_ns(bag, sim_time)) / NS_PER_S
     force = wrench.values()
     out = []
     for t in times_s:
@@ -281,29 +316,35 @@ def summary_times(duration_s: float) -> list[float]:
 
 
 def analyse(bag_dir: Path, protocol: Protocol, params: MuscleParams,
-            rate_hz: float, plot_path: Path) -> str:
-    """Read the bag, write the plot, and return the summary text."""
+            rate_hz: float, plot_path: Path, real_time_factor: float | None = None) -> str:
+    """Read the bag, write the plot, and return the summary text.
+
+    :param real_time_factor: [-] set for a run on sim time (see :class:`DemoConfig`)
+    """
     from .recording.reader import read_bag
     bag = read_bag(bag_dir)
     if not bag.has_topic('wrench') or not bag.topic('wrench').count:
         raise DemoError(f'{bag_dir}: no wrench messages from the simulator: {bag.counts()}')
     stim, length, wrench = stimulation_topic(bag), bag.topic('length_command'), bag.topic('wrench')
     stim_name = stim.name.rsplit('/', 1)[-1]
-    t0 = protocol_start_ns(bag)
+    sim_time = real_time_factor is not None
+    t0 = protocol_start_ns(bag, sim_time)
     t_force = (wrench.stamps_ns() - t0) / NS_PER_S
     force = wrench.values()
     offline = simulate(protocol, params, rate_hz)
     times = summary_times(protocol.duration_s)
-    live_at = live_force_at(bag, times)
+    live_at = live_force_at(bag, times, sim_time)
 
+    on_sim_time = '' if not sim_time else f' on sim time at real_time_factor {real_time_factor:g}'
     lines = [f'{protocol.name}: units={params.units}, length={params.length}; live run over '
-             f'ROS 2 vs the offline simulation',
+             f'ROS 2{on_sim_time} vs the offline simulation',
              f'{"t_s":>6}  {"live_force_n":>12}  {"offline_force_n":>15}  {"diff_n":>7}']
     for t, live in zip(times, live_at):
         off = float(offline.force_n[offline.at(t)])
         lines.append(f'{t:6.3f}  {live:12.3f}  {off:15.3f}  {live - off:+7.3f}')
     lag = simulator_lag_s(bag)
-    if lag is not None and lag > SIMULATOR_LAG_LIMIT_S:
+    # On sim time the receive clock runs real_time_factor times faster.
+    if lag is not None and lag > SIMULATOR_LAG_LIMIT_S * (real_time_factor or 1.0):
         lines.append(f'WARNING: the simulator reacted {lag:.3f} s after the first stimulation: '
                      'DDS discovery was slow and it missed the start of the protocol '
                      '(the player starts on its first subscriber). Run the demo again.')
@@ -367,10 +408,49 @@ def run_demo(config: DemoConfig) -> int:
     log_dir = config.runs_dir / 'logs' / bag_dir.name
     log_dir.mkdir(parents=True, exist_ok=True)
     record_live_run(config, bag_dir, protocol, log_dir)
-    print(analyse(bag_dir, protocol, params, rate_hz, bag_dir / 'force.png'))
+    print(analyse(bag_dir, protocol, params, rate_hz, bag_dir / 'force.png',
+                  config.real_time_factor))
+    if config.real_time_factor is not None:
+        stats = simulator_stats((log_dir / 'simulator.log').read_text(errors='replace'))
+        if stats is not None:
+            print(f'simulator: {stats.steps} steps in {stats.steady_s:.3f} s of steady time: '
+                  f'achieved real-time factor {stats.achieved_rtf(rate_hz):.2f}, '
+                  f'{stats.steps_behind} steps behind at exit, '
+                  f'{stats.catch_up_warnings} catch-up warnings (throttled to 1/s)')
     print(f'logs: {log_dir}')
     print(f'demo wall time: {time.monotonic() - start:.1f} s')
     return 0
+
+
+@dataclass
+class SimulatorStats:
+    """The timing statistics the simulator logs as it exits."""
+    steps: int
+    steady_s: float
+    ticks: int
+    late_ticks: int
+    steps_behind: int
+    #: warnings that more steps were due than one tick may catch up (throttled to 1/s)
+    catch_up_warnings: int
+
+    def achieved_rtf(self, rate_hz: float) -> float:
+        """[-] simulated seconds per second of the steady clock, over the node's life."""
+        return self.steps / rate_hz / self.steady_s if self.steady_s > 0 else float('nan')
+
+
+_STATS_RE = re.compile(r'ran (\d+) steps in ([\d.]+) s of steady time .*?, (\d+) ticks, '
+                       r'(\d+) late, (-?\d+) steps behind at exit')
+_CATCH_UP_MARK = 'steps due after a stall or overload'
+
+
+def simulator_stats(log_text: str) -> SimulatorStats | None:
+    """Parse the simulator's exit statistics from its log; None if it has none."""
+    match = _STATS_RE.search(log_text)
+    if match is None:
+        return None
+    steps, steady_s, ticks, late, behind = match.groups()
+    return SimulatorStats(int(steps), float(steady_s), int(ticks), int(late), int(behind),
+                          log_text.count(_CATCH_UP_MARK))
 
 
 class _Stop(Exception):
@@ -392,13 +472,24 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--runs-dir', type=Path, default=DEFAULT_RUNS_DIR, metavar='DIR',
                         help='where the run directory goes (default: runs)')
     parser.add_argument('--name', help='run directory name (default: demo_protocol_<P>_<UTC>)')
+    parser.add_argument('--real-time-factor', type=_positive_float, metavar='X',
+                        help='run on sim time, X simulated seconds per clock second '
+                             '(simulator publish_clock, player and recorder use_sim_time); '
+                             'default: the wall clock, no /clock')
     return parser
+
+
+def _positive_float(text: str) -> float:
+    value = float(text)
+    if not (np.isfinite(value) and value > 0.0):
+        raise argparse.ArgumentTypeError(f'must be a positive number, got {text!r}')
+    return value
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     config = DemoConfig(args.protocol, args.units or None, args.length or None,
-                        args.runs_dir, args.name)
+                        args.runs_dir, args.name, args.real_time_factor)
     # SIGINT (even if inherited ignored), SIGTERM and SIGHUP unwind like
     # Ctrl-C, so the finally blocks stop the children.
     signal.signal(signal.SIGINT, signal.default_int_handler)
