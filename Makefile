@@ -25,13 +25,16 @@ test: $(STAMP)
 # (runs/<name>/force.png) and summarised. Options pass through:
 #   make demo PROTOCOL=I UNITS=single LENGTH=instantaneous
 #   make demo PROTOCOL=path/to/protocol.yaml
+#   make demo RTF=10     # faster than real time, on sim time (/clock)
 PROTOCOL ?= II
 UNITS    ?=
 LENGTH   ?=
 RUNS_DIR ?= runs
+RTF      ?=
 demo: $(STAMP)
 	$(BIN)/python -m hill_muscle_ros.demo --protocol '$(PROTOCOL)' \
-	    --units '$(UNITS)' --length '$(LENGTH)' --runs-dir '$(RUNS_DIR)'
+	    --units '$(UNITS)' --length '$(LENGTH)' --runs-dir '$(RUNS_DIR)' \
+	    $(if $(RTF),--real-time-factor '$(RTF)')
 
 figures: $(STAMP)
 	$(BIN)/hill-muscle figures --out runs/figures
