@@ -163,3 +163,14 @@ def test_round_trip_through_yaml_text(tmp_path):
 def test_integer_too_large_for_a_float_is_not_finite(change):
     with pytest.raises(ProtocolError, match='finite'):
         Protocol.from_mapping(dict(GOOD, **change), source='my.yaml')
+
+
+def test_stimulation_command_on_each_output():
+    p = Protocol.from_mapping(GOOD)
+    assert p.stimulation_command(3.0, 'recruitment', 5e-4) == 1.0
+    assert p.stimulation_command(0.0, 'pulse_width', 5e-4) == pytest.approx(0.5 * 5e-4)
+    own = {k: v for k, v in GOOD.items() if k != 'recruitment'}
+    own['pulse_width_s'] = [[0.0, 2e-3]]  # the protocol's own width, sent unclipped
+    assert Protocol.from_mapping(own).stimulation_command(0.0, 'pulse_width', 5e-4) == 2e-3
+    with pytest.raises(ValueError, match="`output` must be one of pulse_width, recruitment"):
+        p.stimulation_command(0.0, 'current', 5e-4)

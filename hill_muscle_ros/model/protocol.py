@@ -22,6 +22,8 @@ from .params import finite_float
 #: Keys a protocol file may have; exactly one stimulation key is required.
 STIMULATION_KEYS = ('recruitment', 'pulse_width_s')
 ALLOWED_KEYS = ('name', 'duration_s', *STIMULATION_KEYS, 'dl_mt_m')
+#: Topics a protocol can drive a stimulator on (the player's ``output``).
+STIMULATION_OUTPUTS = ('pulse_width', 'recruitment')
 
 
 #: libyaml's parser when PyYAML was built with it (about 10x faster to load a
@@ -108,6 +110,26 @@ class Protocol:
             values = np.minimum(np.asarray(values) / pw_max_s, 1.0)
             return float(values) if values.ndim == 0 else values
         return values
+
+    def stimulation_command(self, t_s: float, output: str, pw_max_s: float) -> float:
+        """The value a stimulator is sent at ``t_s`` on the topic ``output``.
+
+        ``recruitment``: R(t). ``pulse_width``: the protocol's own pulse widths
+        (unclipped, as the stimulator would get them) or R(t) x PW_max.
+
+        :param t_s: [s] time
+        :param output: ``pulse_width`` or ``recruitment``
+        :param pw_max_s: [s] pulse width that recruits every unit (PW_max)
+        :return: [-] R or [s] pulse width
+        """
+        if output not in STIMULATION_OUTPUTS:
+            raise ValueError(f'`output` must be one of {", ".join(STIMULATION_OUTPUTS)}, '
+                             f'got {output!r}')
+        if output == 'recruitment':
+            return float(self.recruitment(t_s, pw_max_s))
+        if self.stimulation_key == 'pulse_width_s':
+            return float(self.stimulation(t_s))
+        return float(self.recruitment(t_s, pw_max_s)) * pw_max_s
 
     def dl_mt(self, t_s: np.ndarray | float) -> np.ndarray | float:
         """MTU length change dl_MT(t) [m]."""

@@ -21,6 +21,7 @@ from rclpy.task import Future
 from std_msgs.msg import Float64
 
 from ..model import MuscleParams, Protocol, ProtocolError
+from ..model.protocol import STIMULATION_OUTPUTS
 from ..resources import BUILTIN_PROTOCOLS, protocol_path
 from ._common import (EXIT_FAILURE, EXIT_SUCCESS, OUTPUT_QOS,
                       StartupError, declare_checked, field_descriptor,
@@ -28,7 +29,7 @@ from ._common import (EXIT_FAILURE, EXIT_SUCCESS, OUTPUT_QOS,
 
 NODE_NAME = 'protocol_player'
 
-OUTPUT_CHOICES = ('pulse_width', 'recruitment')
+OUTPUT_CHOICES = STIMULATION_OUTPUTS
 DEFAULT_PROTOCOL = 'II'
 DEFAULT_RATE_HZ = 1000.0
 #: [Hz] same bounds as the simulator's step rate.
@@ -124,14 +125,9 @@ class ProtocolPlayer(Node):
 
     def _publish(self, t_s: float) -> None:
         p = self._protocol
-        if self._output == 'recruitment':
-            stim = p.recruitment(t_s, self._pw_max_s)
-        elif p.stimulation_key == 'pulse_width_s':
-            stim = p.stimulation(t_s)  # the protocol's own pulse widths, unclipped
-        else:
-            stim = p.recruitment(t_s, self._pw_max_s) * self._pw_max_s
         self._pub_dl.publish(Float64(data=float(p.dl_mt(t_s))))
-        self._pub_stim.publish(Float64(data=float(stim)))
+        self._pub_stim.publish(Float64(data=p.stimulation_command(t_s, self._output,
+                                                                  self._pw_max_s)))
 
     def _on_tick(self) -> None:
         t_s = (self.get_clock().now() - self._t0).nanoseconds / _NS_PER_S

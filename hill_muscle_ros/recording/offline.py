@@ -31,19 +31,6 @@ STIMULATION_TOPICS = ('pulse_width', 'recruitment')
 DEFAULT_FRAME_ID = 'muscle'
 
 
-def stimulation_command(protocol: Protocol, t_s: float, output: str, pw_max_s: float) -> float:
-    """What the protocol player publishes on its stimulation topic at ``t_s``.
-
-    Mirrors ``ProtocolPlayer._publish``: recruitment R on ``recruitment``;
-    on ``pulse_width`` the protocol's own pulse widths, or R x PW_max.
-    """
-    if output == 'recruitment':
-        return float(protocol.recruitment(t_s, pw_max_s))
-    if protocol.stimulation_key == 'pulse_width_s':
-        return float(protocol.stimulation(t_s))
-    return float(protocol.recruitment(t_s, pw_max_s)) * pw_max_s
-
-
 def _topic(namespace: str, name: str) -> str:
     return namespace.rstrip('/') + '/' + name
 
@@ -87,7 +74,7 @@ def write_simulation_bag(bag_dir: str | os.PathLike, result: SimulationResult,
         for k, t_s in enumerate(result.t_s):
             t_ns = round(float(t_s) * NS_PER_S)
             if t_s < protocol.duration_s:
-                stim = stimulation_command(protocol, float(t_s), output, params.pw_max_s)
+                stim = protocol.stimulation_command(float(t_s), output, params.pw_max_s)
                 dl_mt = float(protocol.dl_mt(float(t_s)))
             else:
                 # The player's last messages: the final length and zero stimulation.
