@@ -141,6 +141,9 @@ class Muscle:
         self._gain_n = 0.0
         # Velocity of the free CE when Eff.f_iso = 0 (it follows the MTU).
         self._v_free = 0.0
+        # (l_ce, dl_mt, gain, v_ce) at the end of the last run: v_ce is a pure
+        # function of the first three, so it is valid whenever they match.
+        self._v_end = (math.nan, math.nan, math.nan, math.nan)
 
     @property
     def n_runs(self) -> int:
@@ -363,7 +366,15 @@ def _hot_loop(muscle: Muscle) -> Callable[..., MuscleOutputs]:
         # recruitment is unchanged, v is also the first RK4 stage of the
         # next step (same state, same inputs), so it is computed once.
         f0 = f0_at(l, gain)
-        v = velocity(l, dl0, gain) if f0 > 0.0 else v_free
+        if f0 > 0.0:
+            # One call per step (the node's Muscle.step) would otherwise
+            # recompute the velocity the previous call ended with: reuse it
+            # when the state and the gain are exactly those it was made from.
+            cached = muscle._v_end
+            v = (cached[3] if cached[0] == l and cached[1] == dl0 and cached[2] == gain
+                 else velocity(l, dl0, gain))
+        else:
+            v = v_free
         for k, dl1 in enumerate(dl_mt_end_m):
             r = r_start[k]
             if r != r_now:
@@ -415,6 +426,7 @@ def _hot_loop(muscle: Muscle) -> Callable[..., MuscleOutputs]:
         muscle.dl_mt_m = dl0
         muscle.t_s = t
         muscle._v_free = v_free
+        muscle._v_end = (l, dl0, gain, v)
         stretch = dl0 - (l - l_rest)
         f_se = k_se * stretch if stretch > 0.0 else 0.0
         f_pe = k_pe * dl0 if dl0 > 0.0 else 0.0
