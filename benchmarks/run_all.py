@@ -284,7 +284,8 @@ def write_rtf_section(add, measured) -> None:
     add('')
     add('What limits it: not the simulator\'s step cost (see the achieved RTF and steps '
         'behind columns): a tick runs `real_time_factor` steps of a few us every 1 ms of '
-        'steady time (`MIN_TICK_PERIOD_S`). But it reads its inputs only between ticks, so on sim time the length command is '
+        'steady time (`MIN_TICK_PERIOD_S`). But it reads its inputs only between ticks, '
+        'so on sim time the length command is '
         'held for at least `real_time_factor` steps (ms); and the player, on sim time, '
         'can only tick when a `/clock` message reaches it (one per simulator tick), so its '
         'commands come in bursts whose gaps are its own wall-clock scheduling and the DDS '
@@ -295,7 +296,9 @@ def write_rtf_section(add, measured) -> None:
         'no DDS; it depends on the hold\'s phase at the reading), and each ms of '
         'wall-clock jitter costs `real_time_factor` ms of it. A late DDS match of the '
         'player by the simulator shifts the whole run (a held-length error of the full '
-        'force at 5.95 s means the zero stimulation at the end landed early); at high factors 'the whole protocol can be over before the recorder matches the player (no stimulation 'in the bag).')
+        'force at 5.95 s means the zero stimulation at the end landed early); at high '
+        'factors the whole protocol can be over before the recorder matches the player '
+        '(no stimulation in the bag).')
 
 
 def write_report(path: Path, runs: int, started: dict, results: dict) -> None:
