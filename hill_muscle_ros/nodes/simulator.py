@@ -147,9 +147,16 @@ class Simulator(Node):
                 'real_time_factor',
                 throttle_duration_sec=1.0)
         out = None
-        for _ in range(n):
+        # The length command is spread evenly over the steps this tick runs
+        # (a first-order hold from where the last step ended): with
+        # real_time_factor > 1, or when catching up, one tick runs many steps,
+        # and holding the newest command for all of them would turn a ramp
+        # into a staircase. With one step per tick this is the plain step.
+        dl_start, dl_end = self._muscle.dl_mt_m, self._dl_mt_m
+        for i in range(1, n + 1):
             self._watchdog()
-            out = self._muscle.step(self._recruitment, self._dl_mt_m, self._dt_s)
+            dl = dl_end if i == n else dl_start + (dl_end - dl_start) * (i / n)
+            out = self._muscle.step(self._recruitment, dl, self._dt_s)
             self._schedule.steps_done += 1
         if not (math.isfinite(out.force_n) and math.isfinite(out.l_ce_m)):
             # Cannot happen with validated inputs and parameters; if it does,
