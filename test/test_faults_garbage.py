@@ -1,7 +1,8 @@
 """Fault case 3: garbage on every input topic.
 
 What must hold, for the simulator's ``pulse_width``, ``recruitment`` and
-``length_command`` and the controller's ``force_target`` and ``force``, when
+``length_command`` and the controller's ``force_target``, ``force`` and
+``length_command``, when
 they receive NaN, +-inf, huge values, negative values, and bursts that
 alternate good and bad values (ending on a bad one):
 
@@ -11,8 +12,9 @@ alternate good and bad values (ending on a bad one):
   at most one per topic per second plus one (the rest are counted);
 - the last good value is used: the simulator ends at the steady state the
   offline core reaches with the last good inputs; the controller, fed a
-  force equal to its target, keeps sending exactly the feedforward pulse
-  width (any accepted bad value would move its output or its integral).
+  force equal to its target at a held length, keeps sending exactly the
+  feedforward pulse width for that length (any accepted bad value would move
+  its output, its length estimate or its integral).
 """
 from __future__ import annotations
 
@@ -27,7 +29,7 @@ import pytest
 from geometry_msgs.msg import WrenchStamped
 from std_msgs.msg import Float64
 
-from hill_muscle_ros.control import ForceController
+from hill_muscle_ros.control import ControllerParams, ForceController
 from hill_muscle_ros.model import Muscle, MuscleParams
 from ros_helpers import Probe, ProcessGroup, node_command
 
@@ -198,11 +200,14 @@ def test_simulator_ignores_garbage_on_every_input_and_keeps_the_last_good_value(
 def test_controller_ignores_garbage_on_every_input_and_keeps_the_last_good_value(tmp_path):
     ns = f'/garbage_ctrl_{os.getpid()}_{next(_RUNS)}'
     target_n = 10.0
-    expected_pw = ForceController().feedforward(target_n)
+    # The controller's defaults: model feedforward with the default muscle.
+    expected_pw = ForceController(ControllerParams(), MuscleParams()).feedforward(
+        target_n, target_n, STRETCH_M, 0.0)
     with ProcessGroup(tmp_path) as procs, Probe('garbage_ctrl_probe') as probe:
         ctrl = procs.start('controller', node_command('force_controller', ns=ns))
         pw = probe.record(f'{ns}/pulse_width', Float64)
-        pubs = {t: probe.publisher(f'{ns}/{t}', Float64) for t in ('force_target', 'force')}
+        pubs = {t: probe.publisher(f'{ns}/{t}', Float64)
+                for t in ('force_target', 'force', 'length_command')}
         probe.spin_until(lambda: all(p.get_subscription_count() for p in pubs.values()),
                          'the controller to subscribe', procs=[ctrl])
         # The probe plays a muscle that holds exactly the target: zero error.
@@ -211,7 +216,7 @@ def test_controller_ignores_garbage_on_every_input_and_keeps_the_last_good_value
         pubs['force_target'].publish(Float64(data=target_n))
         probe.wait_for_value(pw, lambda v: v > 0.0, 'stimulation', procs=[ctrl])
         start = time.monotonic()
-        good = {'force_target': target_n, 'force': target_n}
+        good = {'force_target': target_n, 'force': target_n, 'length_command': STRETCH_M}
         sent = {topic: send_garbage(probe, pub, BAD[topic], good[topic])
                 for topic, pub in pubs.items()}
         for topic, n in flush_throttled_counts(probe, ctrl, pubs, BAD).items():

@@ -7,8 +7,8 @@ from hypothesis import strategies as st
 
 from hill_muscle_ros.model import MuscleParams
 from hill_muscle_ros.model.curves import (force_length, force_velocity,
-                                          force_velocity_inverse, parallel_force,
-                                          series_force)
+                                          force_velocity_inverse, isometric_force_for,
+                                          parallel_force, series_force)
 
 P = MuscleParams()
 HILL = (P.fv_a_n, P.fv_b_m_per_s, P.fv_a_ecc_n, P.fv_b_ecc_m_per_s)
@@ -81,6 +81,33 @@ def test_force_velocity_inverse_is_continuous_at_every_branch_boundary(f0, frac,
     slope = max(P.fv_b_m_per_s * (f0 + P.fv_a_n) / P.fv_a_n ** 2,
                 2 * P.fv_b_ecc_m_per_s * (1.5 * f0 + P.fv_a_ecc_n) / P.fv_a_ecc_n ** 2)
     assert abs(near - here) <= slope * eps * 1.01
+
+
+@given(forces0, st.floats(min_value=1e-6, max_value=1.5 - 1e-6))
+def test_isometric_force_for_returns_the_f0_at_which_the_ce_moves_at_that_speed(f0, frac):
+    """Eq. (3) solved for F0 inverts Eq. (3) solved for v: any state the CE can
+    be in is recovered."""
+    f = frac * f0
+    v = force_velocity_inverse(f, f0, *HILL)
+    assert isometric_force_for(f, v, *HILL) == pytest.approx(f0, rel=1e-9)
+
+
+@given(st.floats(min_value=0.5, max_value=200.0), st.floats(min_value=1e-4, max_value=1.0))
+def test_isometric_force_for_a_lengthening_too_fast_gives_the_fastest_f0(f, v):
+    """At force f the CE lengthens at most at f b' / (1.5 a'), with
+    F0 = f / 1.5; asked for more, the answer is that F0, and no F0 does better."""
+    a, b, a_ecc, b_ecc = HILL
+    v_fastest = f * b_ecc / (1.5 * a_ecc)
+    f0 = isometric_force_for(f, v, *HILL)
+    if v > v_fastest:
+        assert f0 == pytest.approx(f / 1.5)
+    assert force_velocity_inverse(f, f0, *HILL) <= v_fastest * (1 + 1e-12)
+    for other in (0.5 * f0, 0.9 * f0, 1.1 * f0, 2.0 * f0):
+        assert force_velocity_inverse(f, other, *HILL) <= v_fastest * (1 + 1e-12)
+
+
+def test_isometric_force_for_zero_force_is_zero():
+    assert isometric_force_for(0.0, 0.01, *HILL) == 0.0
 
 
 def test_series_spring_pulls_but_never_pushes():

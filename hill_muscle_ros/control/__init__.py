@@ -1,4 +1,4 @@
-"""Example FES controllers: pure Python, no ROS (the node is a thin shell)."""
-from .pi import ControllerParams, ForceController
+"""An example FES force controller (pure Python; the ROS node wraps it)."""
+from .pi import FEEDFORWARD_CHOICES, ControllerParams, ForceController, LengthRate
 
-__all__ = ['ControllerParams', 'ForceController']
+__all__ = ['FEEDFORWARD_CHOICES', 'ControllerParams', 'ForceController', 'LengthRate']

@@ -1,15 +1,24 @@
-"""A force controller for FES: feedforward through the inverse recruitment
-curve plus a PI loop with anti-windup, output clamped to [0, PW_max].
+"""A force controller for FES: a feedforward plus a PI loop with anti-windup,
+output clamped to [0, PW_max].
+
+The feedforward is either the inverse recruitment curve (``recruitment``:
+R = F* / ff_force_n) or, when the controller is given a nominal muscle model
+and the imposed length, the model's inverse dynamics (``model``): the
+recruitment that holds the target while the muscle is being stretched or
+shortened, through the parallel spring and the force-velocity relation.
 
 This is an example for users to start from, not part of the muscle model.
 """
 from __future__ import annotations
 
+import collections
 import dataclasses
 import math
 from dataclasses import dataclass, field
 
-from ..model.curves import force_length
+import numpy as np
+
+from ..model.curves import force_length, isometric_force_for, parallel_force
 from ..model.params import MuscleParams
 
 _DEFAULTS = MuscleParams()
@@ -34,10 +43,20 @@ DEFAULT_FORCE_LIMIT_N = 1.0e4
 DEFAULT_KP_S_PER_N = 1.5e-5
 DEFAULT_KI_S_PER_N_S = 3.0e-4
 DEFAULT_REFERENCE_TAU_S = 0.06
+#: [s] window of the imposed length's rate estimate: long enough to average
+#: out DDS arrival jitter over several 1 kHz samples, short enough to see a
+#: ramp stop within a fraction of a control period (offline, a 10 ms window
+#: doubled the force dip at the end of a 10 mm/s stretch).
+DEFAULT_LENGTH_RATE_WINDOW_S = 0.005
+#: Feedforward choices: the nominal model's inverse dynamics (uses the
+#: imposed length), the inverse recruitment curve (force only), or none.
+FEEDFORWARD_CHOICES = ('model', 'recruitment', 'none')
 
 
-def _spec(unit: str, description: str, low: float, high: float) -> dict:
-    return {'unit': unit, 'description': description, 'low': low, 'high': high}
+def _spec(unit: str, description: str, low: float | None = None, high: float | None = None,
+          choices: tuple[str, ...] | None = None) -> dict:
+    return {'unit': unit, 'description': description, 'low': low, 'high': high,
+            'choices': choices}
 
 
 @dataclass(frozen=True)
@@ -46,8 +65,12 @@ class ControllerParams:
 
     :param kp_s_per_n: [s/N] proportional gain, pulse width per newton of error
     :param ki_s_per_n_s: [s/(N s)] integral gain
-    :param ff_force_n: [N] force expected at full recruitment; the feedforward
-        inverts R = F / ff_force_n, then PW = R PW_max. 0 disables feedforward.
+    :param feedforward: ``model`` (the default): the nominal muscle model's
+        inverse dynamics, see :meth:`ForceController.feedforward`; it needs the
+        model (else it falls back to ``recruitment``). ``recruitment``: the
+        inverse recruitment curve R = F* / ff_force_n. ``none``: PI only.
+    :param ff_force_n: [N] force expected at full recruitment, for the
+        ``recruitment`` feedforward: PW = PW_max F* / ff_force_n. 0 disables it.
     :param pw_max_s: [s] largest pulse width the stimulator may send (PW_max)
     :param rate_hz: [Hz] control and stimulation rate
     :param feedback_timeout_s: [s] stop stimulating if no force arrives this long
@@ -56,9 +79,15 @@ class ControllerParams:
         feedforward moves the muscle at once, and the feedback only corrects
         the deviation from the expected rise, so the integral does not wind up
         during a step. 0 makes the feedback track the target itself.
+    :param length_rate_window_s: [s] the rate of the imposed length is the
+        least-squares slope of the samples received within this window
+        (:class:`LengthRate`)
     :param force_limit_n: [N] inputs beyond this are rejected (see :meth:`ForceController.check_target`)
     """
 
+    feedforward: str = field(default=FEEDFORWARD_CHOICES[0], metadata=_spec(
+        '-', 'feedforward: model (inverse dynamics of the nominal muscle, uses length_command), '
+        'recruitment (inverse recruitment curve) or none', choices=FEEDFORWARD_CHOICES))
     kp_s_per_n: float = field(default=DEFAULT_KP_S_PER_N, metadata=_spec(
         's/N', 'proportional gain (pulse width per newton of force error)', 0.0, 1.0))
     ki_s_per_n_s: float = field(default=DEFAULT_KI_S_PER_N_S, metadata=_spec(
@@ -74,6 +103,9 @@ class ControllerParams:
     reference_tau_s: float = field(default=DEFAULT_REFERENCE_TAU_S, metadata=_spec(
         's', 'time constant of the reference model the feedback tracks (0: the target itself)',
         0.0, 10.0))
+    length_rate_window_s: float = field(default=DEFAULT_LENGTH_RATE_WINDOW_S, metadata=_spec(
+        's', 'window of the least-squares rate estimate of length_command, for the model '
+        'feedforward', 1e-4, 10.0))
     force_limit_n: float = field(default=DEFAULT_FORCE_LIMIT_N, metadata=_spec(
         'N', 'a force target above this, or a force feedback beyond +-this, is '
         'rejected as garbage', 1e-3, 1e9))
@@ -81,6 +113,12 @@ class ControllerParams:
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
+            choices = f.metadata['choices']
+            if choices is not None:
+                if value not in choices:
+                    raise ValueError(f'`{f.name}` must be one of {", ".join(choices)}, '
+                                     f'got {value!r}')
+                continue
             low, high = f.metadata['low'], f.metadata['high']
             if isinstance(value, bool) or not isinstance(value, (int, float)):
                 raise ValueError(f'`{f.name}` must be a number, got {value!r}')
@@ -89,20 +127,58 @@ class ControllerParams:
             object.__setattr__(self, f.name, float(value))
 
 
+class LengthRate:
+    """The imposed MTU length and its rate, from samples as they arrive.
+
+    The rate is the least-squares slope over the last ``window_s``: a
+    difference of two samples would amplify the arrival jitter of DDS. With
+    fewer than two samples in the window, or the newest older than the
+    window, the length is taken as held (rate 0).
+
+    :param window_s: [s] averaging window
+    """
+
+    def __init__(self, window_s: float) -> None:
+        self.window_s = window_s
+        self._samples: collections.deque[tuple[float, float]] = collections.deque()
+        self.dl_mt_m = 0.0  # [m] the newest sample (dl_MT), 0 before the first
+
+    def add(self, t_s: float, dl_mt_m: float) -> None:
+        """One sample: ``dl_mt_m`` [m] received at ``t_s`` [s]."""
+        self._samples.append((t_s, dl_mt_m))
+        self.dl_mt_m = dl_mt_m
+
+    def rate(self, now_s: float) -> float:
+        """[m/s] least-squares rate over the window ending at ``now_s``."""
+        while self._samples and self._samples[0][0] < now_s - self.window_s:
+            self._samples.popleft()
+        if len(self._samples) < 2:
+            return 0.0
+        t, x = np.array(self._samples).T
+        if t[-1] - t[0] <= 0.0:
+            return 0.0      # one burst of samples says nothing about time
+        return float(np.polyfit(t - t[0], x, 1)[0])
+
+
 class ForceController:
     """PI force control with feedforward and conditional-integration anti-windup.
 
-    ``PW = clip(PW_ff(F*) + kp e + ki ∫e, 0, PW_max)`` with ``e = F_ref - F``,
+    ``PW = clip(PW_ff + kp e + ki ∫e, 0, PW_max)`` with ``e = F_ref - F``,
     where ``F_ref`` follows the target ``F*`` through a first-order lag of
     time constant ``reference_tau_s`` (``F_ref = F*`` when it is 0).
     The integrator only moves when the output is not saturated in the
     direction the error pushes, so it never winds up against the clamp.
 
     :param params: gains and limits
+    :param model: the nominal muscle the ``model`` feedforward inverts (the
+        controller's belief, not the simulated muscle: it may differ). Without
+        it the ``model`` feedforward falls back to ``recruitment``.
     """
 
-    def __init__(self, params: ControllerParams | None = None) -> None:
+    def __init__(self, params: ControllerParams | None = None,
+                 model: MuscleParams | None = None) -> None:
         self.params = params if params is not None else ControllerParams()
+        self.model = model
         self.reset()
 
     def reset(self) -> None:
@@ -137,23 +213,67 @@ class ForceController:
                              f'got {force_n!r}')
         return force_n
 
-    def feedforward(self, target_n: float) -> float:
-        """[s] pulse width expected to hold ``target_n`` newtons (inverse recruitment curve)."""
-        p = self.params
-        if p.ff_force_n == 0.0:
-            return 0.0
-        return p.pw_max_s * min(max(target_n / p.ff_force_n, 0.0), 1.0)
+    def feedforward(self, target_n: float, force_n: float | None = None,
+                    dl_mt_m: float = 0.0, v_mt_m_per_s: float = 0.0) -> float:
+        """[s] pulse width expected to hold ``target_n`` newtons.
 
-    def update(self, target_n: float, force_n: float, dt_s: float) -> float:
+        ``recruitment``: the inverse recruitment curve, PW_max F* / ff_force_n.
+
+        ``model``: the nominal model's inverse dynamics at the imposed length
+        dl_MT and its rate. The PE carries ``k_PE dl_MT`` of the target, the
+        SE the rest (f_SE*); for the SE to keep carrying f_SE* while the PE
+        force changes, the CE must move at ``v_MT + k_PE v_MT / k_SE``; Eq. (3)
+        solved for F0 at that force and velocity
+        (:func:`~hill_muscle_ros.model.curves.isometric_force_for`) gives the
+        effective isometric force to recruit, and ``f_iso_max FL(l_CE / l_opt)``
+        per unit of R, at the CE length the measured force implies
+        (``l_rest + dl_MT - f_SE / k_SE``), turns it into R. Held at rest
+        length this is the recruitment curve again; during a stretch it
+        recruits less (the eccentric CE is stronger and the PE takes a share),
+        which a PI alone can only learn through a lasting error.
+
+        :param target_n: [N] force target (F*)
+        :param force_n: [N] measured force (F), for the CE length; None: F*
+        :param dl_mt_m: [m] imposed MTU length change (dl_MT)
+        :param v_mt_m_per_s: [m/s] its rate, positive when stretching
+        """
+        p, m = self.params, self.model
+        if p.feedforward == 'none':
+            return 0.0
+        if p.feedforward == 'recruitment' or m is None:
+            if p.ff_force_n == 0.0:
+                return 0.0
+            return p.pw_max_s * min(max(target_n / p.ff_force_n, 0.0), 1.0)
+        f_pe = parallel_force(m.k_pe_n_per_m, dl_mt_m)
+        f_se = target_n - f_pe
+        if f_se <= 0.0:
+            return 0.0     # the passive muscle alone pulls this hard already
+        v_ce = v_mt_m_per_s
+        if dl_mt_m > 0.0 and m.k_se_n_per_m > 0.0:
+            v_ce += v_mt_m_per_s * m.k_pe_n_per_m / m.k_se_n_per_m
+        f0 = isometric_force_for(f_se, v_ce, m.fv_a_n, m.fv_b_m_per_s, m.fv_a_ecc_n,
+                                 m.fv_b_ecc_m_per_s)
+        f_se_now = f_se if force_n is None else max(force_n - f_pe, 0.0)
+        l_ce = m.l_rest_m + dl_mt_m - (f_se_now / m.k_se_n_per_m if m.k_se_n_per_m > 0.0 else 0.0)
+        per_unit_r = m.f_iso_max_n * force_length(l_ce / m.l_opt_m)
+        if per_unit_r <= 0.0:
+            return 0.0     # no recruitment makes force at this length: leave it to the PI
+        return p.pw_max_s * min(f0 / per_unit_r, 1.0)
+
+    def update(self, target_n: float, force_n: float, dt_s: float,
+               dl_mt_m: float = 0.0, v_mt_m_per_s: float = 0.0) -> float:
         """One control period: the pulse width to send now.
 
         :param target_n: [N] force target (F*)
         :param force_n: [N] measured muscle force (F)
         :param dt_s: [s] time since the previous update
+        :param dl_mt_m: [m] imposed MTU length change (dl_MT), for the feedforward
+        :param v_mt_m_per_s: [m/s] its rate
         :return: [s] pulse width in [0, PW_max]
         :raises ValueError: on a non-finite input (the state is unchanged)
         """
-        for name, value in (('target_n', target_n), ('force_n', force_n), ('dt_s', dt_s)):
+        for name, value in (('target_n', target_n), ('force_n', force_n), ('dt_s', dt_s),
+                            ('dl_mt_m', dl_mt_m), ('v_mt_m_per_s', v_mt_m_per_s)):
             if not math.isfinite(value):
                 raise ValueError(f'`{name}` must be finite, got {value!r}')
         if dt_s <= 0.0:
@@ -164,7 +284,8 @@ class ForceController:
         blend = 1.0 if p.reference_tau_s == 0.0 else -math.expm1(-dt_s / p.reference_tau_s)
         self.reference_n += (target_n - self.reference_n) * blend
         error = self.reference_n - force_n
-        unclamped = self.feedforward(target_n) + p.kp_s_per_n * error + self.integral_s
+        unclamped = (self.feedforward(target_n, force_n, dl_mt_m, v_mt_m_per_s)
+                     + p.kp_s_per_n * error + self.integral_s)
         pushing_up = error > 0.0
         saturated = (unclamped >= p.pw_max_s and pushing_up) or (unclamped <= 0.0 and not pushing_up)
         if not saturated:

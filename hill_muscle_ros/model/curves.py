@@ -79,6 +79,42 @@ def force_velocity_inverse(f_ce: float, f0: float, a: float, b: float,
     return f0 * b_ecc / a_ecc
 
 
+def isometric_force_for(f_ce: float, v_ce: float, a: float, b: float,
+                        a_ecc: float, b_ecc: float) -> float:
+    """Effective isometric force at which the CE gives ``f_ce`` at ``v_ce``:
+    Eq. (3) solved for F0 instead of for the force.
+
+    For a fixed velocity each branch of Eq. (3) is linear in F0, so this is
+    exact. A controller uses it to ask how much muscle it must recruit to hold
+    a force while the muscle is being moved (inverse dynamics).
+
+    Lengthening is bounded: at force ``f_ce`` the CE lengthens at most at
+    ``f_ce b' / (1.5 a')``, reached at ``F0 = f_ce / 1.5`` (the start of the
+    eccentric plateau); a smaller F0 is slower (``F0 b' / a'``) and a larger
+    one too. If ``v_ce`` is above that bound no F0 gives it and this returns
+    ``f_ce / 1.5``, the F0 that comes closest.
+
+    :param f_ce: [N] CE force wanted (f_CE = f_SE), >= 0
+    :param v_ce: [m/s] CE velocity (v_CE), negative when shortening
+    :param a: [N] concentric Hill constant (a)
+    :param b: [m/s] concentric Hill constant (b)
+    :param a_ecc: [N] eccentric constant (a')
+    :param b_ecc: [m/s] eccentric constant (b')
+    :return: [N] effective isometric force (Eff.f_iso, F0), >= 0
+    """
+    if f_ce <= 0.0:
+        return 0.0
+    if v_ce <= 0.0:
+        # (F0 b + a v) / (b - v) = f  <=>  F0 = (f (b - v) - a v) / b
+        return (f_ce * (b - v_ce) - a * v_ce) / b
+    # 1.5 F0 - 0.5 (F0 b' - a' v) / (b' + v) = f, linear in F0
+    share = b_ecc / (b_ecc + v_ce)
+    f0 = (f_ce - 0.5 * a_ecc * v_ce / (b_ecc + v_ce)) / (ECC_PLATEAU - 0.5 * share)
+    if v_ce > f0 * b_ecc / a_ecc:
+        return f_ce / ECC_PLATEAU   # faster than any F0 allows: the fastest one
+    return f0
+
+
 def series_force(k_se: float, dl_mt: float, l_ce: float, l_rest: float) -> float:
     """Tendon (series elastic) force; the spring pulls but never pushes.
 

@@ -1,9 +1,12 @@
 """An example FES force controller node: closes the loop around the simulator.
 
-Subscribes ``force_target`` [N] and the simulator's ``force`` [N]
-(std_msgs/Float64) and publishes ``pulse_width`` [s] at ``rate_hz``, computed by
-:class:`~hill_muscle_ros.control.ForceController` (feedforward through the
-inverse recruitment curve plus PI with anti-windup, clamped to [0, PW_max]).
+Subscribes ``force_target`` [N], the simulator's ``force`` [N] and the
+imposed ``length_command`` [m] (std_msgs/Float64) and publishes
+``pulse_width`` [s] at ``rate_hz``, computed by
+:class:`~hill_muscle_ros.control.ForceController` (feedforward plus PI with
+anti-windup, clamped to [0, PW_max]). The default ``model`` feedforward
+inverts a nominal muscle, declared with the simulator's parameter names (so
+one ``--params-file`` configures both), at the imposed length and its rate.
 With no force feedback for ``feedback_timeout_s`` it stops stimulating and
 warns; on shutdown it publishes zero stimulation.
 
@@ -14,14 +17,16 @@ from __future__ import annotations
 import dataclasses
 import sys
 
-from rcl_interfaces.msg import SetParametersResult
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.node import Node
 from std_msgs.msg import Float64
 
-from ..control import ControllerParams, ForceController
+from ..control import ControllerParams, ForceController, LengthRate
+from ..model import MuscleParams
+from ..model.muscle import check_dl_mt
 from ._common import (OUTPUT_QOS, RELIABLE_QOS, BadInputWarner, StartupError,
-                      declare_checked, number_descriptor, reject_unknown_overrides,
-                      run_node)
+                      declare_checked, field_descriptor, number_descriptor,
+                      reject_unknown_overrides, run_node)
 
 NODE_NAME = 'force_controller'
 _NS_PER_S = 1e9
@@ -38,12 +43,26 @@ class ForceControllerNode(Node):
         values = {}
         for f in dataclasses.fields(ControllerParams):
             spec = f.metadata
-            values[f.name] = declare_checked(
-                self, f.name, getattr(defaults, f.name),
-                number_descriptor(spec['description'], spec['unit'], spec['low'],
-                                  spec['high'], read_only=f.name == 'rate_hz'))
+            if spec['choices'] is not None:
+                descriptor = ParameterDescriptor(
+                    description=spec['description'],
+                    additional_constraints=f'one of: {", ".join(spec["choices"])}')
+            else:
+                descriptor = number_descriptor(spec['description'], spec['unit'], spec['low'],
+                                               spec['high'], read_only=f.name == 'rate_hz')
+            values[f.name] = declare_checked(self, f.name, getattr(defaults, f.name), descriptor)
+        # The nominal muscle of the model feedforward, under the simulator's
+        # names; pw_max_s is the controller's own (the same stimulator).
+        model_defaults, model_values = MuscleParams(), {}
+        for f in dataclasses.fields(MuscleParams):
+            if f.name != 'pw_max_s':
+                model_values[f.name] = declare_checked(
+                    self, f.name, getattr(model_defaults, f.name),
+                    field_descriptor(f, note='nominal muscle of the model feedforward'))
         try:
-            self.controller = ForceController(ControllerParams(**values))
+            params = ControllerParams(**values)
+            model = MuscleParams(**model_values, pw_max_s=params.pw_max_s)
+            self.controller = ForceController(params, model)
         except ValueError as err:
             raise StartupError(f'parameter {err}') from None
         reject_unknown_overrides(self)
@@ -60,13 +79,17 @@ class ForceControllerNode(Node):
                                                     RELIABLE_QOS)
         self._sub_force = self.create_subscription(Float64, 'force', self._on_force,
                                                    RELIABLE_QOS)
+        self._length = LengthRate(self.controller.params.length_rate_window_s)
+        self._sub_length = self.create_subscription(Float64, 'length_command',
+                                                    self._on_length, RELIABLE_QOS)
         self.create_timer(1.0 / self.controller.params.rate_hz, self._on_tick)
         p = self.controller.params
         self.get_logger().info(
             f'controlling {self._sub_force.topic_name} to {self._sub_target.topic_name} on '
             f'{self._pub.topic_name} at {p.rate_hz:g} Hz: kp {p.kp_s_per_n:g} s/N, '
-            f'ki {p.ki_s_per_n_s:g} s/(N s), feedforward {p.ff_force_n:g} N at PW_max '
-            f'{p.pw_max_s:g} s, feedback timeout {p.feedback_timeout_s:g} s')
+            f'ki {p.ki_s_per_n_s:g} s/(N s), {p.feedforward} feedforward (length from '
+            f'{self._sub_length.topic_name}), PW_max {p.pw_max_s:g} s, feedback timeout '
+            f'{p.feedback_timeout_s:g} s')
 
     # -- inputs ---------------------------------------------------------------
 
@@ -88,16 +111,31 @@ class ForceControllerNode(Node):
             return
         self._force_stamp_ns = self.get_clock().now().nanoseconds
 
+    def _on_length(self, msg: Float64) -> None:
+        try:
+            dl_mt_m = check_dl_mt(msg.data, 'length_command')
+        except ValueError as err:
+            self._warner.warn(self._sub_length.topic_name,
+                              f'ignoring {self._sub_length.topic_name} = {msg.data!r}: {err}; '
+                              f'keeping {self._length.dl_mt_m!r} m')
+            return
+        self._length.add(self.get_clock().now().nanoseconds / _NS_PER_S, dl_mt_m)
+
     def _on_set_parameters(self, params) -> SetParametersResult:
+        """Gains and the nominal muscle change live; a bad value is rejected by name."""
         changes = {p.name: p.value for p in params
                    if p.name in ControllerParams.__dataclass_fields__}
-        if not changes:
+        model_changes = {p.name: p.value for p in params
+                         if p.name in MuscleParams.field_names() and p.name != 'pw_max_s'}
+        if not (changes or model_changes):
             return SetParametersResult(successful=True)
         try:
             new = dataclasses.replace(self.controller.params, **changes)
-        except ValueError as err:
+            model = self.controller.model.replace(**model_changes, pw_max_s=new.pw_max_s)
+        except (ValueError, TypeError) as err:
             return SetParametersResult(successful=False, reason=str(err))
-        self.controller.params = new
+        self.controller.params, self.controller.model = new, model
+        self._length.window_s = new.length_rate_window_s
         return SetParametersResult(successful=True)
 
     # -- output -----------------------------------------------------------------
@@ -127,7 +165,9 @@ class ForceControllerNode(Node):
             self._starved = False
         if dt_s <= 0.0:
             return  # sim time paused or went back: nothing to integrate over
-        self._publish(self.controller.update(self._target_n, self._force_n, dt_s))
+        rate = self._length.rate(now_ns / _NS_PER_S)
+        self._publish(self.controller.update(self._target_n, self._force_n, dt_s,
+                                             self._length.dl_mt_m, rate))
 
     def _publish(self, pulse_width_s: float) -> None:
         self._pub.publish(Float64(data=pulse_width_s))
