@@ -4,6 +4,7 @@ Curves (Eq. 1, Eq. 3), the motor-unit memory (Eq. 2), the muscle and its step,
 parameters, protocols and the offline simulation loop.
 """
 from .batch import BatchOutputs, MuscleBatch
+from .command_track import MAX_KNOTS, CommandTrack
 from .curves import force_length, force_velocity, force_velocity_inverse
 from .memory import NaiveUnitMemory, UnitMemory, recruited_units
 from .muscle import (DL_MT_LIMIT_M, Muscle, MuscleOutputs, check_recruitment,
@@ -13,7 +14,8 @@ from .protocol import Knots, Protocol, ProtocolError
 from .simulate import COLUMNS, SimulationResult, simulate
 
 __all__ = [
-    'BatchOutputs', 'COLUMNS', 'DL_MT_LIMIT_M', 'Knots', 'LENGTH_CHOICES', 'Muscle', 'MuscleBatch', 'MuscleOutputs',
+    'BatchOutputs', 'COLUMNS', 'CommandTrack', 'MAX_KNOTS',
+    'DL_MT_LIMIT_M', 'Knots', 'LENGTH_CHOICES', 'Muscle', 'MuscleBatch', 'MuscleOutputs',
     'MuscleParams', 'NaiveUnitMemory', 'Protocol', 'ProtocolError', 'SimulationResult',
     'UNITS_CHOICES', 'UnitMemory', 'check_recruitment', 'force_length', 'force_velocity',
     'force_velocity_inverse', 'recruited_units', 'recruitment_from_pulse_width', 'simulate',
