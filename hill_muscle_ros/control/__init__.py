@@ -1,4 +1,5 @@
 """An example FES force controller (pure Python; the ROS node wraps it)."""
-from .pi import FEEDFORWARD_CHOICES, ControllerParams, ForceController, LengthRate
+from .pi import (FEEDFORWARD_CHOICES, ControllerParams, ForceController, ImposedLength,
+                 LengthRate)
 
-__all__ = ['FEEDFORWARD_CHOICES', 'ControllerParams', 'ForceController', 'LengthRate']
+__all__ = ['FEEDFORWARD_CHOICES', 'ControllerParams', 'ForceController', 'ImposedLength', 'LengthRate']

@@ -18,7 +18,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..model.command_track import CommandTrack, check_time
 from ..model.curves import force_length, isometric_force_for, parallel_force
+from ..model.muscle import check_dl_mt
 from ..model.params import MuscleParams
 
 _DEFAULTS = MuscleParams()
@@ -48,6 +50,9 @@ DEFAULT_REFERENCE_TAU_S = 0.06
 #: ramp stop within a fraction of a control period (offline, a 10 ms window
 #: doubled the force dip at the end of a 10 mm/s stretch).
 DEFAULT_LENGTH_RATE_WINDOW_S = 0.005
+#: [s] stamped length set points are read this far ahead: half of a 100 Hz
+#: control period, the middle of the interval the pulse width will act over.
+DEFAULT_LENGTH_PREVIEW_S = 0.005
 #: Feedforward choices: the nominal model's inverse dynamics (uses the
 #: imposed length), the inverse recruitment curve (force only), or none.
 FEEDFORWARD_CHOICES = ('model', 'recruitment', 'none')
@@ -82,6 +87,8 @@ class ControllerParams:
     :param length_rate_window_s: [s] the rate of the imposed length is the
         least-squares slope of the samples received within this window
         (:class:`LengthRate`)
+    :param length_preview_s: [s] stamped set points are read this far ahead
+        (:class:`ImposedLength`)
     :param force_limit_n: [N] inputs beyond this are rejected (see :meth:`ForceController.check_target`)
     """
 
@@ -106,6 +113,9 @@ class ControllerParams:
     length_rate_window_s: float = field(default=DEFAULT_LENGTH_RATE_WINDOW_S, metadata=_spec(
         's', 'window of the least-squares rate estimate of length_command, for the model '
         'feedforward', 1e-4, 10.0))
+    length_preview_s: float = field(default=DEFAULT_LENGTH_PREVIEW_S, metadata=_spec(
+        's', 'stamped length set points (length_command_stamped) are read this far ahead',
+        0.0, 10.0))
     force_limit_n: float = field(default=DEFAULT_FORCE_LIMIT_N, metadata=_spec(
         'N', 'a force target above this, or a force feedback beyond +-this, is '
         'rejected as garbage', 1e-3, 1e9))
@@ -158,6 +168,64 @@ class LengthRate:
         if t[-1] - t[0] <= 0.0:
             return 0.0      # one burst of samples says nothing about time
         return float(np.polyfit(t - t[0], x, 1)[0])
+
+
+class ImposedLength:
+    """What the controller knows of the imposed MTU length: dl_MT and its rate.
+
+    Two sources, the newest message deciding which one is used:
+
+    - plain samples (``length_command``, std_msgs/Float64) with their arrival
+      times: :class:`LengthRate`;
+    - stamped set points (``length_command_stamped``, sent ahead by a rig or
+      player that knows its motion): a :class:`CommandTrack`, read at
+      ``now + preview_s``. The stamps are exact where arrival times jitter,
+      and reading ahead lets the feedforward act when the motion changes
+      rather than a control period and a DDS hop after.
+
+    :param window_s: [s] rate window of the plain samples
+    :param preview_s: [s] how far ahead the stamped track is read
+    """
+
+    #: [s] half-width of the central difference that gives the track's rate:
+    #: the 1 ms of a 1 kHz sender, so that a corner of the track is seen as such.
+    RATE_HALF_WIDTH_S = 0.5e-3
+
+    def __init__(self, window_s: float, preview_s: float) -> None:
+        self.plain = LengthRate(window_s)
+        self.preview_s = preview_s
+        self._track: CommandTrack | None = None
+
+    def add_sample(self, t_s: float, dl_mt_m: float) -> None:
+        """A plain length command received at ``t_s`` [s]; it becomes the source."""
+        self.plain.add(t_s, dl_mt_m)
+        self._track = None
+
+    def add_knot(self, stamp_s: float, dl_mt_m: float, now_s: float) -> None:
+        """A stamped set point: reach ``dl_mt_m`` [m] at ``stamp_s`` [s],
+        received at ``now_s`` [s]; the stamped track becomes the source.
+
+        :raises ValueError: naming the value if it is invalid (the track is unchanged)
+        """
+        check_time(stamp_s, 'stamp')
+        check_dl_mt(dl_mt_m, 'length_command_stamped')
+        if self._track is None:
+            # From the length known now, not from some earlier time.
+            self._track = CommandTrack(self.plain.dl_mt_m, min(now_s, stamp_s),
+                                       name='length_command_stamped')
+        self._track.add(stamp_s, dl_mt_m)
+        self.plain.dl_mt_m = dl_mt_m
+
+    def at(self, now_s: float) -> tuple[float, float]:
+        """[m], [m/s] dl_MT and its rate to use at ``now_s`` [s]."""
+        track = self._track
+        if track is None:
+            return self.plain.dl_mt_m, self.plain.rate(now_s)
+        if now_s > track.consumed_s:
+            track.consume(now_s)
+        t, h = max(now_s, track.consumed_s) + self.preview_s, self.RATE_HALF_WIDTH_S
+        before, after = track.value_at(np.array([t - h, t + h]))
+        return float(track.value_at(t)), float(after - before) / (2.0 * h)
 
 
 class ForceController:

@@ -19,9 +19,10 @@ import sys
 
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.node import Node
+from geometry_msgs.msg import PointStamped
 from std_msgs.msg import Float64
 
-from ..control import ControllerParams, ForceController, LengthRate
+from ..control import ControllerParams, ForceController, ImposedLength
 from ..model import MuscleParams
 from ..model.muscle import check_dl_mt
 from ._common import (OUTPUT_QOS, RELIABLE_QOS, BadInputWarner, StartupError,
@@ -74,21 +75,24 @@ class ForceControllerNode(Node):
         self._force_stamp_ns: int | None = None
         self._last_tick_ns: int | None = None
         self._starved = False
+        p = self.controller.params
         self._pub = self.create_publisher(Float64, 'pulse_width', OUTPUT_QOS)
         self._sub_target = self.create_subscription(Float64, 'force_target', self._on_target,
                                                     RELIABLE_QOS)
         self._sub_force = self.create_subscription(Float64, 'force', self._on_force,
                                                    RELIABLE_QOS)
-        self._length = LengthRate(self.controller.params.length_rate_window_s)
+        self._length = ImposedLength(p.length_rate_window_s, p.length_preview_s)
         self._sub_length = self.create_subscription(Float64, 'length_command',
                                                     self._on_length, RELIABLE_QOS)
+        self._sub_length_stamped = self.create_subscription(
+            PointStamped, 'length_command_stamped', self._on_length_stamped, RELIABLE_QOS)
         self.create_timer(1.0 / self.controller.params.rate_hz, self._on_tick)
         p = self.controller.params
         self.get_logger().info(
             f'controlling {self._sub_force.topic_name} to {self._sub_target.topic_name} on '
             f'{self._pub.topic_name} at {p.rate_hz:g} Hz: kp {p.kp_s_per_n:g} s/N, '
             f'ki {p.ki_s_per_n_s:g} s/(N s), {p.feedforward} feedforward (length from '
-            f'{self._sub_length.topic_name}), PW_max {p.pw_max_s:g} s, feedback timeout '
+            f'{self._sub_length.topic_name} or {self._sub_length_stamped.topic_name}), PW_max {p.pw_max_s:g} s, feedback timeout '
             f'{p.feedback_timeout_s:g} s')
 
     # -- inputs ---------------------------------------------------------------
@@ -117,9 +121,19 @@ class ForceControllerNode(Node):
         except ValueError as err:
             self._warner.warn(self._sub_length.topic_name,
                               f'ignoring {self._sub_length.topic_name} = {msg.data!r}: {err}; '
-                              f'keeping {self._length.dl_mt_m!r} m')
+                              f'keeping {self._length.plain.dl_mt_m!r} m')
             return
-        self._length.add(self.get_clock().now().nanoseconds / _NS_PER_S, dl_mt_m)
+        self._length.add_sample(self.get_clock().now().nanoseconds / _NS_PER_S, dl_mt_m)
+
+    def _on_length_stamped(self, msg: PointStamped) -> None:
+        stamp_s = msg.header.stamp.sec + msg.header.stamp.nanosec / _NS_PER_S
+        try:
+            self._length.add_knot(stamp_s, msg.point.x,
+                                  self.get_clock().now().nanoseconds / _NS_PER_S)
+        except ValueError as err:
+            topic = self._sub_length_stamped.topic_name
+            self._warner.warn(topic, f'ignoring {topic} = {msg.point.x!r} at {stamp_s!r} s: '
+                                     f'{err}; keeping {self._length.plain.dl_mt_m!r} m')
 
     def _on_set_parameters(self, params) -> SetParametersResult:
         """Gains and the nominal muscle change live; a bad value is rejected by name."""
@@ -135,7 +149,8 @@ class ForceControllerNode(Node):
         except (ValueError, TypeError) as err:
             return SetParametersResult(successful=False, reason=str(err))
         self.controller.params, self.controller.model = new, model
-        self._length.window_s = new.length_rate_window_s
+        self._length.plain.window_s = new.length_rate_window_s
+        self._length.preview_s = new.length_preview_s
         return SetParametersResult(successful=True)
 
     # -- output -----------------------------------------------------------------
@@ -165,9 +180,9 @@ class ForceControllerNode(Node):
             self._starved = False
         if dt_s <= 0.0:
             return  # sim time paused or went back: nothing to integrate over
-        rate = self._length.rate(now_ns / _NS_PER_S)
+        dl_mt_m, rate = self._length.at(now_ns / _NS_PER_S)
         self._publish(self.controller.update(self._target_n, self._force_n, dt_s,
-                                             self._length.dl_mt_m, rate))
+                                             dl_mt_m, rate))
 
     def _publish(self, pulse_width_s: float) -> None:
         self._pub.publish(Float64(data=pulse_width_s))
