@@ -12,7 +12,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from hill_muscle_ros.control import ControllerParams, ForceController, LengthRate
+from hill_muscle_ros.control import ControllerParams, ForceController, ImposedLength, LengthRate
 from hill_muscle_ros.model import Muscle, MuscleParams
 from hill_muscle_ros.model.curves import force_length
 
@@ -178,7 +178,8 @@ def test_length_rate_is_exact_for_a_ramp_whatever_the_arrival_jitter(v, window_s
     for t in times:
         rate.add(t, v * t)
     inside = [t for t in times if t >= times[-1] - window_s]
-    expected = v if len(inside) >= 2 else 0.0
+    spread = len(inside) >= 2 and inside[-1] - inside[0] >= 0.5 * window_s
+    expected = v if spread else 0.0
     assert rate.rate(times[-1]) == pytest.approx(expected, abs=1e-9)
 
 
@@ -191,11 +192,16 @@ def test_length_rate_is_zero_once_samples_stop():
     assert rate.dl_mt_m == pytest.approx(0.01 * 9e-3)
 
 
-def test_length_rate_of_a_burst_at_one_instant_is_zero():
+def test_length_rate_keeps_the_last_rate_through_a_burst():
+    """A stalled process gets many samples at once: a slope over their
+    arrival times would be wild, so the rate seen before the burst is kept."""
     rate = LengthRate(0.005)
-    for x in (0.0, 0.001, 0.002):
-        rate.add(1.0, x)
-    assert rate.rate(1.0) == 0.0
+    for k in range(10):
+        rate.add(k * 1e-3, 0.01 * k * 1e-3)
+    assert rate.rate(9e-3) == pytest.approx(0.01)
+    for k in range(30, 60):   # 30 ms of ramp delivered within 0.3 ms
+        rate.add(0.05 + k * 1e-5, 0.01 * k * 1e-3)
+    assert rate.rate(0.0503) == pytest.approx(0.01)
 
 
 @pytest.mark.parametrize('bad', [math.nan, math.inf])
@@ -213,3 +219,42 @@ def test_non_finite_feedback_raises_and_keeps_the_state(bad):
 def test_invalid_gain_is_rejected_by_name(name, bad):
     with pytest.raises(ValueError, match=f'`{name}`'):
         ControllerParams(**{name: bad})
+
+
+def ramp_knots(length, t0_s=10.0, ramp_start_s=10.1, n=300):
+    """A 1 kHz sender's stamped set points of a 10 mm/s ramp (10 mm)."""
+    for k in range(n):
+        t = t0_s + k * 1e-3
+        length.add_knot(t, min(max(t - ramp_start_s, 0.0), 1.0) * 0.01, t0_s)
+
+
+def test_stamped_length_is_read_ahead_by_the_preview():
+    length = ImposedLength(0.005, preview_s=0.005)
+    ramp_knots(length)
+    dl, v = length.at(10.2)      # read at 10.205 s: 0.105 s into the ramp
+    assert dl == pytest.approx(0.01 * 0.105, abs=1e-12)
+    assert v == pytest.approx(0.01, rel=1e-9)
+
+
+def test_stamped_length_sees_a_ramp_start_before_it_happens():
+    length = ImposedLength(0.005, preview_s=0.005)
+    ramp_knots(length)
+    assert length.at(10.09)[1] == 0.0
+    assert length.at(10.0965)[1] == pytest.approx(0.01, rel=1e-9)
+
+
+def test_a_plain_sample_takes_over_from_the_stamped_track():
+    length = ImposedLength(0.005, preview_s=0.005)
+    ramp_knots(length)
+    length.add_sample(10.2, 0.003)
+    assert length.at(10.2) == (0.003, 0.0)
+
+
+@pytest.mark.parametrize('bad', [math.nan, math.inf, 5.0])
+def test_a_bad_stamped_value_is_rejected_by_name_and_changes_nothing(bad):
+    length = ImposedLength(0.005, preview_s=0.005)
+    ramp_knots(length)
+    before = length.at(10.2)
+    with pytest.raises(ValueError, match='length_command_stamped'):
+        length.add_knot(10.25, bad, 10.2)
+    assert length.at(10.2) == before

@@ -143,7 +143,12 @@ class LengthRate:
     The rate is the least-squares slope over the last ``window_s``: a
     difference of two samples would amplify the arrival jitter of DDS. With
     fewer than two samples in the window, or the newest older than the
-    window, the length is taken as held (rate 0).
+    window, the length is taken as held (rate 0). Samples that span less than
+    half the window arrived in a burst (the process was descheduled and got
+    them all at once): their arrival times say nothing about the motion, so
+    the previous rate is kept. Arrival times are a poor clock on a loaded
+    machine; a sender that stamps its set points should use
+    ``length_command_stamped`` (:class:`ImposedLength`).
 
     :param window_s: [s] averaging window
     """
@@ -152,6 +157,7 @@ class LengthRate:
         self.window_s = window_s
         self._samples: collections.deque[tuple[float, float]] = collections.deque()
         self.dl_mt_m = 0.0  # [m] the newest sample (dl_MT), 0 before the first
+        self._rate = 0.0    # [m/s] the last rate estimated from a spread of samples
 
     def add(self, t_s: float, dl_mt_m: float) -> None:
         """One sample: ``dl_mt_m`` [m] received at ``t_s`` [s]."""
@@ -163,11 +169,12 @@ class LengthRate:
         while self._samples and self._samples[0][0] < now_s - self.window_s:
             self._samples.popleft()
         if len(self._samples) < 2:
+            self._rate = 0.0
             return 0.0
         t, x = np.array(self._samples).T
-        if t[-1] - t[0] <= 0.0:
-            return 0.0      # one burst of samples says nothing about time
-        return float(np.polyfit(t - t[0], x, 1)[0])
+        if t[-1] - t[0] >= 0.5 * self.window_s:
+            self._rate = float(np.polyfit(t - t[0], x, 1)[0])
+        return self._rate
 
 
 class ImposedLength:
