@@ -24,6 +24,7 @@ from .params import MuscleParams
 DL_MT_LIMIT_M = 1.0
 
 _tuple_new = tuple.__new__
+_INF = math.inf
 
 
 class MuscleOutputs(NamedTuple):
@@ -296,7 +297,7 @@ class Muscle:
         # One combined check (false for NaN too) keeps the node's tick cheap;
         # the helpers run only to raise the error that names the culprit.
         if not (0.0 <= r <= 1.0 and -DL_MT_LIMIT_M <= dl <= DL_MT_LIMIT_M
-                and 0.0 < dt_s < math.inf):
+                and 0.0 < dt_s < _INF):
             check_dl_mt(dl_mt_m)
             if not (math.isfinite(dt_s) and dt_s > 0.0):
                 raise ValueError(f'`dt_s` must be positive and finite, got {dt_s!r}')
@@ -315,6 +316,7 @@ def _hot_loop(muscle: Muscle) -> Callable[..., MuscleOutputs]:
     p = muscle.params
     k_se, k_pe, l_rest, l_opt = p.k_se_n_per_m, p.k_pe_n_per_m, p.l_rest_m, p.l_opt_m
     a, b, a_ecc, b_ecc = p.fv_a_n, p.fv_b_m_per_s, p.fv_a_ecc_n, p.fv_b_ecc_m_per_s
+    two_b_ecc = 2.0 * b_ecc
     initial = muscle._initial
     apply_recruitment = muscle._apply_recruitment
 
@@ -326,34 +328,39 @@ def _hot_loop(muscle: Muscle) -> Callable[..., MuscleOutputs]:
         fl = (FL_A * x + FL_B) * x + FL_C
         return gain * fl if fl > 0.0 else 0.0
 
-    def velocity(l_ce: float, dl_mt: float, gain: float) -> float:
-        """[m/s] d l_ce / dt = FV_inv(f_SE, Eff.f_iso), springs and Eq. 3 inlined."""
-        if initial:
-            f0 = gain
-        else:
-            x = l_ce / l_opt
-            fl = (FL_A * x + FL_B) * x + FL_C
-            f0 = gain * fl if fl > 0.0 else 0.0
-        stretch = dl_mt - (l_ce - l_rest)
-        f = k_se * stretch if stretch > 0.0 else 0.0
+    def velocity_at_f0(l_ce: float, dl_mt: float, f0: float) -> float:
+        """[m/s] d l_ce / dt = FV_inv(f_SE, F0) for a given Eff.f_iso ``f0``;
+        the springs and Eq. 3 inlined (the SE spring never pushes: f <= 0 is slack)."""
+        f = k_se * (dl_mt - (l_ce - l_rest))
         if f <= 0.0:
             return -f0 * b / a
         if f <= f0:
             return b * (f - f0) / (f + a)
         if f < ECC_PLATEAU * f0:
-            return b_ecc * (2.0 * f - 2.0 * f0) / (3.0 * f0 - 2.0 * f + a_ecc)
+            # 2 b' (f - F0) is b' (2 f - 2 F0) exactly: doubling never rounds.
+            return two_b_ecc * (f - f0) / (3.0 * f0 - 2.0 * f + a_ecc)
         return f0 * b_ecc / a_ecc
 
-    def run(r_start: Sequence[float], dl_mt_end_m: Sequence[float], dt_s: float,
+    if initial:
+        # Eff.f_iso is the gain itself, fixed while R is held: the RK4 stages
+        # call the FV inverse directly (this is the path the node and the
+        # benchmarks' multi/initial take, so it saves a call per stage).
+        velocity = velocity_at_f0
+    else:
+        def velocity(l_ce: float, dl_mt: float, gain: float) -> float:
+            """[m/s] d l_ce / dt with Eff.f_iso following the CE length (Eq. 1)."""
+            x = l_ce / l_opt
+            fl = (FL_A * x + FL_B) * x + FL_C
+            return velocity_at_f0(l_ce, dl_mt, gain * fl if fl > 0.0 else 0.0)
+
+    def run(r_start: Sequence[float], dl_mt_end_m: Sequence[float], dt: float,
             r_end: Sequence[float] | None,
             columns: Sequence[list] | None) -> MuscleOutputs:
-        """:meth:`Muscle.run` of the muscle this loop was built for."""
-        dt = dt_s
+        """:meth:`Muscle.run` of the muscle this loop was built for (``dt`` [s])."""
         half_dt = 0.5 * dt
         if r_end is None:
             r_end = r_start
-        write = columns is not None
-        if write:
+        if columns is not None:
             (c_t, c_r, c_m, c_dl, c_l, c_v, c_se, c_pe, c_force, c_f0) = columns
         l = muscle.l_ce_m
         dl0 = muscle.dl_mt_m
@@ -365,7 +372,7 @@ def _hot_loop(muscle: Muscle) -> Callable[..., MuscleOutputs]:
         # f0 and v are the outputs at the current instant; while the
         # recruitment is unchanged, v is also the first RK4 stage of the
         # next step (same state, same inputs), so it is computed once.
-        f0 = f0_at(l, gain)
+        f0 = gain if initial else f0_at(l, gain)
         if f0 > 0.0:
             # One call per step (the node's Muscle.step) would otherwise
             # recompute the velocity the previous call ended with: reuse it
@@ -408,7 +415,7 @@ def _hot_loop(muscle: Muscle) -> Callable[..., MuscleOutputs]:
                 r_now, m_now = r, muscle.n_recruited
                 f0 = f0_at(l, gain)
             v = velocity(l, dl1, gain) if f0 > 0.0 else v_free
-            if write:
+            if columns is not None:
                 stretch = dl1 - (l - l_rest)
                 f_se = k_se * stretch if stretch > 0.0 else 0.0
                 f_pe = k_pe * dl1 if dl1 > 0.0 else 0.0
