@@ -7,6 +7,20 @@ dt = 1 / ``rate_hz`` against the steady clock, and publishes ``force`` [N],
 after every tick; optionally ``/clock``. A ``reset`` service (std_srvs/Trigger)
 returns the muscle to rest. See README "ROS 2 nodes" for the tables.
 
+Length commands sent ahead: ``length_command_stamped``
+(geometry_msgs/PointStamped) carries dl_MT [m] in ``point.x`` (along +x of the
+muscle frame, the axis of ``wrench``; ``header.frame_id`` empty or
+``frame_id``) and, in ``header.stamp``, the time at which it is to be reached,
+in the simulator's stamp clock (sim time from 0 with ``publish_clock``, else
+the node clock at start-up plus sim time: the stamps of its own outputs). The
+knots form a :class:`~hill_muscle_ros.model.CommandTrack`: each step's dl_MT
+is the track's value at the step's end time, so a command that arrives before
+its time acts exactly then, whatever the transport latency (at
+``real_time_factor`` 10, a few ms of DDS latency would otherwise be tens of ms
+of simulated time). A knot that arrives after its time is applied at the next
+step, counted and reported. A plain ``length_command`` means "now": it drops
+the track and holds its value, as before.
+
 Run: ``ros2 run hill_muscle_ros simulator --ros-args --params-file muscle.yaml``
 or ``hill-muscle simulator --ros-args ...``.
 """
@@ -15,20 +29,23 @@ from __future__ import annotations
 import math
 import sys
 
+import numpy as np
 import rclpy
-from geometry_msgs.msg import WrenchStamped
+from geometry_msgs.msg import PointStamped, WrenchStamped
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.time import Time
 from rosgraph_msgs.msg import Clock as ClockMsg
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
-from ..model import Muscle, MuscleParams
+from ..model import CommandTrack, Muscle, MuscleParams
 from ..model.muscle import check_dl_mt, check_recruitment, recruitment_from_pulse_width
-from ._common import (LIVE_RESETS, OUTPUT_QOS, RELIABLE_QOS, BadInputWarner,
+from ._common import (LIVE_RESETS, OUTPUT_HISTORY_DEPTH, OUTPUT_QOS, RELIABLE_QOS,
+                      BadInputWarner,
                       StartupError, StepSchedule, declare_checked,
                       declare_muscle_parameters, number_descriptor,
                       reject_unknown_overrides, run_node)
@@ -57,6 +74,19 @@ MAX_CATCH_UP_S = 0.1
 #: with a hint, since it is most likely microseconds sent for seconds.
 PULSE_WIDTH_UNIT_HINT_FACTOR = 100.0
 
+#: Queue of ``length_command_stamped``: a sender that starts ahead sends its
+#: whole look-ahead window at once (the protocol player: up to 1000 knots), and
+#: a keep-last queue that overflowed would drop the oldest, i.e. the most
+#: urgent, knots.
+STAMPED_QUEUE_DEPTH = OUTPUT_HISTORY_DEPTH
+STAMPED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=STAMPED_QUEUE_DEPTH,
+                         reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.VOLATILE)
+#: [s] of simulated time a stamped knot may lie ahead: an hour is longer than
+#: any look-ahead, so a stamp further out is a clock mix-up (wall-clock stamps
+#: sent to a simulator on sim time), not a command.
+MAX_STAMP_LEAD_S = 3600.0
+#: [ns] per s; a header stamp's nanosec field is below this.
 _NS_PER_S = 1_000_000_000
 
 
@@ -99,6 +129,12 @@ class Simulator(Node):
         self._last_stim_t_s = 0.0    # [s] sim time of the last stimulation message
         self._watchdog_tripped = False
         self._bad_input = BadInputWarner(self.get_logger())
+        # dl_MT knots sent ahead; the track drives the steps while it is active.
+        self._track = CommandTrack(name='length_command_stamped')
+        self._track_active = False
+        self._late_warner = BadInputWarner(self.get_logger())
+        self._late_knots = 0
+        self._worst_late_s = 0.0
 
         self._pub_force = self.create_publisher(Float64, 'force', OUTPUT_QOS)
         self._pub_ce_length = self.create_publisher(Float64, 'ce_length', OUTPUT_QOS)
@@ -112,6 +148,9 @@ class Simulator(Node):
                                                RELIABLE_QOS)
         self._sub_dl = self.create_subscription(Float64, 'length_command',
                                                 self._on_length_command, RELIABLE_QOS)
+        self._sub_dl_stamped = self.create_subscription(
+            PointStamped, 'length_command_stamped', self._on_length_command_stamped,
+            STAMPED_QOS)
         self.create_service(Trigger, 'reset', self._on_reset)
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
@@ -147,17 +186,30 @@ class Simulator(Node):
                 'real_time_factor',
                 throttle_duration_sec=1.0)
         out = None
-        # The length command is spread evenly over the steps this tick runs
-        # (a first-order hold from where the last step ended): with
-        # real_time_factor > 1, or when catching up, one tick runs many steps,
-        # and holding the newest command for all of them would turn a ramp
-        # into a staircase. With one step per tick this is the plain step.
-        dl_start, dl_end = self._muscle.dl_mt_m, self._dl_mt_m
-        for i in range(1, n + 1):
-            self._watchdog()
-            dl = dl_end if i == n else dl_start + (dl_end - dl_start) * (i / n)
-            out = self._muscle.step(self._recruitment, dl, self._dt_s)
-            self._schedule.steps_done += 1
+        if self._track_active:
+            # Each step reaches the track's value at its own end time.
+            steps = self._schedule.steps_done + np.arange(1, n + 1)
+            dls = self._track.value_at(steps / self._rate_hz).tolist()
+            for dl in dls:
+                self._watchdog()
+                out = self._muscle.step(self._recruitment, dl, self._dt_s)
+                self._schedule.steps_done += 1
+            self._dl_mt_m = self._track.consume(self.sim_time_s)
+            if not len(self._track):
+                self._track_active = False   # the last value holds, as a plain command
+        else:
+            # The length command is spread evenly over the steps this tick runs
+            # (a first-order hold from where the last step ended): with
+            # real_time_factor > 1, or when catching up, one tick runs many
+            # steps, and holding the newest command for all of them would turn
+            # a ramp into a staircase. With one step per tick this is the
+            # plain step.
+            dl_start, dl_end = self._muscle.dl_mt_m, self._dl_mt_m
+            for i in range(1, n + 1):
+                self._watchdog()
+                dl = dl_end if i == n else dl_start + (dl_end - dl_start) * (i / n)
+                out = self._muscle.step(self._recruitment, dl, self._dt_s)
+                self._schedule.steps_done += 1
         if not (math.isfinite(out.force_n) and math.isfinite(out.l_ce_m)):
             # Cannot happen with validated inputs and parameters; if it does,
             # never publish it: report and return to rest.
@@ -235,6 +287,59 @@ class Simulator(Node):
             self._dl_mt_m = check_dl_mt(msg.data, 'length_command')
         except ValueError as err:
             self._reject(self._sub_dl.topic_name, msg.data, err)
+            return
+        self._track_active = False   # "now" overrides any knots sent ahead
+
+    def _on_length_command_stamped(self, msg: PointStamped) -> None:
+        topic = self._sub_dl_stamped.topic_name
+        stamp = msg.header.stamp
+        value = msg.point.x
+        try:
+            sim_s = self._stamp_to_sim_s(stamp.sec, stamp.nanosec)
+            frame = msg.header.frame_id
+            if frame not in ('', self._frame_id):
+                raise ValueError(f'`header.frame_id` must be empty or {self._frame_id!r} '
+                                 f'(frame_id), got {frame!r}')
+            if not self._track_active:
+                # Start from where the muscle is commanded to be now.
+                self._track.clear(self.sim_time_s, self._dl_mt_m)
+            late_s = self._track.add(sim_s, value)
+        except ValueError as err:
+            self._bad_input.warn(topic, f'ignoring {topic} = {value!r} stamped '
+                                        f'{stamp.sec}.{stamp.nanosec:09d} s: {err}; keeping '
+                                        f'length_command {self._dl_mt_m:g} m')
+            return
+        self._track_active = True
+        if late_s is not None:
+            self._late_knots += 1
+            self._worst_late_s = max(self._worst_late_s, late_s)
+            self._late_warner.warn(
+                topic, f'{topic}: knot {value:g} m stamped {stamp.sec}.{stamp.nanosec:09d} s '
+                       f'arrived {late_s * 1e3:.1f} ms of simulated time late (simulated time '
+                       f'{self.sim_time_s:.3f} s): applied at the next step; send knots '
+                       'earlier, e.g. a larger lookahead_s on the protocol player '
+                       f'({self._late_knots} late so far)')
+
+    def _stamp_to_sim_s(self, sec: int, nanosec: int) -> float:
+        """[s] the simulated time of a header stamp in this node's stamp clock.
+
+        :raises ValueError: on an unset (zero) stamp, a nanosec field out of
+            range, or a stamp more than :data:`MAX_STAMP_LEAD_S` ahead
+        """
+        if not 0 <= nanosec < _NS_PER_S:
+            raise ValueError(f'`header.stamp.nanosec` must be in [0, 1e9), got {nanosec!r}')
+        if sec == 0 and nanosec == 0:
+            raise ValueError('`header.stamp` is 0 (unset): stamp the time dl_MT is to be '
+                             'reached')
+        sim_s = (sec * _NS_PER_S + nanosec - self._stamp_origin_ns) / _NS_PER_S
+        if sim_s - self.sim_time_s > MAX_STAMP_LEAD_S:
+            clock = ('sim time from 0 (publish_clock)' if self._publish_clock
+                     else 'the node clock at start-up + sim time')
+            raise ValueError(f'`header.stamp` is {sim_s - self.sim_time_s:.6g} s ahead of '
+                             f'simulated time {self.sim_time_s:.3f} s, more than '
+                             f'{MAX_STAMP_LEAD_S:g} s: stamps are in this node\'s clock, '
+                             f'{clock}')
+        return sim_s
 
     # -- reset ------------------------------------------------------------------
 
@@ -247,6 +352,7 @@ class Simulator(Node):
         self._muscle.reset()
         self._recruitment = 0.0
         self._dl_mt_m = 0.0
+        self._track_active = False   # knots sent ahead are dropped too
         self._watchdog_tripped = False
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
@@ -303,7 +409,9 @@ class Simulator(Node):
         rclpy.logging.get_logger(f'{self.get_name()}.stats').info(
             f'ran {s.steps_done} steps in {elapsed_s:.3f} s of steady time '
             f'({s.steps_done / elapsed_s if elapsed_s > 0 else 0.0:.1f} steps/s), '
-            f'{s.ticks} ticks, {s.late_ticks} late, {behind} steps behind at exit')
+            f'{s.ticks} ticks, {s.late_ticks} late, {behind} steps behind at exit, '
+            f'{self._late_knots} late length_command_stamped knots '
+            f'(worst {self._worst_late_s * 1e3:.1f} ms of simulated time)')
 
 
 def main(args: list[str] | None = None) -> int:
