@@ -8,7 +8,7 @@ import time
 import numpy as np
 import pytest
 import yaml
-from geometry_msgs.msg import WrenchStamped
+from geometry_msgs.msg import PointStamped, WrenchStamped
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Float64
 
@@ -54,7 +54,8 @@ def test_player_without_subscriber_fails_clearly(tmp_path):
             'protocol_player', ns='/lonely', params={'wait_for_subscribers_s': 1.0}))
         status = player.wait()
     assert status != 0
-    assert 'no subscriber on /lonely/' in player.output()
+    assert '/lonely/pulse_width has 0' in player.output()
+    assert 'min_subscribers 1' in player.output()
 
 
 def test_bad_protocol_file_exits_with_validator_message(tmp_path):
@@ -188,3 +189,83 @@ def test_player_on_sim_time_follows_published_clock(tmp_path):
 def _sec(stamp):
     return stamp.sec + stamp.nanosec * 1e-9
 
+
+
+#: [s] look-ahead of the stamped-length tests: 10 periods at 100 Hz
+LOOKAHEAD_S = 0.1
+PLAYER_RATE_HZ = 100.0
+
+
+def _stamp_ns(stamp):
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+
+def test_player_with_lookahead_sends_the_protocol_length_ahead_as_stamped_knots(tmp_path):
+    path = _protocol_file(tmp_path, SHORT)
+    protocol = Protocol.from_yaml(path)
+    ns = '/lookahead'
+    with ProcessGroup(tmp_path) as procs, Probe() as probe:
+        knots = probe.record(f'{ns}/length_command_stamped', PointStamped, qos=DEEP_QOS)
+        stim = probe.record(f'{ns}/recruitment', Float64, qos=DEEP_QOS)
+        plain = probe.record(f'{ns}/length_command', Float64)
+        player = procs.start('player', node_command('protocol_player', ns=ns, params={
+            'protocol': str(path), 'output': 'recruitment', 'rate_hz': PLAYER_RATE_HZ,
+            'lookahead_s': LOOKAHEAD_S}))
+        probe.spin_until(lambda: player.returncode is not None, 'the player to exit')
+        probe.spin_for(0.2)
+    assert player.returncode == 0, player.describe()
+    assert not plain.messages
+    stamps = np.array([_stamp_ns(m.header.stamp) for m in knots.messages])
+    t0 = stamps[0]
+    tau = (stamps - t0) / 1e9
+    values = np.array([m.point.x for m in knots.messages])
+    # Protocol time 0 is the first knot; each knot is the protocol at its stamp.
+    assert np.all(np.diff(stamps) > 0)
+    assert tau[-1] == pytest.approx(protocol.duration_s, abs=1e-9)
+    np.testing.assert_allclose(values, protocol.dl_mt(tau), rtol=0.0, atol=1e-15)
+    # Every corner of the protocol's length is a knot, so interpolating the
+    # knots is the protocol exactly.
+    for corner in protocol.dl_mt_m.breakpoints_s:
+        assert np.min(np.abs(tau - corner)) < 1e-9, corner
+    # The whole first window was sent before the first stimulation.
+    first_stim_s = stim.times_s[0]
+    sent_before = tau[np.array(knots.times_s) < first_stim_s]
+    assert sent_before.max() >= LOOKAHEAD_S - 1e-9
+    assert np.all(np.diff(sent_before) <= 1.0 / PLAYER_RATE_HZ + 1e-9)
+
+
+def test_player_waits_for_min_subscribers_on_every_output(tmp_path):
+    path = _protocol_file(tmp_path, SHORT)
+    ns = '/two_subs'
+    with ProcessGroup(tmp_path) as procs, Probe() as probe:
+        stim = probe.record(f'{ns}/recruitment', Float64, qos=DEEP_QOS)
+        probe.record(f'{ns}/length_command', Float64)
+        player = procs.start('player', node_command('protocol_player', ns=ns, params={
+            'protocol': str(path), 'output': 'recruitment', 'rate_hz': PLAYER_RATE_HZ,
+            'min_subscribers': 2, 'wait_for_subscribers_s': 60.0}))
+        probe.spin_until(lambda: 'waiting up to' in player.output(), 'the player to wait',
+                         procs=[player])
+        # A second subscription on each output, as a recorder would add.
+        second = [probe.node.create_subscription(Float64, f'{ns}/{topic}', lambda _m: None,
+                                                 DEEP_QOS)
+                  for topic in ('recruitment', 'length_command')]
+        added_s = time.monotonic()
+        probe.spin_until(lambda: player.returncode is not None, 'the player to exit')
+    assert second and player.returncode == 0, player.describe()
+    assert stim.messages and min(stim.times_s) > added_s
+
+
+def test_player_timeout_names_the_topic_and_the_subscriber_counts(tmp_path):
+    ns = '/one_sub'
+    with ProcessGroup(tmp_path) as procs, Probe() as probe:
+        probe.record(f'{ns}/pulse_width', Float64)
+        probe.record(f'{ns}/length_command_stamped', PointStamped)
+        player = procs.start('player', node_command('protocol_player', ns=ns, params={
+            'min_subscribers': 2, 'wait_for_subscribers_s': 2.0, 'lookahead_s': 0.05}))
+        probe.spin_until(lambda: player.returncode is not None, 'the player to give up',
+                         timeout_s=60.0)
+    assert player.returncode != 0
+    log = player.output()
+    assert f'{ns}/pulse_width has 1' in log
+    assert f'{ns}/length_command_stamped has 1' in log
+    assert 'of min_subscribers 2' in log

@@ -1,23 +1,42 @@
 """The protocol player node: replays a stimulation protocol over ROS 2 topics.
 
-It waits until its outputs have a subscriber (up to
+It waits until each of its outputs has ``min_subscribers`` subscribers (up to
 ``wait_for_subscribers_s``), then publishes ``length_command`` [m] and
 ``pulse_width`` [s] or ``recruitment`` [-] (std_msgs/Float64) at ``rate_hz``
 against its own clock, which follows ``/clock`` when ``use_sim_time`` is set.
 At the end it publishes zero stimulation and exits with status 0.
+
+With ``lookahead_s`` > 0 the length goes ahead of time instead: the player
+publishes ``length_command_stamped`` (geometry_msgs/PointStamped, dl_MT [m]
+in ``point.x``, ``header.stamp`` = when it is to be reached, on the player's
+clock). The protocol starts ``lookahead_s`` after the player does (time 0 is
+the stamp of the first knot); before that it sends the knots covering the
+first ``lookahead_s`` of the protocol, and at each tick at protocol time t the
+knot for t + ``lookahead_s``, plus every corner of the protocol's dl_MT in
+between, so the simulator's linear interpolation reproduces the protocol's
+length exactly, however coarse the ticks. The simulator then follows the
+length exactly as long as the DDS latency (times the real-time factor on sim
+time) stays below ``lookahead_s``. The stimulation stays on its plain topic,
+sent at its time: a recruitment step reaches the simulator one DDS latency
+late (on sim time, latency x real-time factor), which shifts the force's
+response to it by that much.
 
 Run: ``ros2 run hill_muscle_ros protocol_player --ros-args -p protocol:=II``.
 """
 from __future__ import annotations
 
 import dataclasses
+import math
 import sys
 
+import numpy as np
+from geometry_msgs.msg import PointStamped
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.clock import Clock, ClockType
 from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.task import Future
+from rclpy.time import Time
 from std_msgs.msg import Float64
 
 from ..model import MuscleParams, Protocol, ProtocolError
@@ -41,6 +60,19 @@ POLL_PERIOD_S = 0.05
 #: [s] how long the player waits, at the end, for subscribers to acknowledge
 #: the last messages before it exits (reliable QoS).
 ACK_TIMEOUT_S = 2.0
+#: [s] 0 publishes the plain ``length_command``; up to 10 s of knots ahead.
+DEFAULT_LOOKAHEAD_S = 0.0
+LOOKAHEAD_RANGE_S = (0.0, 10.0)
+#: Subscribers each output needs before the protocol starts (the simulator; a
+#: recorder that must not miss the start makes it 2).
+DEFAULT_MIN_SUBSCRIBERS = 1
+MIN_SUBSCRIBERS_RANGE = (1, 100)
+#: Most knots sent at once for the first look-ahead window: the simulator's
+#: queue for them holds 1000 (its STAMPED_QUEUE_DEPTH), and a burst larger
+#: than a keep-last queue loses its oldest knots. A longer window is sent at
+#: a coarser spacing; the protocol's corners are always among the knots, so
+#: the interpolated length is the same.
+MAX_INITIAL_KNOTS = 500
 
 _NS_PER_S = 1_000_000_000
 
@@ -69,11 +101,23 @@ class ProtocolPlayer(Node):
             self, 'wait_for_subscribers_s', DEFAULT_WAIT_FOR_SUBSCRIBERS_S, number_descriptor(
                 'how long to wait for a subscriber on the outputs before failing', 's',
                 *WAIT_RANGE_S, read_only=True))
+        self._lookahead_s = declare_checked(
+            self, 'lookahead_s', DEFAULT_LOOKAHEAD_S, number_descriptor(
+                'send dl_MT this far ahead as length_command_stamped (the protocol starts '
+                'this much later); 0 publishes the plain length_command', 's',
+                *LOOKAHEAD_RANGE_S, read_only=True))
+        self._min_subscribers = declare_checked(
+            self, 'min_subscribers', DEFAULT_MIN_SUBSCRIBERS, number_descriptor(
+                'subscribers every output needs before the protocol starts', '-',
+                *MIN_SUBSCRIBERS_RANGE, integer=True, read_only=True))
         pw_field = {f.name: f for f in dataclasses.fields(MuscleParams)}['pw_max_s']
         self._pw_max_s = declare_checked(
             self, 'pw_max_s', MuscleParams().pw_max_s, field_descriptor(
                 pw_field, read_only=True, note='to turn recruitment into pulse width'))
         reject_unknown_overrides(self)
+        if not math.isfinite(self._lookahead_s):
+            raise StartupError(f'parameter `lookahead_s` must be finite, got '
+                               f'{self._lookahead_s!r}')
         if self._output not in OUTPUT_CHOICES:
             raise StartupError(f'parameter `output` must be one of '
                                f'{", ".join(OUTPUT_CHOICES)}, got {self._output!r}')
@@ -84,58 +128,103 @@ class ProtocolPlayer(Node):
             raise StartupError(str(err)) from None
 
         self._pub_stim = self.create_publisher(Float64, self._output, OUTPUT_QOS)
-        self._pub_dl = self.create_publisher(Float64, 'length_command', OUTPUT_QOS)
+        self._stamped = self._lookahead_s > 0.0
+        self._pub_dl = (self.create_publisher(PointStamped, 'length_command_stamped', OUTPUT_QOS)
+                        if self._stamped
+                        else self.create_publisher(Float64, 'length_command', OUTPUT_QOS))
         self.done = Future()
         self._period_s = 1.0 / rate_hz
         self._t0 = None
+        # [s] protocol time of the newest knot sent (stamped mode)
+        self._knots_sent_to_s = -math.inf
+        self._corners_s = self._protocol.dl_mt_m.breakpoints_s
         # Waiting is in wall time: the sim clock may not run yet.
         self._steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._wait_deadline_ns = (self._steady.now().nanoseconds
                                   + round(self._wait_s * _NS_PER_S))
         self._poll = self.create_timer(POLL_PERIOD_S, self._on_poll, clock=self._steady)
         self._timer = None
+        ahead = (f', length {self._lookahead_s:g} s ahead' if self._stamped else '')
         self.get_logger().info(
             f'{self._protocol.name} ({self._protocol.duration_s:g} s) on '
-            f'{self._pub_stim.topic_name} and {self._pub_dl.topic_name}; waiting up to '
-            f'{self._wait_s:g} s for subscribers')
+            f'{self._pub_stim.topic_name} and {self._pub_dl.topic_name}{ahead}; waiting up '
+            f'to {self._wait_s:g} s for {self._min_subscribers} subscriber(s) on each')
 
     def _on_poll(self) -> None:
-        """Start once both outputs are matched and the clock runs; else time out."""
-        matched = (self._pub_stim.get_subscription_count() > 0
-                   and self._pub_dl.get_subscription_count() > 0)
+        """Start once every output is matched and the clock runs; else time out."""
+        counts = {p.topic_name: p.get_subscription_count() for p in (self._pub_stim, self._pub_dl)}
+        matched = all(n >= self._min_subscribers for n in counts.values())
         # With use_sim_time the clock reads 0 until the first /clock message.
         clock_running = self.get_clock().now().nanoseconds > 0
         if matched and clock_running:
             self._poll.cancel()
-            self._t0 = self.get_clock().now()
-            # The node's own clock, so that with use_sim_time it follows /clock.
-            self._timer = self.create_timer(self._period_s, self._on_tick)
-            self._publish(0.0)
+            self._start()
             return
         if self._steady.now().nanoseconds > self._wait_deadline_ns:
             self._poll.cancel()
-            missing = [p.topic_name for p in (self._pub_stim, self._pub_dl)
-                       if p.get_subscription_count() == 0]
-            what = (f'no subscriber on {", ".join(missing)}' if missing
+            short = [f'{topic} has {n}' for topic, n in counts.items()
+                     if n < self._min_subscribers]
+            what = (f'too few subscribers ({", ".join(short)} of min_subscribers '
+                    f'{self._min_subscribers})' if short
                     else 'no /clock message (use_sim_time is set)')
             self.get_logger().error(f'{what} after {self._wait_s:g} s '
-                                    '(wait_for_subscribers_s): is the simulator running, '
-                                    'in the same namespace and ROS_DOMAIN_ID?')
+                                    '(wait_for_subscribers_s): is the simulator (and any '
+                                    'recorder) running, in the same namespace and '
+                                    'ROS_DOMAIN_ID?')
             self.done.set_result(EXIT_FAILURE)
+
+    def _start(self) -> None:
+        now = self.get_clock().now()
+        # The node's own clock, so that with use_sim_time it follows /clock.
+        self._timer = self.create_timer(self._period_s, self._on_tick)
+        if not self._stamped:
+            self._t0 = now
+            self._publish(0.0)
+            return
+        # Time 0 is one look-ahead from now, so that the first window's knots
+        # are all sent before their time.
+        self._t0 = now + Duration(nanoseconds=round(self._lookahead_s * _NS_PER_S))
+        n = min(MAX_INITIAL_KNOTS, math.floor(self._lookahead_s / self._period_s) + 1)
+        self._send_knots(np.linspace(0.0, self._lookahead_s, max(n, 2)))
+
+    def _send_knots(self, times_s) -> None:
+        """Publish the knots at protocol times ``times_s`` not yet sent, with the
+        protocol's corners among them, in time order."""
+        p = self._protocol
+        end_s = min(float(times_s[-1]), p.duration_s)
+        corners = self._corners_s[(self._corners_s > self._knots_sent_to_s)
+                                  & (self._corners_s < end_s)]
+        times = np.union1d(np.append(times_s, corners), [end_s])
+        times = times[(times > self._knots_sent_to_s) & (times <= end_s)]
+        t0_ns = self._t0.nanoseconds
+        for t, dl in zip(times.tolist(), np.atleast_1d(p.dl_mt(times)).tolist()):
+            msg = PointStamped()
+            msg.header.stamp = Time(nanoseconds=t0_ns + round(t * _NS_PER_S)).to_msg()
+            msg.point.x = dl
+            self._pub_dl.publish(msg)
+        if len(times):
+            self._knots_sent_to_s = float(times[-1])
 
     def _publish(self, t_s: float) -> None:
         p = self._protocol
-        self._pub_dl.publish(Float64(data=float(p.dl_mt(t_s))))
+        if not self._stamped:
+            self._pub_dl.publish(Float64(data=float(p.dl_mt(t_s))))
         self._pub_stim.publish(Float64(data=p.stimulation_command(t_s, self._output,
                                                                   self._pw_max_s)))
 
     def _on_tick(self) -> None:
         t_s = (self.get_clock().now() - self._t0).nanoseconds / _NS_PER_S
+        if self._stamped:
+            self._send_knots([t_s + self._lookahead_s])
+        if t_s < 0.0:
+            return    # the first look-ahead window: the protocol has not started
         if t_s < self._protocol.duration_s:
             self._publish(t_s)
             return
         self._timer.cancel()
-        self._pub_dl.publish(Float64(data=float(self._protocol.dl_mt(self._protocol.duration_s))))
+        if not self._stamped:
+            self._pub_dl.publish(Float64(data=float(
+                self._protocol.dl_mt(self._protocol.duration_s))))
         self._pub_stim.publish(Float64(data=0.0))
         timeout = Duration(seconds=ACK_TIMEOUT_S)
         acked = all(pub.wait_for_all_acked(timeout) for pub in (self._pub_stim, self._pub_dl))
