@@ -21,8 +21,18 @@ simulated seconds per second of the steady clock (``publish_clock:=true``,
 (``use_sim_time:=true``), so the bag's times are simulated seconds from the
 simulator's start.
 
+On sim time the length goes ahead of time: the player sends it as
+``length_command_stamped`` knots ``--lookahead`` seconds ahead (default
+:func:`default_lookahead_s`, which grows with the real-time factor), so the
+simulator reaches each length exactly at its time whatever the DDS latency;
+the stimulation stays on its plain topic and reaches the simulator one DDS
+latency late. The player starts only when the simulator and the recorder are
+subscribed to every output (``min_subscribers`` 2), so the bag has the
+protocol from its first message; time 0 of the analysis is then the first
+knot's stamp, the protocol's start on the player's clock.
+
 Run: ``python -m hill_muscle_ros.demo [--protocol I|II|PATH] [--units ...] [--length ...]
-[--real-time-factor X]``.
+[--real-time-factor X] [--lookahead S]``.
 """
 from __future__ import annotations
 
@@ -63,6 +73,18 @@ US_PER_S, MM_PER_M = 1e6, 1e3
 NS_PER_S = 1_000_000_000
 #: prctl option that sends a signal to a child when its parent dies (Linux).
 _PR_SET_PDEATHSIG = 1
+#: [s] shortest look-ahead of the stamped length commands, in simulated time.
+MIN_LOOKAHEAD_S = 0.05
+#: [s] of wall time the length is sent ahead: the knot crosses two DDS hops
+#: (/clock to the player, the player to the simulator), each 1.5 ms at the
+#: median and 2.7 ms at p99 for a bare rclpy echo and 5-9 ms through the
+#: simulator's tick (BENCHMARKS.md section 5), and a Python process on a busy
+#: 2-core machine is descheduled for tens of ms now and then: 50 ms is about
+#: ten typical latencies. It costs nothing but a later start (the protocol
+#: begins one look-ahead after the player does).
+LOOKAHEAD_WALL_S = 0.05
+#: Subscribers the player waits for on each output: the simulator and the recorder.
+DEMO_MIN_SUBSCRIBERS = 2
 
 
 class DemoError(RuntimeError):
@@ -161,6 +183,23 @@ class DemoConfig:
     #: [-] simulated seconds per clock second on sim time (/clock); None: the
     #: default run on the wall clock, as without the option.
     real_time_factor: float | None = None
+    #: [s] of simulated time the length is sent ahead (length_command_stamped);
+    #: 0: the plain length_command; None: :func:`default_lookahead_s` on sim
+    #: time, the plain length_command on the wall clock.
+    lookahead_s: float | None = None
+
+    def lookahead(self) -> float:
+        """[s] the look-ahead this run uses (see :attr:`lookahead_s`)."""
+        if self.lookahead_s is not None:
+            return self.lookahead_s
+        return 0.0 if self.real_time_factor is None else default_lookahead_s(
+            self.real_time_factor)
+
+
+def default_lookahead_s(real_time_factor: float) -> float:
+    """[s] look-ahead for a run at ``real_time_factor``: :data:`LOOKAHEAD_WALL_S`
+    of wall time in simulated time, at least :data:`MIN_LOOKAHEAD_S`."""
+    return max(MIN_LOOKAHEAD_S, LOOKAHEAD_WALL_S * real_time_factor)
 
 
 def _run_name(config: DemoConfig) -> str:
@@ -172,7 +211,7 @@ def _run_name(config: DemoConfig) -> str:
 def record_live_run(config: DemoConfig, bag_dir: Path, protocol: Protocol,
                     log_dir: Path) -> None:
     """Run simulator, recorder and player; return once the bag is closed."""
-    from .nodes.recorder import READY_MESSAGE
+    from .nodes.recorder import DEFAULT_TOPICS, READY_MESSAGE
     env = ros_environment()
     spec = config.protocol if config.protocol in ('I', 'II') else str(Path(config.protocol)
                                                                         .resolve())
@@ -185,26 +224,38 @@ def record_live_run(config: DemoConfig, bag_dir: Path, protocol: Protocol,
     sim_time_args = [] if rtf is None else ['-p', 'use_sim_time:=true']
     if rtf is not None:
         sim_args += ['-p', 'publish_clock:=true', '-p', f'real_time_factor:={float(rtf)!r}']
+    lookahead_s = config.lookahead()
+    rec_args = ['-p', f'output:={bag_dir}', *sim_time_args]
+    if lookahead_s > 0.0:
+        topics = [*DEFAULT_TOPICS, STAMPED_TOPIC]
+        rec_args += ['-p', f'topics:=[{", ".join(topics)}]']
+    player_args = ['-p', f'protocol:={spec}', '-p', f'lookahead_s:={float(lookahead_s)!r}',
+                   '-p', f'min_subscribers:={DEMO_MIN_SUBSCRIBERS}',
+                   '-p', f'wait_for_subscribers_s:={STARTUP_TIMEOUT_S!r}', *sim_time_args]
     children: list[Child] = []
     try:
         sim = Child('simulator', _node('simulator', *sim_args), log_dir / 'simulator.log', env)
         children.append(sim)
-        rec = Child('recorder', _node('recorder', '-p', f'output:={bag_dir}', *sim_time_args),
-                    log_dir / 'recorder.log', env)
+        rec = Child('recorder', _node('recorder', *rec_args), log_dir / 'recorder.log', env)
         children.append(rec)
-        # The recorder is subscribed, and receives the simulator's outputs (the
-        # muscle at rest), before the player starts the protocol.
-        _wait(lambda: READY_MESSAGE in rec.output() and '/wrench (' in rec.output(),
-              'the recorder to receive the simulator', STARTUP_TIMEOUT_S, children)
-        player = Child('protocol_player', _node('protocol_player', '-p', f'protocol:={spec}',
-                                                *sim_time_args),
+        if lookahead_s == 0.0 and rtf is not None:
+            # The analysis anchors time 0 on the simulator's last wrench at
+            # rest (see protocol_start_ns), so the recorder must receive the
+            # simulator before the protocol starts. With the stamped length,
+            # time 0 is the first knot's stamp, and min_subscribers makes the
+            # player wait for the recorder.
+            _wait(lambda: READY_MESSAGE in rec.output() and '/wrench (' in rec.output(),
+                  'the recorder to receive the simulator', STARTUP_TIMEOUT_S, children)
+        player = Child('protocol_player', _node('protocol_player', *player_args),
                        log_dir / 'protocol_player.log', env)
         children.append(player)
         on_sim_time = '' if rtf is None else f', sim time at real_time_factor {rtf:g}'
+        ahead = '' if lookahead_s == 0.0 else f', length sent {lookahead_s:g} s ahead'
         print(f'running {protocol.name} ({protocol.duration_s:g} s) over ROS 2 '
-              f'(ROS_DOMAIN_ID={env["ROS_DOMAIN_ID"]}{on_sim_time}) ...', flush=True)
+              f'(ROS_DOMAIN_ID={env["ROS_DOMAIN_ID"]}{on_sim_time}{ahead}) ...', flush=True)
         _wait(lambda: player.poll() is not None, 'the protocol to end',
-              protocol.duration_s / (rtf or 1.0) + PLAYER_SLACK_S, [sim, rec])
+              (protocol.duration_s + lookahead_s) / (rtf or 1.0) + STARTUP_TIMEOUT_S
+              + PLAYER_SLACK_S, [sim, rec])
         if player.poll() != 0:
             raise DemoError(f'the protocol player failed ({player.poll()})\n{player.tail()}')
         if rec.stop() != 0:
@@ -216,8 +267,23 @@ def record_live_run(config: DemoConfig, bag_dir: Path, protocol: Protocol,
             child.stop()
 
 
+#: The player's topic of length knots sent ahead (``lookahead_s`` > 0).
+STAMPED_TOPIC = 'length_command_stamped'
+
+
+def stamped_length(bag):
+    """The bag's ``length_command_stamped`` knots, or ``None`` if it has none."""
+    if bag.has_topic(STAMPED_TOPIC) and bag.topic(STAMPED_TOPIC).count:
+        return bag.topic(STAMPED_TOPIC)
+    return None
+
+
 def protocol_start_ns(bag, sim_time: bool = False) -> int:
     """[ns] when the protocol started, on the recorder's receive clock.
+
+    With the length sent ahead (``length_command_stamped`` in the bag, from
+    its first message on), the stamp of the first knot: the player's time 0,
+    exactly, in the simulator's stamp clock.
 
     With ``sim_time`` (a run on /clock) and a protocol that starts with
     stimulation, the simulator's time instead: the stamp of its last
@@ -234,6 +300,9 @@ def protocol_start_ns(bag, sim_time: bool = False) -> int:
     marks the start instead, to within a step and the DDS latency. Otherwise
     the first recorded message minus the missed periods (approximate).
     """
+    knots = stamped_length(bag)
+    if knots is not None and (not len(knots.sequence) or knots.sequence[0] <= 1):
+        return int(knots.stamps_ns()[0])
     stim = stimulation_topic(bag)
     if sim_time and stim.values()[0] > 0.0:
         wrench = bag.topic('wrench')
@@ -267,13 +336,29 @@ def live_force_at(bag, times_s: Sequence[float], sim_time: bool = False) -> list
     is the player's first message (:func:`protocol_start_ns`, with
     ``sim_time`` for a run on /clock). NaN before the first wrench.
     """
+    return [f for _, f in live_samples_at(bag, times_s, sim_time)]
+
+
+def live_samples_at(bag, times_s: Sequence[float],
+                    sim_time: bool = False) -> list[tuple[float, float]]:
+    """([s], [N]) the recorded sample each time reads: its time and force.
+
+    As :func:`live_force_at`, with the time of the sample since the protocol
+    started. The simulator publishes once per tick, the last of the tick's
+    steps, so at real_time_factor X the sample read at a time may be up to X
+    steps older: a force changing at 13 N/s (Protocol II's ramps) moves
+    0.13 N in 10 ms. Comparing it with the offline force at the sample's own
+    time measures the simulation, not the publishing rate. (NaN, NaN) before
+    the first wrench.
+    """
     wrench = bag.topic('wrench')
     t_force = (wrench.stamps_ns() - protocol_start_ns(bag, sim_time)) / NS_PER_S
     force = wrench.values()
     out = []
     for t in times_s:
         i = int(np.searchsorted(t_force, t, side='right')) - 1
-        out.append(float(force[i]) if i >= 0 else float('nan'))
+        out.append((float(t_force[i]), float(force[i])) if i >= 0
+                   else (float('nan'), float('nan')))
     return out
 
 
@@ -325,7 +410,7 @@ def analyse(bag_dir: Path, protocol: Protocol, params: MuscleParams,
     bag = read_bag(bag_dir)
     if not bag.has_topic('wrench') or not bag.topic('wrench').count:
         raise DemoError(f'{bag_dir}: no wrench messages from the simulator: {bag.counts()}')
-    stim, length, wrench = stimulation_topic(bag), bag.topic('length_command'), bag.topic('wrench')
+    stim, wrench = stimulation_topic(bag), bag.topic('wrench')
     stim_name = stim.name.rsplit('/', 1)[-1]
     sim_time = real_time_factor is not None
     t0 = protocol_start_ns(bag, sim_time)
@@ -333,15 +418,20 @@ def analyse(bag_dir: Path, protocol: Protocol, params: MuscleParams,
     force = wrench.values()
     offline = simulate(protocol, params, rate_hz)
     times = summary_times(protocol.duration_s)
-    live_at = live_force_at(bag, times, sim_time)
+    samples = live_samples_at(bag, times, sim_time)
 
     on_sim_time = '' if not sim_time else f' on sim time at real_time_factor {real_time_factor:g}'
     lines = [f'{protocol.name}: units={params.units}, length={params.length}; live run over '
              f'ROS 2{on_sim_time} vs the offline simulation',
              f'{"t_s":>6}  {"live_force_n":>12}  {"offline_force_n":>15}  {"diff_n":>7}']
-    for t, live in zip(times, live_at):
-        off = float(offline.force_n[offline.at(t)])
+    for t, (t_live, live) in zip(times, samples):
+        # The offline force at the recorded sample's own time (see live_samples_at).
+        off = float(offline.force_n[offline.at(t_live if np.isfinite(t_live) else t)])
         lines.append(f'{t:6.3f}  {live:12.3f}  {off:15.3f}  {live - off:+7.3f}')
+    age_ms = max((t - t_live for t, (t_live, _) in zip(times, samples)
+                  if np.isfinite(t_live)), default=float('nan')) * 1e3
+    lines.append(f'(live: the last wrench at or before t_s, at most {age_ms:.0f} ms earlier; '
+                 'offline: at that sample\'s time)')
     lag = simulator_lag_s(bag)
     # On sim time the receive clock runs real_time_factor times faster.
     if lag is not None and lag > SIMULATOR_LAG_LIMIT_S * (real_time_factor or 1.0):
@@ -354,9 +444,15 @@ def analyse(bag_dir: Path, protocol: Protocol, params: MuscleParams,
                      f'its first {first_seq - 1} messages are not in the bag.')
     lines.append('messages per topic:')
     lines += [f'  {name:<20} {count:6d}' for name, count in bag.counts().items()]
+    knots = stamped_length(bag)
+    if knots is not None:   # the length at the times it was to be reached
+        t_length = (knots.stamps_ns() - t0) / NS_PER_S
+        length = np.array([m.point.x for m in knots.messages], dtype=float)
+    else:
+        plain = bag.topic('length_command')
+        t_length, length = (plain.log_time_ns - t0) / NS_PER_S, plain.values()
     _plot(plot_path, protocol, t_force, force, (stim.log_time_ns - t0) / NS_PER_S,
-          stim.values(), stim_name, (length.log_time_ns - t0) / NS_PER_S, length.values(),
-          offline)
+          stim.values(), stim_name, t_length, length, offline)
     lines.append(f'bag:  {bag_dir}  (open with `ros2 bag info`, Foxglove, PlotJuggler, rosbags)')
     lines.append(f'plot: {plot_path}')
     return '\n'.join(lines)
@@ -416,7 +512,9 @@ def run_demo(config: DemoConfig) -> int:
             print(f'simulator: {stats.steps} steps in {stats.steady_s:.3f} s of steady time: '
                   f'achieved real-time factor {stats.achieved_rtf(rate_hz):.2f}, '
                   f'{stats.steps_behind} steps behind at exit, '
-                  f'{stats.catch_up_warnings} catch-up warnings (throttled to 1/s)')
+                  f'{stats.catch_up_warnings} catch-up warnings (throttled to 1/s), '
+                  f'{stats.late_knots} late length knots (look-ahead '
+                  f'{config.lookahead():g} s)')
     print(f'logs: {log_dir}')
     print(f'demo wall time: {time.monotonic() - start:.1f} s')
     return 0
@@ -432,6 +530,8 @@ class SimulatorStats:
     steps_behind: int
     #: warnings that more steps were due than one tick may catch up (throttled to 1/s)
     catch_up_warnings: int
+    #: length_command_stamped knots that arrived after their time
+    late_knots: int = 0
 
     def achieved_rtf(self, rate_hz: float) -> float:
         """[-] simulated seconds per second of the steady clock, over the node's life."""
@@ -441,6 +541,7 @@ class SimulatorStats:
 _STATS_RE = re.compile(r'ran (\d+) steps in ([\d.]+) s of steady time .*?, (\d+) ticks, '
                        r'(\d+) late, (-?\d+) steps behind at exit')
 _CATCH_UP_MARK = 'steps due after a stall or overload'
+_LATE_KNOTS_RE = re.compile(r'(\d+) late length_command_stamped knots')
 
 
 def simulator_stats(log_text: str) -> SimulatorStats | None:
@@ -449,8 +550,10 @@ def simulator_stats(log_text: str) -> SimulatorStats | None:
     if match is None:
         return None
     steps, steady_s, ticks, late, behind = match.groups()
+    late_knots = _LATE_KNOTS_RE.search(log_text)
     return SimulatorStats(int(steps), float(steady_s), int(ticks), int(late), int(behind),
-                          log_text.count(_CATCH_UP_MARK))
+                          log_text.count(_CATCH_UP_MARK),
+                          int(late_knots.group(1)) if late_knots else 0)
 
 
 class _Stop(Exception):
@@ -476,7 +579,19 @@ def build_parser() -> argparse.ArgumentParser:
                         help='run on sim time, X simulated seconds per clock second '
                              '(simulator publish_clock, player and recorder use_sim_time); '
                              'default: the wall clock, no /clock')
+    parser.add_argument('--lookahead', type=_non_negative_float, metavar='S',
+                        help='send the length S simulated seconds ahead '
+                             '(length_command_stamped); 0: the plain length_command; '
+                             f'default: on sim time max({MIN_LOOKAHEAD_S:g}, '
+                             f'{LOOKAHEAD_WALL_S:g} x X), on the wall clock 0')
     return parser
+
+
+def _non_negative_float(text: str) -> float:
+    value = float(text)
+    if not (np.isfinite(value) and value >= 0.0):
+        raise argparse.ArgumentTypeError(f'must be a non-negative number, got {text!r}')
+    return value
 
 
 def _positive_float(text: str) -> float:
@@ -489,7 +604,7 @@ def _positive_float(text: str) -> float:
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     config = DemoConfig(args.protocol, args.units or None, args.length or None,
-                        args.runs_dir, args.name, args.real_time_factor)
+                        args.runs_dir, args.name, args.real_time_factor, args.lookahead)
     # SIGINT (even if inherited ignored), SIGTERM and SIGHUP unwind like
     # Ctrl-C, so the finally blocks stop the children.
     signal.signal(signal.SIGINT, signal.default_int_handler)

@@ -67,12 +67,13 @@ LOOKAHEAD_RANGE_S = (0.0, 10.0)
 #: recorder that must not miss the start makes it 2).
 DEFAULT_MIN_SUBSCRIBERS = 1
 MIN_SUBSCRIBERS_RANGE = (1, 100)
-#: Most knots sent at once for the first look-ahead window: the simulator's
-#: queue for them holds 1000 (its STAMPED_QUEUE_DEPTH), and a burst larger
-#: than a keep-last queue loses its oldest knots. A longer window is sent at
-#: a coarser spacing; the protocol's corners are always among the knots, so
-#: the interpolated length is the same.
-MAX_INITIAL_KNOTS = 500
+#: Most knots sent at once for the first look-ahead window. The simulator's
+#: queue for them holds 1000 (its STAMPED_QUEUE_DEPTH; a burst larger than a
+#: keep-last queue loses its oldest knots), and each costs both sides some
+#: 20-50 us of Python. A longer window is sent at a coarser spacing than the
+#: period: the protocol's corners are always among the knots, so the
+#: interpolated length is the same.
+MAX_INITIAL_KNOTS = 100
 
 _NS_PER_S = 1_000_000_000
 

@@ -178,6 +178,8 @@ class Simulator(Node):
         due = self._schedule.due(self._steady.now().nanoseconds)
         if due == 0:
             return
+        # Knots that arrived since the last tick act in the steps run now.
+        self._take_stamped()
         n = min(due, self._max_steps_per_tick)
         if n < due:
             self.get_logger().warning(
@@ -291,6 +293,27 @@ class Simulator(Node):
         self._track_active = False   # "now" overrides any knots sent ahead
 
     def _on_length_command_stamped(self, msg: PointStamped) -> None:
+        self._add_knot(msg)
+        self._take_stamped()
+
+    def _take_stamped(self) -> None:
+        """Add every knot queued on ``length_command_stamped`` to the track.
+
+        The executor hands a subscription one message per wait, and each wait
+        costs as much as the message: a sender's burst of knots ahead (the
+        player's first window) would trickle in over hundreds of waits, and
+        on sim time behind the steps they are for. Taking the whole queue at
+        once keeps up with any burst.
+        """
+        sub = self._sub_dl_stamped
+        while True:
+            with sub.handle:
+                taken = sub.handle.take_message(sub.msg_type, sub.raw)
+            if taken is None:
+                return
+            self._add_knot(taken[0])
+
+    def _add_knot(self, msg: PointStamped) -> None:
         topic = self._sub_dl_stamped.topic_name
         stamp = msg.header.stamp
         value = msg.point.x
