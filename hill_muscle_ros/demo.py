@@ -37,13 +37,16 @@ Run: ``python -m hill_muscle_ros.demo [--protocol I|II|PATH] [--units ...] [--le
 from __future__ import annotations
 
 import argparse
+import contextlib
 import ctypes
 import datetime as _dt
+import fcntl
 import os
 import re
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -154,8 +157,54 @@ def _wait(condition, what: str, timeout_s: float, children: Sequence[Child]) -> 
         time.sleep(POLL_S)
 
 
+#: Lock file that claims a demo domain on this machine while a run uses it.
+_DOMAIN_LOCK_PATTERN = 'hill_muscle_ros_demo_domain_{}.lock'
+
+
+@contextlib.contextmanager
+def claimed_domain():
+    """Claim a DDS domain for one run: yields its ID, locked until the block ends.
+
+    Two demos on one domain would mix their topics (and, on sim time, their
+    /clock): each run holds an exclusive lock file on its domain, so
+    concurrent runs on one machine (tests, benchmarks, users) never share one.
+    ``HILL_MUSCLE_DEMO_DOMAIN`` asks for a given domain; the run waits for it
+    (up to :data:`STARTUP_TIMEOUT_S`) if another run holds it. Otherwise the
+    first free one of 101..199, starting at one picked by the process ID.
+    """
+    wanted = os.environ.get('HILL_MUSCLE_DEMO_DOMAIN')
+    if wanted is not None:
+        candidates = [int(wanted)]
+    else:
+        start = os.getpid() % DEMO_DOMAIN_SPAN
+        candidates = [DEMO_DOMAIN_BASE + (start + i) % DEMO_DOMAIN_SPAN
+                      for i in range(DEMO_DOMAIN_SPAN)]
+    deadline = time.monotonic() + STARTUP_TIMEOUT_S
+    while True:
+        for domain in candidates:
+            lock = open(Path(tempfile.gettempdir()) / _DOMAIN_LOCK_PATTERN.format(domain), 'w')
+            try:
+                fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                lock.close()
+                continue
+            try:
+                yield domain
+            finally:
+                lock.close()   # releases the lock
+            return
+        if time.monotonic() > deadline:
+            raise DemoError(f'every DDS domain of {candidates[0]}..{candidates[-1]} is held by '
+                            f'another demo run on this machine after {STARTUP_TIMEOUT_S:g} s')
+        time.sleep(POLL_S)
+
+
 def ros_environment(domain_id: int | None = None) -> dict[str, str]:
-    """The children's environment: an isolated DDS domain, discovery on this host only."""
+    """The children's environment: an isolated DDS domain, discovery on this host only.
+
+    :param domain_id: the ROS_DOMAIN_ID (see :func:`claimed_domain`); ``None``:
+        ``HILL_MUSCLE_DEMO_DOMAIN`` or one picked by the process ID, unclaimed
+    """
     env = os.environ.copy()
     if domain_id is None:
         domain_id = int(env.get('HILL_MUSCLE_DEMO_DOMAIN',
@@ -211,8 +260,13 @@ def _run_name(config: DemoConfig) -> str:
 def record_live_run(config: DemoConfig, bag_dir: Path, protocol: Protocol,
                     log_dir: Path) -> None:
     """Run simulator, recorder and player; return once the bag is closed."""
+    with claimed_domain() as domain:
+        _record_live_run(config, bag_dir, protocol, log_dir, ros_environment(domain))
+
+
+def _record_live_run(config: DemoConfig, bag_dir: Path, protocol: Protocol, log_dir: Path,
+                     env: dict[str, str]) -> None:
     from .nodes.recorder import DEFAULT_TOPICS, READY_MESSAGE
-    env = ros_environment()
     spec = config.protocol if config.protocol in ('I', 'II') else str(Path(config.protocol)
                                                                         .resolve())
     muscle = [f'{k}:={v}' for k, v in (('units', config.units), ('length', config.length)) if v]
