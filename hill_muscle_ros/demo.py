@@ -292,14 +292,16 @@ def _record_live_run(config: DemoConfig, bag_dir: Path, protocol: Protocol, log_
         children.append(sim)
         rec = Child('recorder', _node('recorder', *rec_args), log_dir / 'recorder.log', env)
         children.append(rec)
-        if lookahead_s == 0.0 and rtf is not None:
-            # The analysis anchors time 0 on the simulator's last wrench at
-            # rest (see protocol_start_ns), so the recorder must receive the
-            # simulator before the protocol starts. With the stamped length,
-            # time 0 is the first knot's stamp, and min_subscribers makes the
-            # player wait for the recorder.
-            _wait(lambda: READY_MESSAGE in rec.output() and '/wrench (' in rec.output(),
-                  'the recorder to receive the simulator', STARTUP_TIMEOUT_S, children)
+        # The recorder receives the simulator (the muscle at rest) before the
+        # player starts: the plain-length analysis on sim time anchors time 0
+        # on the last wrench at rest (see protocol_start_ns), and on sim time
+        # the recorder's log times are its clock when it takes a message, so
+        # a recorder still busy starting up (measured: 0.1 s of wall time, 1 s
+        # of simulated time at RTF 10) would log the protocol's first
+        # messages late. The player's min_subscribers 2 then guarantees that
+        # the recorder also gets the player's first message.
+        _wait(lambda: READY_MESSAGE in rec.output() and '/wrench (' in rec.output(),
+              'the recorder to receive the simulator', STARTUP_TIMEOUT_S, children)
         player = Child('protocol_player', _node('protocol_player', *player_args),
                        log_dir / 'protocol_player.log', env)
         children.append(player)
