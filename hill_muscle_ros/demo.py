@@ -82,10 +82,11 @@ MIN_LOOKAHEAD_S = 0.05
 #: (/clock to the player, the player to the simulator), each 1.5 ms at the
 #: median and 2.7 ms at p99 for a bare rclpy echo and 5-9 ms through the
 #: simulator's tick (BENCHMARKS.md section 5), and a Python process on a busy
-#: 2-core machine is descheduled for tens of ms now and then: 50 ms is about
-#: ten typical latencies. It costs nothing but a later start (the protocol
-#: begins one look-ahead after the player does).
-LOOKAHEAD_WALL_S = 0.05
+#: 2-core machine is descheduled for tens of ms now and then (measured: a
+#: knot 65 ms of wall time late with a CPU-bound job on the other core): 0.1 s
+#: is about twenty typical latencies. It costs nothing but a later start (the
+#: protocol begins one look-ahead after the player does).
+LOOKAHEAD_WALL_S = 0.1
 #: Subscribers the player waits for on each output: the simulator and the recorder.
 DEMO_MIN_SUBSCRIBERS = 2
 
@@ -278,6 +279,12 @@ def _record_live_run(config: DemoConfig, bag_dir: Path, protocol: Protocol, log_
     sim_time_args = [] if rtf is None else ['-p', 'use_sim_time:=true']
     if rtf is not None:
         sim_args += ['-p', 'publish_clock:=true', '-p', f'real_time_factor:={float(rtf)!r}']
+        # The stimulation watchdog counts simulated time, but the player's
+        # messages come at its wall-clock scheduling: the same wall-clock
+        # tolerance (a player descheduled for 50 ms at RTF 10 tripped 0.5 s).
+        _, settings = load_muscle_params(default_params_file())
+        timeout_s = float(settings.get('input_timeout_s', 0.0)) * max(1.0, float(rtf))
+        sim_args += ['-p', f'input_timeout_s:={timeout_s!r}']
     lookahead_s = config.lookahead()
     rec_args = ['-p', f'output:={bag_dir}', *sim_time_args]
     if lookahead_s > 0.0:
