@@ -267,7 +267,7 @@ def record_live_run(config: DemoConfig, bag_dir: Path, protocol: Protocol,
 
 def _record_live_run(config: DemoConfig, bag_dir: Path, protocol: Protocol, log_dir: Path,
                      env: dict[str, str]) -> None:
-    from .nodes.recorder import DEFAULT_TOPICS, READY_MESSAGE
+    from .nodes.recorder import READY_MESSAGE
     spec = config.protocol if config.protocol in ('I', 'II') else str(Path(config.protocol)
                                                                         .resolve())
     muscle = [f'{k}:={v}' for k, v in (('units', config.units), ('length', config.length)) if v]
@@ -287,9 +287,6 @@ def _record_live_run(config: DemoConfig, bag_dir: Path, protocol: Protocol, log_
         sim_args += ['-p', f'input_timeout_s:={timeout_s!r}']
     lookahead_s = config.lookahead()
     rec_args = ['-p', f'output:={bag_dir}', *sim_time_args]
-    if lookahead_s > 0.0:
-        topics = [*DEFAULT_TOPICS, STAMPED_TOPIC]
-        rec_args += ['-p', f'topics:=[{", ".join(topics)}]']
     player_args = ['-p', f'protocol:={spec}', '-p', f'lookahead_s:={float(lookahead_s)!r}',
                    '-p', f'min_subscribers:={DEMO_MIN_SUBSCRIBERS}',
                    '-p', f'wait_for_subscribers_s:={STARTUP_TIMEOUT_S!r}', *sim_time_args]

@@ -49,8 +49,8 @@ NODE_NAME = 'recorder'
 
 #: Every topic the simulator and the protocol player use (relative names are
 #: resolved in the recorder's namespace; /clock is global by ROS convention).
-DEFAULT_TOPICS = ('pulse_width', 'recruitment', 'length_command', 'force', 'ce_length',
-                  'wrench', '/clock')
+DEFAULT_TOPICS = ('pulse_width', 'recruitment', 'length_command', 'length_command_stamped',
+                  'force', 'ce_length', 'wrench', '/clock')
 #: Types of this package's own topics. These are subscribed at start-up,
 #: before any publisher exists, so that a player or simulator started after
 #: the recorder loses no message to discovery; other topics (and /clock, whose
@@ -59,6 +59,7 @@ KNOWN_TYPES = {
     'pulse_width': 'std_msgs/msg/Float64',
     'recruitment': 'std_msgs/msg/Float64',
     'length_command': 'std_msgs/msg/Float64',
+    'length_command_stamped': 'geometry_msgs/msg/PointStamped',
     'force': 'std_msgs/msg/Float64',
     'ce_length': 'std_msgs/msg/Float64',
     'wrench': 'geometry_msgs/msg/WrenchStamped',
