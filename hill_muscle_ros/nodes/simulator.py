@@ -37,7 +37,6 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.time import Time
 from rosgraph_msgs.msg import Clock as ClockMsg
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
@@ -139,6 +138,12 @@ class Simulator(Node):
         self._pub_force = self.create_publisher(Float64, 'force', OUTPUT_QOS)
         self._pub_ce_length = self.create_publisher(Float64, 'ce_length', OUTPUT_QOS)
         self._pub_wrench = self.create_publisher(WrenchStamped, 'wrench', OUTPUT_QOS)
+        # One message per output, refilled every tick: building them anew
+        # each tick cost more CPU than the model step (issue 5 profile).
+        self._force_msg = Float64()
+        self._ce_length_msg = Float64()
+        self._wrench_msg = WrenchStamped()
+        self._clock_msg = ClockMsg()
         # /clock is absolute by ROS convention: one time source per graph.
         self._pub_clock = (self.create_publisher(ClockMsg, '/clock', OUTPUT_QOS)
                            if self._publish_clock else None)
@@ -225,13 +230,18 @@ class Simulator(Node):
 
     def _publish(self, force_n: float, l_ce_m: float) -> None:
         sim_ns = round(self._schedule.steps_done * _NS_PER_S / self._rate_hz)
-        stamp = Time(nanoseconds=self._stamp_origin_ns + sim_ns).to_msg()
+        sec, nanosec = divmod(self._stamp_origin_ns + sim_ns, _NS_PER_S)
+        wrench = self._wrench_msg
+        stamp = wrench.header.stamp
+        stamp.sec = sec
+        stamp.nanosec = nanosec
         if self._pub_clock is not None:
-            self._pub_clock.publish(ClockMsg(clock=stamp))
-        self._pub_force.publish(Float64(data=force_n))
-        self._pub_ce_length.publish(Float64(data=l_ce_m))
-        wrench = WrenchStamped()
-        wrench.header.stamp = stamp
+            self._clock_msg.clock = stamp
+            self._pub_clock.publish(self._clock_msg)
+        self._force_msg.data = force_n
+        self._pub_force.publish(self._force_msg)
+        self._ce_length_msg.data = l_ce_m
+        self._pub_ce_length.publish(self._ce_length_msg)
         wrench.header.frame_id = self._frame_id
         wrench.wrench.force.x = force_n
         self._pub_wrench.publish(wrench)
