@@ -2,7 +2,7 @@
 
 - :class:`StartupError` and :func:`run_node`: the Jazzy talker ``main()``
   pattern with clean exit codes (a configuration error is one logged line and
-  exit status 1, never a traceback).
+  exit status 1, never a traceback), spun by :func:`make_executor`'s executor.
 - :func:`field_descriptor`, :func:`number_descriptor`, :func:`declare_checked`
   and :func:`declare_muscle_parameters`: ROS parameters declared from the
   model's :class:`~hill_muscle_ros.model.MuscleParams` field metadata, so the
@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import signal
 import time
 from typing import Any, Callable
@@ -23,7 +24,8 @@ from typing import Any, Callable
 import rclpy
 from rclpy.exceptions import (InvalidParameterTypeException,
                               InvalidParameterValueException)
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile,
                        ReliabilityPolicy)
@@ -65,6 +67,88 @@ class StartupError(Exception):
     """A node cannot start: the message says which parameter or file and why."""
 
 
+# -- executor -------------------------------------------------------------------
+
+#: Environment variable that chooses the executor of every node run by
+#: :func:`run_node`: one of :data:`EXECUTORS`.
+EXECUTOR_ENV = 'HILL_MUSCLE_EXECUTOR'
+#: The executors :data:`EXECUTOR_ENV` can name. ``events`` is rclpy's C++
+#: EventsExecutor (``rclpy.experimental``): it has no per-wait Python
+#: bookkeeping, which at 1 kHz is most of a Python node's CPU time (the
+#: simulator: about 60 % of a core with ``single``, under 20 % with
+#: ``events``, BENCHMARKS.md section 4). ``single`` is rclpy's default
+#: SingleThreadedExecutor, the fallback should the experimental one misbehave.
+EXECUTORS = {'events': EventsExecutor, 'single': SingleThreadedExecutor}
+DEFAULT_EXECUTOR = 'events'
+#: [s] longest one spin waits for work before the stop conditions are checked
+#: again; a stop signal or a done future ends the wait sooner.
+SPIN_TIMEOUT_S = 0.1
+
+
+def make_executor() -> Any:
+    """The executor chosen by :data:`EXECUTOR_ENV` (default :data:`DEFAULT_EXECUTOR`).
+
+    :raises StartupError: if the variable names no executor of :data:`EXECUTORS`
+    """
+    name = os.environ.get(EXECUTOR_ENV, DEFAULT_EXECUTOR)
+    try:
+        return EXECUTORS[name]()
+    except KeyError:
+        raise StartupError(f'environment variable {EXECUTOR_ENV}={name!r}: expected one of '
+                           f'{", ".join(EXECUTORS)}') from None
+
+
+class StopSignals:
+    """Takes SIGINT and SIGTERM while active (a context manager) and records the first.
+
+    Nothing is raised: a Python signal handler runs inside whichever callback
+    the executor is dispatching, and the EventsExecutor reports an exception
+    out of a callback as a FATAL error with its stack. :func:`spin` checks
+    :attr:`received` after every event instead. Once a signal has come, both
+    are ignored, so a repeat cannot cut a node's clean-up short. The previous
+    handlers come back on exit.
+    """
+
+    #: Signals that stop a node cleanly (Ctrl-C, and what process managers send).
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self) -> None:
+        #: The first stop signal received, or ``None``.
+        self.received: signal.Signals | None = None
+        self._previous: dict[int, Any] = {}
+
+    def __enter__(self) -> 'StopSignals':
+        self._previous = {sig: signal.signal(sig, self._on_signal) for sig in self.SIGNALS}
+        return self
+
+    def __exit__(self, *_exc: Any) -> None:
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+
+    def _on_signal(self, signum: int, _frame: Any) -> None:
+        for sig in self.SIGNALS:
+            signal.signal(sig, signal.SIG_IGN)
+        self.received = signal.Signals(signum)
+
+
+def spin(executor: Any, stop: StopSignals, until: Any = None) -> None:
+    """Spin ``executor`` until a stop signal, ``until`` is done, or the context shuts down.
+
+    One event at a time (``spin_once``) for both executors, checking the stop
+    conditions after each: the Jazzy EventsExecutor's own ``spin()`` busy-waits
+    (measured: a whole core, while the simulator's 1 kHz timer ran 12 times in
+    3 s) and would never look at :attr:`StopSignals.received`.
+
+    :param executor: an executor of :data:`EXECUTORS` with the node added
+    :param stop: the active :class:`StopSignals`
+    :param until: a :class:`rclpy.task.Future`, or ``None`` to spin until stopped
+    """
+    context = executor.context
+    while (stop.received is None and context.ok()
+           and (until is None or not until.done())):
+        executor.spin_once(timeout_sec=SPIN_TIMEOUT_S)
+
+
 # -- main() -------------------------------------------------------------------
 
 
@@ -80,53 +164,45 @@ def run_node(node_factory: Callable[[], Node], args: list[str] | None = None) ->
         ``None`` means ``sys.argv``
     :return: the process exit status
 
-    SIGINT and SIGTERM are taken here rather than by rclpy: rclpy's handlers
-    shut the context down before ``finally`` runs, and a node's ``on_exit``
-    (the controller and the player publish zero stimulation there) could no
-    longer publish. Both signals raise :class:`KeyboardInterrupt` once; the
-    handlers are restored before the context shuts down.
+    SIGINT and SIGTERM are taken here (:class:`StopSignals`) rather than by
+    rclpy: rclpy's handlers shut the context down before ``finally`` runs, and
+    a node's ``on_exit`` (the controller and the player publish zero
+    stimulation there) could no longer publish. The first one ends the spin;
+    the handlers are restored before the context shuts down.
+
+    The executor is :func:`make_executor`'s (``HILL_MUSCLE_EXECUTOR``).
     """
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    previous = {sig: signal.signal(sig, _interrupt_once) for sig in _STOP_SIGNALS}
     node = None
+    executor = None
     status = EXIT_SUCCESS
-    try:
-        node = node_factory()
-        done = getattr(node, 'done', None)
-        if done is None:
-            rclpy.spin(node)
-        else:
-            rclpy.spin_until_future_complete(node, done)
-            if done.done():
+    with StopSignals() as stop:
+        try:
+            node = node_factory()
+            executor = make_executor()
+            executor.add_node(node)
+            done = getattr(node, 'done', None)
+            spin(executor, stop, done)
+            if done is not None and done.done():
                 status = int(done.result())
-    except StartupError as err:
-        # One clear line instead of a traceback: the user made a config error.
-        rclpy.logging.get_logger(getattr(node_factory, 'NODE_NAME', 'node')).error(str(err))
-        status = EXIT_FAILURE
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            on_exit = getattr(node, 'on_exit', None)
-            if on_exit is not None:
-                on_exit()
-            node.destroy_node()
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
-        rclpy.try_shutdown()
+        except StartupError as err:
+            # One clear line instead of a traceback: the user made a config error.
+            rclpy.logging.get_logger(getattr(node_factory, 'NODE_NAME', 'node')).error(str(err))
+            status = EXIT_FAILURE
+        except (KeyboardInterrupt, ExternalShutdownException):
+            pass
+        finally:
+            if node is not None:
+                on_exit = getattr(node, 'on_exit', None)
+                if on_exit is not None:
+                    on_exit()
+            if executor is not None:
+                # Before the node goes: the EventsExecutor holds callbacks on its entities.
+                executor.shutdown()
+            if node is not None:
+                node.destroy_node()
+    rclpy.try_shutdown()
     return status
-
-
-#: Signals that stop a node cleanly (Ctrl-C, and what process managers send).
-_STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
-
-
-def _interrupt_once(signum: int, _frame: Any) -> None:
-    """Turn the first stop signal into KeyboardInterrupt; ignore repeats while
-    the node is already stopping, so its clean-up is not cut short."""
-    for sig in _STOP_SIGNALS:
-        signal.signal(sig, signal.SIG_IGN)
-    raise KeyboardInterrupt(f'signal {signal.Signals(signum).name}')
 
 
 # -- parameters -----------------------------------------------------------------
