@@ -85,14 +85,15 @@ DEFAULT_EXECUTOR = 'events'
 SPIN_TIMEOUT_S = 0.1
 
 
-def make_executor() -> Any:
+def make_executor(context: rclpy.context.Context | None = None) -> Any:
     """The executor chosen by :data:`EXECUTOR_ENV` (default :data:`DEFAULT_EXECUTOR`).
 
+    :param context: the rclpy context (default: the global one)
     :raises StartupError: if the variable names no executor of :data:`EXECUTORS`
     """
     name = os.environ.get(EXECUTOR_ENV, DEFAULT_EXECUTOR)
     try:
-        return EXECUTORS[name]()
+        return EXECUTORS[name](context=context)
     except KeyError:
         raise StartupError(f'environment variable {EXECUTOR_ENV}={name!r}: expected one of '
                            f'{", ".join(EXECUTORS)}') from None
