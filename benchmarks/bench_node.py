@@ -12,13 +12,26 @@ processes and observes them from this process through DDS:
   reflects it (R toggled between 0, where the force is exactly 0, and 0.5),
   against a bare rclpy echo node (``ping`` -> ``pong``) measured the same way.
 
+Latency ends when the reply reaches the observer's DDS reader: the
+``received_timestamp`` that rmw stamps on every message (system clock, like
+``time.time_ns()`` at the publish). The observer's own executor is not part of
+it: while it processes the 1 kHz ``force`` stream one message per wait, a
+reply can sit behind earlier ones for milliseconds, and the echo path, which
+has no stream, never waits like that. The time the observer's callback saw
+the reply is reported too, and for the simulator the ``source_timestamp`` of
+the reply splits the path into "until the simulator published it" and DDS.
+
+The simulator runs under the executor named by ``HILL_MUSCLE_EXECUTOR``
+(``--executor``; the package's default is ``events``).
+
 Usage (also called by run_all.py)::
 
-    .venv/bin/python benchmarks/bench_node.py [--seconds 30]
+    .venv/bin/python benchmarks/bench_node.py [--seconds 30] [--executor events]
 """
 from __future__ import annotations
 
 import argparse
+import itertools
 import os
 import random
 import signal
@@ -48,7 +61,10 @@ PULSE_WIDTH_S = 0.00025
 #: A tick is late if its message comes this many periods after the previous one.
 LATE_FACTOR = 2.0
 QUEUE_DEPTH = 1000
+#: [s] longest one spin of the observer waits while it pauses between probes.
+SPIN_SLICE_S = 0.001
 CONTROL_PERIOD_S = 0.01
+_RUNS = itertools.count()
 
 ECHO_NODE = '''
 import rclpy
@@ -130,20 +146,44 @@ class NodeResult:
 
 @dataclass
 class LatencyResult:
+    """Latency percentiles [ms] over ``samples`` probes, to the observer's DDS reader."""
+
     samples: int
     p50_ms: float
     p99_ms: float
     max_ms: float
+    #: p50, p99 [ms] to the observer's callback (includes its own executor).
+    callback_ms: tuple[float, float]
+    #: p50, p99 [ms] to the reply's source_timestamp (the replying node published it).
+    published_ms: tuple[float, float]
+
+    @classmethod
+    def of(cls, probes: list[tuple[int, int, int, int]]) -> 'LatencyResult':
+        """From (publish, source, received, callback) times [ns] of each probe."""
+        t = np.array(probes, dtype=np.int64)
+        received = (t[:, 2] - t[:, 0]) / 1e6
+        return cls(len(t), *percentiles(received, 50, 99), float(received.max()),
+                   tuple(percentiles((t[:, 3] - t[:, 0]) / 1e6, 50, 99)),
+                   tuple(percentiles((t[:, 1] - t[:, 0]) / 1e6, 50, 99)))
 
 
-def run(seconds: float, log_dir: Path) -> tuple[NodeResult, LatencyResult, LatencyResult]:
+def reply_times(msg_info: dict, callback_ns: int) -> tuple[int, int, int]:
+    """(source, received, callback) times [ns] of a reply, from its rmw MessageInfo."""
+    return msg_info['source_timestamp'], msg_info['received_timestamp'], callback_ns
+
+
+def run(seconds: float, log_dir: Path, executor: str | None = None
+        ) -> tuple[NodeResult, LatencyResult, LatencyResult]:
+    """Run items 4 and 5; ``executor`` sets ``HILL_MUSCLE_EXECUTOR`` for the simulator."""
     env = set_ros_env()
+    if executor is not None:
+        env['HILL_MUSCLE_EXECUTOR'] = executor
     import rclpy
     from geometry_msgs.msg import WrenchStamped
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from std_msgs.msg import Float64
 
-    ns = f'/bench_{os.getpid()}'
+    ns = f'/bench_{os.getpid()}_{next(_RUNS)}'   # a namespace of its own per run
     log_dir.mkdir(parents=True, exist_ok=True)
     sim = start([str(BIN / 'simulator'), '--ros-args', '-r', f'__ns:={ns}',
                  '-p', f'rate_hz:={RATE_HZ}', '-p', 'input_timeout_s:=0.0'],
@@ -162,8 +202,9 @@ def run(seconds: float, log_dir: Path) -> tuple[NodeResult, LatencyResult, Laten
             lambda m: (recv_ns.append(time.time_ns()),
                        stamp_ns.append(m.header.stamp.sec * 1_000_000_000
                                        + m.header.stamp.nanosec)), qos)
-        node.create_subscription(Float64, 'pong',
-                                 lambda m: pongs.append((time.perf_counter(), m.data)), qos)
+        node.create_subscription(
+            Float64, 'pong',
+            lambda m, info: pongs.append((m.data, reply_times(info, time.time_ns()))), qos)
         pub_r = node.create_publisher(Float64, 'recruitment', qos)
         pub_pw = node.create_publisher(Float64, 'pulse_width', qos)
         pub_ping = node.create_publisher(Float64, 'ping', qos)
@@ -174,6 +215,18 @@ def run(seconds: float, log_dir: Path) -> tuple[NodeResult, LatencyResult, Laten
                 if time.monotonic() > deadline:
                     raise TimeoutError(f'timed out waiting for {what}; logs in {log_dir}')
                 rclpy.spin_once(node, timeout_sec=0.01)
+
+        def spin_for(duration_s):
+            """Keep taking messages for ``duration_s``: the pause between probes.
+
+            A sleep here would leave the 1 kHz ``force`` stream queued, and the
+            observer would work through that backlog exactly while a probe is
+            timed (the echo path has no stream, so only the simulator's probes
+            paid for it, about 2 ms at the median in the first BENCHMARKS.md).
+            """
+            deadline = time.monotonic() + duration_s
+            while time.monotonic() < deadline:
+                rclpy.spin_once(node, timeout_sec=SPIN_SLICE_S)
 
         spin_until(lambda: len(recv_ns) > 0 and pub_r.get_subscription_count() > 0
                    and pub_ping.get_subscription_count() > 0, STARTUP_TIMEOUT_S,
@@ -211,43 +264,42 @@ def run(seconds: float, log_dir: Path) -> tuple[NodeResult, LatencyResult, Laten
             cpu_percent=100.0 * (cpu1 - cpu0) / wall,
             drift_steps=drift_ms * RATE_HZ / 1e3,
             lag_ms=tuple(percentiles(lag, 50, 99)) + (float(lag.max()),),
-            pubs_subs=('simulator: 3 publishers (force, ce_length, wrench), 3 subscriptions '
-                       '(pulse_width, recruitment, length_command); one observer subscribed '
-                       'to wrench and publishing recruitment at 100 Hz'))
+            pubs_subs=('simulator: 3 publishers (force, ce_length, wrench), 4 subscriptions '
+                       '(pulse_width, recruitment, length_command, length_command_stamped), '
+                       'the reset and parameter services; one observer subscribed to wrench '
+                       'and publishing recruitment at 100 Hz'))
 
         # -- latency pulse_width -> force ------------------------------------
         node.destroy_subscription(wrench_sub)
         force_sub = node.create_subscription(
-            Float64, 'force', lambda m: forces.append((time.perf_counter(), m.data)), qos)
+            Float64, 'force',
+            lambda m, info: forces.append((m.data, reply_times(info, time.time_ns()))), qos)
         spin_until(lambda: len(forces) > 0, STARTUP_TIMEOUT_S, 'force messages')
         rng = random.Random(1)
-        latencies = []
+        probes = []
         active = False
         for _ in range(LATENCY_EDGES):
-            time.sleep(rng.uniform(*PROBE_PAUSE_S))
+            spin_for(rng.uniform(*PROBE_PAUSE_S))
             active = not active
             mark = len(forces)
-            t_pub = time.perf_counter()
+            t_pub = time.time_ns()
             pub_pw.publish(Float64(data=PULSE_WIDTH_S if active else 0.0))
 
             def reflected():
-                return any((f > 0.0) == active for _, f in forces[mark:])
+                return any((f > 0.0) == active for f, _ in forces[mark:])
             spin_until(reflected, EDGE_TIMEOUT_S, 'force to reflect pulse_width')
-            t_recv = next(t for t, f in forces[mark:] if (f > 0.0) == active)
-            latencies.append((t_recv - t_pub) * 1e3)
-        sim_latency = LatencyResult(len(latencies), *percentiles(latencies, 50, 99),
-                                    max(latencies))
+            probes.append((t_pub, *next(t for f, t in forces[mark:] if (f > 0.0) == active)))
+        sim_latency = LatencyResult.of(probes)
         node.destroy_subscription(force_sub)
 
-        echo_lat = []
+        probes = []
         for i in range(LATENCY_EDGES):
-            time.sleep(rng.uniform(*PROBE_PAUSE_S))
-            t_pub = time.perf_counter()
+            spin_for(rng.uniform(*PROBE_PAUSE_S))
+            t_pub = time.time_ns()
             pub_ping.publish(Float64(data=float(i)))
-            spin_until(lambda: pongs and pongs[-1][1] == float(i), EDGE_TIMEOUT_S, 'pong')
-            echo_lat.append((pongs[-1][0] - t_pub) * 1e3)
-        echo_latency = LatencyResult(len(echo_lat), *percentiles(echo_lat, 50, 99),
-                                     max(echo_lat))
+            spin_until(lambda: pongs and pongs[-1][0] == float(i), EDGE_TIMEOUT_S, 'pong')
+            probes.append((t_pub, *pongs[-1][1]))
+        echo_latency = LatencyResult.of(probes)
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
@@ -260,8 +312,10 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--seconds', type=float, default=30.0)
     parser.add_argument('--logs', type=Path, default=REPO / 'runs' / 'bench_node')
+    parser.add_argument('--executor', default=None,
+                        help='HILL_MUSCLE_EXECUTOR for the simulator (default: the package\'s)')
     args = parser.parse_args(argv)
-    node, lat, echo = run(args.seconds, args.logs)
+    node, lat, echo = run(args.seconds, args.logs, args.executor)
     print(node)
     print('pulse_width -> force', lat)
     print('echo', echo)

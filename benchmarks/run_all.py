@@ -233,12 +233,25 @@ def bench_batch(runs, protocol):
     return rows
 
 
+#: Executors the simulator runs under in items 4 and 5: the package's default
+#: first (the targets are judged on it), then the fallback for comparison.
+NODE_EXECUTORS = ('events', 'single')
+
+
 def bench_nodes(seconds: float):
-    """Items 4 and 5: the simulator node at 1 kHz and the DDS latency (bench_node.py)."""
-    try:
-        return bench_node.run(seconds, REPO / 'runs' / 'bench_node'), None
-    except Exception as err:   # report the failure in BENCHMARKS.md, never fake a number
-        return None, f'{type(err).__name__}: {err}'
+    """Items 4 and 5 (bench_node.py), once per executor of :data:`NODE_EXECUTORS`.
+
+    :return: {executor: ((node, latency, echo), None) or (None, error text)}
+    """
+    runs = {}
+    for executor in NODE_EXECUTORS:
+        print(f'  simulator under HILL_MUSCLE_EXECUTOR={executor}', flush=True)
+        try:
+            runs[executor] = (bench_node.run(seconds, REPO / 'runs' / 'bench_node' / executor,
+                                             executor), None)
+        except Exception as err:   # report the failure in BENCHMARKS.md, never fake a number
+            runs[executor] = (None, f'{type(err).__name__}: {err}')
+    return runs
 
 
 def cpu(s: Stats) -> str:
@@ -299,6 +312,92 @@ def write_rtf_section(add, measured) -> None:
         'force at 5.95 s means the zero stimulation at the end landed early); at high '
         'factors the whole protocol can be over before the recorder matches the player '
         '(no stimulation in the bag).')
+
+
+def write_node_sections(add, node_runs: dict, seconds: float) -> None:
+    """Sections 4 and 5 from :func:`bench_nodes`' runs."""
+    measured = {e: r[0] for e, r in node_runs.items() if r[0] is not None}
+    default = NODE_EXECUTORS[0]
+    add(f'## 4. The simulator node at `rate_hz` 1000 for {seconds:g} s')
+    add('')
+    add('`benchmarks/bench_node.py`: the `simulator` console script as its own process '
+        '(`input_timeout_s:=0.0`), observed from the benchmark process through DDS '
+        '(`ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`). One run per executor (each run is '
+        f'{seconds:g} s long; the percentiles are over its ticks): `events`, rclpy\'s C++ '
+        'EventsExecutor, is what the nodes use (`HILL_MUSCLE_EXECUTOR` unset); `single`, '
+        'rclpy\'s default SingleThreadedExecutor, is the fallback '
+        '(`HILL_MUSCLE_EXECUTOR=single`). The targets are judged on `events`.')
+    add('')
+    for executor, (_, error) in node_runs.items():
+        if error is not None:
+            add(f'- `{executor}`: not measured, the run failed with `{error}`.')
+    if measured:
+        names = list(measured)
+        add('| quantity | ' + ' | '.join(f'`{e}`' for e in names) + ' | target |')
+        add('| --- | ' + ' | '.join('---:' for _ in names) + ' | --- |')
+
+        def row(label, cell, target=''):
+            add(f'| {label} | ' + ' | '.join(cell(measured[e][0]) for e in names)
+                + f' | {target} |')
+
+        node0 = measured[default][0] if default in measured else None
+        row('achieved step rate (steps in the wrench stamps / clock time)',
+            lambda n: f'{n.rate_hz:.1f} Hz ({n.steps} steps)')
+        row('period between wrench messages at the subscriber, p50 / p99 / max',
+            lambda n: '{:.3f} / {:.3f} / {:.1f} ms'.format(*n.period_ms))
+        row(f'late ticks (message more than {bench_node.LATE_FACTOR:g} periods after the '
+            'previous)', lambda n: f'{n.late_ticks} of {n.ticks}')
+        row('ticks that ran more than one step (catch-up)', lambda n: f'{n.multi_step_ticks}')
+        row('drift of simulated time against the clock over the run',
+            lambda n: f'{n.drift_steps:.2f} steps',
+            'every step computed, <= 2 steps: '
+            + (met(abs(node0.drift_steps) <= 2) if node0 else '-'))
+        row('CPU of the simulator process (user + system, /proc)',
+            lambda n: f'{n.cpu_percent:.1f} % of one core',
+            '<= 40 %: ' + (met(node0.cpu_percent <= 40) if node0 else '-'))
+        row('stamp to receipt lag, p50 / p99 / max',
+            lambda n: '{:.2f} / {:.2f} / {:.1f} ms'.format(*n.lag_ms))
+        add('')
+        add(f'Attached: {next(iter(measured.values()))[0].pubs_subs}. The tick period is seen '
+            'from a subscriber, so it includes DDS delivery and this Python observer\'s own '
+            'scheduling: it bounds the node\'s own tick jitter from above. Every step is '
+            'computed: the node counts steps against the steady clock and runs the ones that '
+            'are due (catch-up), so the step count follows the clock; that is what the drift '
+            'row measures. The CPU difference between the executors is rclpy\'s Python '
+            'wait-set bookkeeping, which the SingleThreadedExecutor repeats on every wait '
+            '(1000 times a second here) and the EventsExecutor does not have.')
+        add('')
+        samples = next(iter(measured.values()))[1].samples
+        add(f'## 5. Latency through DDS at 1 kHz ({samples} probes each)')
+        add('')
+        add('From `time.time_ns()` at the probe\'s publish to the `received_timestamp` that '
+            'rmw puts on the reply when it reaches the observer\'s DDS reader (both system '
+            'clock): the observer\'s own executor is left out, for both paths. The next '
+            'columns are the same probes to the observer\'s callback, and to the reply\'s '
+            '`source_timestamp` (the replying node published it). Between probes the '
+            'observer keeps taking the 1 kHz `force` stream (a random 5 to 20 ms), so no '
+            'backlog of it is left for the timed interval.')
+        add('')
+        add('| path | p50 [ms] | p99 [ms] | max [ms] | callback p50 / p99 [ms] | published p50 / p99 [ms] | target |')
+        add('| --- | ---: | ---: | ---: | ---: | ---: | --- |')
+
+        def lat_row(label, lat, target=''):
+            add(f'| {label} | {lat.p50_ms:.2f} | {lat.p99_ms:.2f} | {lat.max_ms:.1f} | '
+                f'{lat.callback_ms[0]:.2f} / {lat.callback_ms[1]:.2f} | '
+                f'{lat.published_ms[0]:.2f} / {lat.published_ms[1]:.2f} | {target} |')
+
+        for executor, (_, lat, _) in measured.items():
+            target = (f'p99 <= 3 ms: {met(lat.p99_ms <= 3.0)}' if executor == default else '')
+            lat_row(f'`pulse_width` publish -> first `force` that reflects it (R toggled '
+                    f'0 <-> 0.5), simulator on `{executor}`', lat, target)
+        for executor, (_, _, echo) in measured.items():
+            lat_row(f'bare rclpy echo node (`rclpy.spin`, `ping` -> `pong`), the floor, '
+                    f'in the `{executor}` run', echo)
+        add('')
+        add('The simulator applies an input at its next 1 ms tick, so its path includes '
+            'that wait (0.5 ms on average, up to 1 ms), which the echo does not have. '
+            'Running the step early, when the input arrives, would put simulated time '
+            'ahead of the clock.')
 
 
 def write_report(path: Path, runs: int, started: dict, results: dict) -> None:
@@ -450,54 +549,7 @@ def write_report(path: Path, runs: int, started: dict, results: dict) -> None:
     add('- At K = 1 the batch is dominated by NumPy call overhead; use `Muscle` for one muscle.')
     add('')
 
-    nodes, node_error = results['nodes']
-    seconds = results['node_seconds']
-    add(f'## 4. The simulator node at `rate_hz` 1000 for {seconds:g} s')
-    add('')
-    add('`benchmarks/bench_node.py`: the `simulator` console script as its own process '
-        '(`input_timeout_s:=0.0`), observed from the benchmark process through DDS '
-        '(`ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`). One run (the run itself is '
-        f'{seconds:g} s long; the percentiles are over its ticks).')
-    add('')
-    if nodes is None:
-        add(f'Not measured: the run failed with `{node_error}`.')
-    else:
-        node, lat, echo = nodes
-        p50, p99, pmax = node.period_ms
-        add('| quantity | value | target |')
-        add('| --- | ---: | --- |')
-        add(f'| achieved step rate (steps in the wrench stamps / clock time) | '
-            f'{node.rate_hz:.1f} Hz ({node.steps} steps) | |')
-        add(f'| period between wrench messages at the subscriber, p50 / p99 / max | '
-            f'{p50:.3f} / {p99:.3f} / {pmax:.1f} ms | |')
-        add(f'| late ticks (message more than {bench_node.LATE_FACTOR:g} periods after the previous) | '
-            f'{node.late_ticks} of {node.ticks} | |')
-        add(f'| ticks that ran more than one step (catch-up) | {node.multi_step_ticks} | |')
-        add(f'| drift of simulated time against the clock over the run | '
-            f'{node.drift_steps:.2f} steps | every step computed, <= 2 steps: '
-            f'{met(abs(node.drift_steps) <= 2)} |')
-        add(f'| CPU of the simulator process | {node.cpu_percent:.1f} % of one core | '
-            f'<= 40 %: {met(node.cpu_percent <= 40)} |')
-        add(f'| stamp to receipt lag, p50 / p99 / max | {node.lag_ms[0]:.2f} / '
-            f'{node.lag_ms[1]:.2f} / {node.lag_ms[2]:.1f} ms | |')
-        add('')
-        add(f'Attached: {node.pubs_subs}. The tick period is seen from a subscriber, so it '
-            'includes DDS delivery and this Python observer\'s own scheduling: it bounds the '
-            'node\'s own tick jitter from above. Every step is computed: the node counts '
-            'steps against the steady clock and runs the ones that are due (catch-up), so the '
-            'step count follows the clock; that is what the drift row measures.')
-        add('')
-        add(f'## 5. Latency through DDS at 1 kHz ({lat.samples} probes each)')
-        add('')
-        add('| path | p50 [ms] | p99 [ms] | max [ms] | target |')
-        add('| --- | ---: | ---: | ---: | --- |')
-        add(f'| `pulse_width` publish -> first `force` that reflects it (R toggled 0 <-> 0.5) | '
-            f'{lat.p50_ms:.2f} | {lat.p99_ms:.2f} | {lat.max_ms:.1f} | p99 <= 3 ms: '
-            f'{met(lat.p99_ms <= 3.0)} |')
-        add(f'| bare rclpy echo node (`ping` -> `pong`), the floor | {echo.p50_ms:.2f} | '
-            f'{echo.p99_ms:.2f} | {echo.max_ms:.1f} | |')
-        add('')
-        add('The simulator path includes waiting for the next 1 ms tick (0.5 ms on average).')
+    write_node_sections(add, results['nodes'], results['node_seconds'])
     add('')
     add('## 6. Faster than real time (publish_clock, real_time_factor)')
     add('')
