@@ -75,9 +75,12 @@ EXECUTOR_ENV = 'HILL_MUSCLE_EXECUTOR'
 #: The executors :data:`EXECUTOR_ENV` can name. ``events`` is rclpy's C++
 #: EventsExecutor (``rclpy.experimental``): it has no per-wait Python
 #: bookkeeping, which at 1 kHz is most of a Python node's CPU time (the
-#: simulator: about 60 % of a core with ``single``, under 20 % with
+#: simulator at 1 kHz: 50 to 70 % of a core with ``single``, 15 to 25 % with
 #: ``events``, BENCHMARKS.md section 4). ``single`` is rclpy's default
 #: SingleThreadedExecutor, the fallback should the experimental one misbehave.
+#: Known limits of the Jazzy EventsExecutor, none of which the package's nodes
+#: meet: no guard conditions; a subscription callback that takes a
+#: ``MessageInfo`` fails with SystemError; its ``spin()`` (see :func:`spin`).
 EXECUTORS = {'events': EventsExecutor, 'single': SingleThreadedExecutor}
 DEFAULT_EXECUTOR = 'events'
 #: [s] longest one spin waits for work before the stop conditions are checked
