@@ -314,6 +314,7 @@ def declare_muscle_parameters(node: Node) -> MuscleParams:
 OTHER_NODE_PARAMETERS = frozenset((
     *SIMULATOR_NODE_KEYS,                                   # simulator
     'protocol', 'output', 'wait_for_subscribers_s',         # protocol_player
+    'lookahead_s', 'min_subscribers',
     'topics',                                               # recorder (and `output`)
 ))
 
