@@ -276,13 +276,15 @@ def write_rtf_section(add, measured) -> None:
     add('`benchmarks/bench_rtf.py`: the demo\'s live run (`make demo RTF=X`, i.e. '
         '`python -m hill_muscle_ros.demo --real-time-factor X`): the simulator with '
         '`publish_clock:=true` and `real_time_factor:=X`, the recorder and the protocol '
-        'player with `use_sim_time:=true`, three processes, Protocol II. The recorded force '
-        'at the end of each second (0.95, 1.95, ... s, time 0 at the simulator\'s last '
-        'rest stamp before the stimulation) against the offline `simulate()`; held length '
-        'at 0.95, 2.95, 3.95, 5.95 s, mid-ramp (10 mm/s) at 1.95 and 4.95 s. Achieved RTF: '
-        'simulated / steady seconds over the simulator\'s life (its exit statistics). '
-        'Ranges are min - max over the runs; the sweep stops after two factors in a row '
-        'at which no run held.')
+        'player with `use_sim_time:=true`, three processes, Protocol II. The player sends '
+        'the length ahead as `length_command_stamped` set points (`lookahead_s`, the '
+        'look-ahead column; the simulator applies each at its stamp) and the stimulation '
+        'on the plain topic. The recorded force at the end of each second (0.95, 1.95, '
+        '... s, time 0 at the first set point\'s stamp) against the offline `simulate()` '
+        'at the recorded sample\'s own time; held length at 0.95, 2.95, 3.95, 5.95 s, '
+        'mid-ramp (10 mm/s) at 1.95 and 4.95 s. Achieved RTF: simulated / steady seconds '
+        'over the simulator\'s life (its exit statistics). Ranges are min - max over the '
+        'runs; the sweep stops after two factors in a row at which no run held.')
     add('')
     if results is None:
         add(f'Not measured: the run failed with `{error}`.')
@@ -296,22 +298,16 @@ def write_rtf_section(add, measured) -> None:
         f'{best:g}.**' if best is not None else '**Within 0.5 N at no factor tried.**')
     add('')
     add('What limits it: not the simulator\'s step cost (see the achieved RTF and steps '
-        'behind columns): a tick runs `real_time_factor` steps of a few us every 1 ms of '
-        'steady time (`MIN_TICK_PERIOD_S`). But it reads its inputs only between ticks, '
-        'so on sim time the length command is '
-        'held for at least `real_time_factor` steps (ms); and the player, on sim time, '
-        'can only tick when a `/clock` message reaches it (one per simulator tick), so its '
-        'commands come in bursts whose gaps are its own wall-clock scheduling and the DDS '
-        'delivery, multiplied by the factor. With the muscle held still that does not '
-        'matter (held-length column). Mid-ramp the eccentric force follows the command\'s '
-        'velocity: the "offline, inputs held" column is the floor from that sampling alone '
-        '(the core fed Protocol II through a zero-order hold of `real_time_factor` steps, '
-        'no DDS; it depends on the hold\'s phase at the reading), and each ms of '
-        'wall-clock jitter costs `real_time_factor` ms of it. A late DDS match of the '
-        'player by the simulator shifts the whole run (a held-length error of the full '
-        'force at 5.95 s means the zero stimulation at the end landed early); at high '
-        'factors the whole protocol can be over before the recorder matches the player '
-        '(no stimulation in the bag).')
+        'behind columns), and no longer the length: set points sent ahead arrive before '
+        'their time (late knots column), so mid-ramp readings match the offline run at '
+        'any factor here. The "offline, inputs held" column shows what the plain, '
+        'unstamped `length_command` would cost from sampling alone (the core fed Protocol '
+        'II through a zero-order hold of `real_time_factor` steps). What is left is the '
+        'stimulation, sent unstamped: each ms of DDS latency or a stalled player is '
+        '`real_time_factor` ms of simulated time by which the recruitment step lands late; '
+        'harmless at the end-of-second readings up to about 50x (offline, 10 / 50 / 100 ms '
+        'late move them by 0.0002 / 0.0012 / 0.003 N), but at 100x a stall of tens of ms '
+        'is seconds of simulated time.')
 
 
 def write_node_sections(add, node_runs: dict, seconds: float) -> None:
