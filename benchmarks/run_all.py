@@ -419,8 +419,9 @@ def write_report(path: Path, runs: int, started: dict, results: dict) -> None:
     add(f'| load average at end | {load_average()} |')
     add(f'| wall time of the whole benchmark | {results["elapsed"]:.0f} s |')
     add('')
-    add('Other engineers ran tests on this 2-core machine while it was measured, so '
-        'single runs are noisy; the medians are the numbers to read and the max '
+    add('The load averages above say how busy the 2-core machine was (the benchmark '
+        'itself keeps one core busy, and its node and live runs use both). Single runs '
+        'are noisy on a shared VM: the medians are the numbers to read, and the max '
         'shows the interference.')
     add('')
 
