@@ -77,7 +77,9 @@ def sim(tmp_path_factory):
 
 
 def start_recorder(sim, name: str):
-    bag = sim['tmp'] / name
+    # A rerun (pytest-rerunfailures) reuses the module's directory: each bag
+    # gets a directory no earlier attempt used.
+    bag = sim['tmp'] / f'{name}_{next(_RUNS)}'
     proc = sim['procs'].start(name, node_command(
         'recorder', ns=sim['ns'], params={'output': str(bag)},
         extra_ros_args=['-p', f'topics:={RECORDED}']))
