@@ -40,13 +40,11 @@ import argparse
 import contextlib
 import ctypes
 import datetime as _dt
-import fcntl
 import os
 import re
 import signal
 import subprocess
 import sys
-import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -54,6 +52,7 @@ from typing import Sequence
 
 import numpy as np
 
+from .domain_lock import lock_free_domain
 from .model import LENGTH_CHOICES, UNITS_CHOICES, MuscleParams, Protocol, simulate
 from .params_file import load_muscle_params
 from .resources import default_params_file, protocol_path
@@ -182,13 +181,9 @@ def claimed_domain():
                       for i in range(DEMO_DOMAIN_SPAN)]
     deadline = time.monotonic() + STARTUP_TIMEOUT_S
     while True:
-        for domain in candidates:
-            lock = open(Path(tempfile.gettempdir()) / _DOMAIN_LOCK_PATTERN.format(domain), 'w')
-            try:
-                fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except OSError:
-                lock.close()
-                continue
+        claimed = lock_free_domain(candidates, _DOMAIN_LOCK_PATTERN)
+        if claimed is not None:
+            domain, lock = claimed
             try:
                 yield domain
             finally:

@@ -6,13 +6,13 @@ The domain is claimed with an exclusive lock file held for the whole run, so
 two concurrent runs on one machine never draw the same one. Subprocesses
 inherit these variables.
 """
-import fcntl
 import os
 import random
-import tempfile
 from pathlib import Path
 
 import pytest
+
+from hill_muscle_ros.domain_lock import lock_free_domain
 
 #: Domain IDs 1..100 stay clear of 0 (the default most people use), of the
 #: demo's 101..199, and within the range Fast DDS maps to valid UDP ports.
@@ -31,14 +31,9 @@ def _claim_domain() -> int:
     global _domain_lock
     candidates = list(range(_DOMAIN_LOW, _DOMAIN_HIGH + 1))
     random.Random(os.getpid()).shuffle(candidates)
-    for domain in candidates:
-        lock = open(Path(tempfile.gettempdir()) / _LOCK_PATTERN.format(domain), 'w')
-        try:
-            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            lock.close()
-            continue
-        _domain_lock = lock
+    claimed = lock_free_domain(candidates, _LOCK_PATTERN)
+    if claimed is not None:
+        domain, _domain_lock = claimed
         return domain
     raise RuntimeError(f'every ROS_DOMAIN_ID in {_DOMAIN_LOW}..{_DOMAIN_HIGH} is held by '
                        f'another test run')
