@@ -39,7 +39,7 @@ demo: $(STAMP)
 figures: $(STAMP)
 	$(BIN)/hill-muscle figures --out runs/figures
 
-# Benchmark (issue 5): installs the bench-only peers (pymuscle, MuJoCo,
+# Benchmark (the performance targets in BENCHMARKS.md): installs the bench-only peers (pymuscle, MuJoCo,
 # profilers) into .venv, profiles simulate() and writes BENCHMARKS.md.
 # Takes a few minutes; never part of `make test`.
 BENCH_STAMP := $(VENV)/.bench-installed
