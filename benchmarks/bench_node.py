@@ -1,4 +1,4 @@
-"""ROS benchmarks of issue 5: the simulator node at 1 kHz, and DDS latency.
+"""ROS benchmarks (the performance targets): the simulator node at 1 kHz, and DDS latency.
 
 Runs the package's ``simulator`` node and a bare rclpy echo node as separate
 processes and observes them from this process through DDS:
