@@ -1,4 +1,4 @@
-"""Issue 5, item 6: faster than real time over ROS 2, on sim time.
+"""Benchmark: faster than real time over ROS 2, on sim time.
 
 For each real-time factor, the demo's live run (:mod:`hill_muscle_ros.demo`):
 the simulator with ``publish_clock`` and ``real_time_factor``, the recorder
@@ -40,7 +40,7 @@ from hill_muscle_ros.resources import default_params_file, protocol_path  # noqa
 
 DEFAULT_RTFS = (1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0)
 DEFAULT_RUNS = 3
-#: [N] the issue's criterion.
+#: [N] the pass criterion: every end-of-second reading within this of offline.
 FORCE_TOLERANCE_N = 0.5
 OUT_DIR = REPO / 'runs' / 'bench_rtf'
 #: The sweep stops after this many factors in a row at which no run held.
