@@ -53,7 +53,7 @@ PROTOCOL_60S = HERE / 'protocol_60s.yaml'
 PROTOCOL_STARTUP = HERE / 'protocol_startup.yaml'
 SEED = 20240601
 
-# Targets of issue 5 (and issue 2 item 4).
+# The performance targets (BENCHMARKS.md states each one with its result).
 TARGET_NAIVE_RATIO_1E6 = 50.0
 TARGET_NAIVE_FRACTION_1E3 = 0.5
 TARGET_N_SCALING = 1.5
