@@ -28,7 +28,7 @@ from .memory import UnitMemory
 from .muscle import DL_MT_LIMIT_M
 from .params import MuscleParams
 
-#: Rounding offset of M = floor(N R + 0.5) (MODEL.md section 2).
+#: Rounding offset of M = floor(N R + 0.5) (doc/model.md section 2).
 _ROUND_HALF = 0.5
 
 
@@ -193,7 +193,7 @@ class MuscleBatch:
 
     def _velocity(self, l_ce: np.ndarray, dl_mt: np.ndarray,
                   f0: np.ndarray | None = None) -> np.ndarray:
-        """[m/s] FV_inv(f_SE, Eff.f_iso) per muscle (Eq. 3 inverted, MODEL.md 3).
+        """[m/s] FV_inv(f_SE, Eff.f_iso) per muscle (Eq. 3 inverted, doc/model.md section 3).
 
         The four branches are written as clipped forces so that every muscle
         takes the same operations: the concentric term vanishes above F0 and
@@ -266,7 +266,7 @@ class MuscleBatch:
         l1 = np.where(f0 > 0.0, l_rk4, l_free)
         f0 = self._eff_f_iso(l1)
         # Nothing recruited, or the instantaneous CE left the FL range within
-        # the step: the free CE takes up the SE slack (MODEL.md section 4).
+        # the step: the free CE takes up the SE slack (doc/model.md section 4).
         l1 = np.where(f0 == 0.0, l_free, l1)
         v_free = (dl1 - dl0) / dt
         v_ce = np.where(f0 > 0.0, self._velocity(l1, dl1, f0), v_free)
