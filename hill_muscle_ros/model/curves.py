@@ -2,7 +2,7 @@
 
 Every function here is pure and scalar (plain ``float`` in, ``float`` out) so
 that the integrator's hot loop can call it without NumPy overhead. Units are SI
-throughout (MODEL.md sections 1-3).
+throughout (doc/model.md sections 1-3).
 """
 from __future__ import annotations
 
@@ -33,7 +33,7 @@ def force_velocity(v_ce: float, f0: float, a: float, b: float,
                    a_ecc: float, b_ecc: float) -> float:
     """CE force for a given CE velocity (the Hill force-velocity relation).
 
-    Implements Eq. (3) of the paper with the sign choice of MODEL.md section 3:
+    Implements Eq. (3) of the paper with the sign choice of doc/model.md section 3:
     the eccentric branch is ``1.5 F0 - 0.5 (F0 b' - a' v) / (b' + v)``, which is
     continuous at ``v = F0 b' / a'`` where it reaches ``1.5 F0``.
 
@@ -58,9 +58,9 @@ def force_velocity_inverse(f_ce: float, f0: float, a: float, b: float,
                            a_ecc: float, b_ecc: float) -> float:
     """CE velocity that produces a given CE force: the inverse of Eq. (3).
 
-    Continuous and non-decreasing in ``f_ce`` (MODEL.md section 3). With
+    Continuous and non-decreasing in ``f_ce`` (doc/model.md section 3). With
     ``f0 = 0`` the CE offers no resistance and this function is not meaningful;
-    the muscle handles that case itself (MODEL.md section 4).
+    the muscle handles that case itself (doc/model.md section 4).
 
     :param f_ce: [N] CE force, equal to the SE force (f_SE) in the massless MTU
     :param f0: [N] effective isometric force (Eff.f_iso, F0), > 0
