@@ -1,7 +1,7 @@
 """The motor-unit memory: which units are recruited and at what CE length.
 
 Units are always recruited in a fixed order (1..M) and de-recruited in reverse
-(MODEL.md section 2), so the recruited set is a prefix and the memory is a
+(doc/model.md section 2), so the recruited set is a prefix and the memory is a
 last-in-first-out stack of *runs*: units recruited at the same instant share
 one CE length and hence one isometric force per unit. Each run stores the
 running totals up to and including itself, so the effective isometric force
@@ -19,7 +19,7 @@ from .curves import force_length
 
 
 def recruited_units(recruitment: float, n_units: int) -> int:
-    """Number of recruited units M = floor(N R + 0.5) (MODEL.md section 2).
+    """Number of recruited units M = floor(N R + 0.5) (doc/model.md section 2).
 
     :param recruitment: [-] recruitment R in [0, 1]
     :param n_units: [-] number of virtual units N
