@@ -1,7 +1,7 @@
 """The muscle: state, recruitment memory and one integration step.
 
 The single continuous state is the CE length ``l_ce``; its derivative is the
-inverse force-velocity relation evaluated at the tendon force (MODEL.md
+inverse force-velocity relation evaluated at the tendon force (doc/model.md
 section 4). The integrator is the classical fourth-order Runge-Kutta method
 (RK4) with the recruitment held and the MTU length following a linear ramp
 within the step. At the default 1 ms step it stays within 0.01 N of a
@@ -202,7 +202,7 @@ class Muscle:
         """Effective isometric force (Eff.f_iso) of the four variants.
 
         Implements Eq. (2) of the paper (multi/initial) and its three
-        siblings of MODEL.md section 2. This is the readable reference; the
+        siblings of doc/model.md section 2. This is the readable reference; the
         hot loop of :meth:`run` computes the same value inline.
 
         :param l_ce_m: [m] CE length for the instantaneous variants
@@ -251,7 +251,7 @@ class Muscle:
         and evaluates the outputs. :func:`.simulate` passes ``r_end[k] =
         r_start[k + 1]`` so each sample shows the recruitment of its instant.
 
-        The integrator is classical RK4 (MODEL.md section 4). When Eff.f_iso
+        The integrator is classical RK4 (doc/model.md section 4). When Eff.f_iso
         is zero the CE offers no resistance and takes the length that makes
         f_SE zero. The curves of :mod:`.curves` (Eq. 1, Eq. 3, the springs)
         are inlined here because function calls dominate a pure-Python step;
@@ -284,7 +284,7 @@ class Muscle:
         """Advance one step: recruit now, then integrate with R held.
 
         The memory changes only at the start of the step, from the CE length of
-        that instant (MODEL.md section 4).
+        that instant (doc/model.md section 4).
 
         :param recruitment: [-] recruitment R in [0, 1], held over the step
         :param dl_mt_m: [m] MTU length change at the end of the step (dl_MT)
@@ -403,7 +403,7 @@ def _hot_loop(muscle: Muscle) -> Callable[..., MuscleOutputs]:
                 f0 = f0_at(l, gain)
             if f0 == 0.0:
                 # Nothing recruited, or the instantaneous CE left the FL range
-                # within the step: the free CE takes up the SE slack (MODEL.md 4).
+                # within the step: the free CE takes up the SE slack (doc/model.md 4).
                 l = l_rest + dl1
             v_free = (dl1 - dl0) / dt
             dl0 = dl1
