@@ -43,7 +43,7 @@ def _spec(unit: str, description: str, *, low: float | None = None,
 
 @dataclass(frozen=True)
 class MuscleParams:
-    """Parameters of the multiple-motor-unit Hill-type muscle (MODEL.md section 5).
+    """Parameters of the multiple-motor-unit Hill-type muscle (doc/model.md section 5).
 
     Validated once, on construction; an invalid value raises ``ValueError``
     naming the field and the value.
