@@ -139,7 +139,7 @@ class Simulator(Node):
         self._pub_ce_length = self.create_publisher(Float64, 'ce_length', OUTPUT_QOS)
         self._pub_wrench = self.create_publisher(WrenchStamped, 'wrench', OUTPUT_QOS)
         # One message per output, refilled every tick: building them anew
-        # each tick cost more CPU than the model step (issue 5 profile).
+        # each tick cost more CPU than the model step (profiled for the benchmarks).
         self._force_msg = Float64()
         self._ce_length_msg = Float64()
         self._wrench_msg = WrenchStamped()
@@ -443,6 +443,7 @@ class Simulator(Node):
             f'ran {s.steps_done} steps in {elapsed_s:.3f} s of steady time '
             f'({s.steps_done / elapsed_s if elapsed_s > 0 else 0.0:.1f} steps/s), '
             f'{s.ticks} ticks, {s.late_ticks} late, {behind} steps behind at exit, '
+            f'longest gap between ticks {s.max_tick_gap_s * 1e3:.1f} ms, '
             f'{self._late_knots} late length_command_stamped knots '
             f'(worst {self._worst_late_s * 1e3:.1f} ms of simulated time)')
 
