@@ -308,7 +308,7 @@ def test_simulate_and_figures_never_import_rclpy(tmp_path):
 def test_simulator_subcommand_hands_ros_parameters_to_the_real_node():
     """An out-of-range ``rate_hz`` reaches the node, which refuses to start."""
     if importlib.util.find_spec('hill_muscle_ros.nodes.simulator') is None:
-        pytest.skip('the simulator node is not written yet (issue 3)')
+        pytest.skip('the simulator node is not written yet')
     proc = run_cli('simulator', '--ros-args', '-p', 'rate_hz:=-1.0')
     assert proc.returncode == 1
     assert 'rate_hz' in proc.stdout + proc.stderr
