@@ -133,7 +133,7 @@ def test_recruitment_feedforward_inverts_the_recruitment_curve():
 
 def test_model_feedforward_at_rest_length_recruits_by_the_fl_of_the_ce_length():
     """Held (v = 0): F0 = F*, per unit of R f_iso_max FL(l_CE / l_opt) at
-    l_CE = l_rest - F / k_SE (MODEL.md sections 1-2)."""
+    l_CE = l_rest - F / k_SE (doc/model.md sections 1-2)."""
     m = MuscleParams()
     ctrl = ForceController(ControllerParams(), m)
     l_ce = m.l_rest_m - 20.0 / m.k_se_n_per_m
