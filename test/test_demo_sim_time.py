@@ -1,4 +1,4 @@
-"""Faster than real time (issue 5, item 6): the demo on sim time.
+"""Faster than real time: the demo on sim time.
 
 `python -m hill_muscle_ros.demo --real-time-factor 10` runs the simulator
 (publish_clock, real_time_factor 10), the recorder and the protocol player
@@ -32,7 +32,7 @@ from hill_muscle_ros.resources import default_params_file, protocol_path
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 RTF = 10.0
-#: [N] the issue's criterion.
+#: [N] the pass criterion: every end-of-second reading within this of offline.
 FORCE_TOLERANCE_N = 0.5
 #: [s] generous for a shared 2-core box; a healthy run takes ~10 s.
 DEMO_TIMEOUT_S = 180.0
