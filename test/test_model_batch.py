@@ -11,7 +11,7 @@ from hill_muscle_ros.model.batch import MuscleBatch
 
 from test_model_fastpath import muscle_params
 
-#: The issue's bound for batch vs single-muscle runs.
+#: [N] bound on batch vs single-muscle runs (the batch follows Muscle.step exactly).
 ATOL_N = 1e-9
 
 
