@@ -1,4 +1,4 @@
-"""The curves of Eq. (1) and Eq. (3), and the springs (MODEL.md sections 1-3)."""
+"""The curves of Eq. (1) and Eq. (3), and the springs (doc/model.md sections 1-3)."""
 import math
 
 import pytest
@@ -21,7 +21,7 @@ def test_force_length_peaks_at_one_at_optimal_length():
 
 
 def test_force_length_at_rest_length_matches_model_md_value():
-    # MODEL.md section 6: f_iso_max * FL(1.25) = 37.19 N.
+    # doc/model.md section 6: f_iso_max * FL(1.25) = 37.19 N.
     assert 45.0 * force_length(1.25) == pytest.approx(37.19, abs=0.005)
     assert force_length(1.25) == pytest.approx(-2.777 * 1.5625 + 5.554 * 1.25 - 1.777)
 
