@@ -3,7 +3,7 @@
 `Muscle.run` inlines Eq. 1, Eq. 3 and the springs for speed and reuses the
 output velocity as the first RK4 stage. The reference here steps the same
 muscle with the scalar functions of :mod:`hill_muscle_ros.model.curves` and
-:meth:`Muscle.outputs`, exactly as MODEL.md section 4 describes, so any
+:meth:`Muscle.outputs`, exactly as doc/model.md section 4 describes, so any
 difference is a bug in the fast path.
 """
 import numpy as np
@@ -47,7 +47,7 @@ def input_sequences(max_size=120):
 
 
 def reference_step(m: Muscle, r: float, dl1: float, dt: float):
-    """One step of MODEL.md section 4 with RK4, written with the scalar curves."""
+    """One step of doc/model.md section 4 with RK4, written with the scalar curves."""
     p = m.params
     initial = p.length == 'initial'
     hill = (p.fv_a_n, p.fv_b_m_per_s, p.fv_a_ecc_n, p.fv_b_ecc_m_per_s)
