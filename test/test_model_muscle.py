@@ -68,7 +68,7 @@ def test_de_recruitment_frees_the_ce_at_once(params):
 # -- analytic steady states ------------------------------------------------------
 
 def test_protocol_I_first_second_reaches_model_md_steady_state(runs):
-    """MODEL.md section 6: f_se = f_iso_max FL(1.25) = 37.19 N at 1 s (initial length)."""
+    """doc/model.md section 6: f_se = f_iso_max FL(1.25) = 37.19 N at 1 s (initial length)."""
     f_expected = P.f_iso_max_n * force_length(P.l_rest_m / P.l_opt_m)
     for units in ('single', 'multi'):
         run = runs[('I', units, 'initial')]
