@@ -11,9 +11,11 @@ import os
 import signal
 
 import pytest
+from rclpy.duration import Duration
 from std_msgs.msg import Float64
 
-from hill_muscle_ros.control import ControllerParams
+from hill_muscle_ros.control import ControllerParams, ForceController
+from hill_muscle_ros.model import MuscleParams
 from ros_helpers import Probe, ProcessGroup, node_command
 
 pytestmark = pytest.mark.ros
@@ -54,6 +56,89 @@ def test_without_force_feedback_the_controller_publishes_zero(tmp_path):
         mark = pw.mark()
         probe.wait_for_messages(pw, 20, mark=mark, procs=[proc])
         assert set(pw.data_since(mark)) == {0.0}
+
+
+#: [s] how long a publisher may wait for its subscribers' acknowledgements.
+ACK_TIMEOUT_S = 30.0
+#: Controller periods of force feedback heard before the target arrives: at
+#: 100 Hz, 0.5 s, far more than the reference model's 60 ms time constant,
+#: so a controller that acted on a made-up 0 N target would have wound up.
+PERIODS_BEFORE_TARGET = 50
+
+
+def test_force_heard_before_the_target_neither_stimulates_nor_winds_up(tmp_path):
+    """The DDS race: feedback reaches the controller before the first target.
+
+    The probe plays a muscle that holds exactly the target, so once the target
+    is known the error is zero and the pulse width must be exactly the
+    feedforward. A controller that ran on a default target of 0 N while only
+    the force was known would wind its integral down and settle elsewhere.
+    """
+    ns = unique_namespace()
+    expected_pw = ForceController(ControllerParams(), MuscleParams()).feedforward(
+        TARGET_N, TARGET_N)
+    with ProcessGroup(tmp_path) as procs, Probe('ctrl_probe') as probe:
+        proc = procs.start('controller', node_command('force_controller', ns=ns))
+        pw = probe.record(f'{ns}/pulse_width', Float64)
+        force_pub = probe.publisher(f'{ns}/force', Float64)
+        target_pub = probe.publisher(f'{ns}/force_target', Float64)
+        probe.spin_until(lambda: (force_pub.get_subscription_count() > 0
+                                  and target_pub.get_subscription_count() > 0
+                                  and pw.messages),
+                         'discovery both ways', procs=[proc])
+        feedback = probe.node.create_timer(
+            0.005, lambda: force_pub.publish(Float64(data=TARGET_N)))
+        probe.spin_until(lambda: force_pub.wait_for_all_acked(Duration(seconds=0)),
+                         'the controller to acknowledge the force', procs=[proc])
+        # Pulse widths published after the acknowledgement were computed with the force known.
+        heard = pw.mark()
+        probe.wait_for_messages(pw, PERIODS_BEFORE_TARGET, mark=heard, procs=[proc])
+        before_target = pw.data_since(0)
+        target_pub.publish(Float64(data=TARGET_N))
+        probe.wait_for_value(pw, lambda v: v > 0.0, 'stimulation', mark=len(pw.messages),
+                             procs=[proc])
+        mark = pw.mark()
+        probe.wait_for_messages(pw, PERIODS_BEFORE_TARGET, mark=mark, procs=[proc])
+        feedback.cancel()
+        after = pw.data_since(mark)
+
+    assert set(before_target) == {0.0}
+    assert set(after) == {expected_pw}
+
+
+def test_target_without_force_feedback_never_stimulates(tmp_path):
+    ns = unique_namespace()
+    with ProcessGroup(tmp_path) as procs, Probe('ctrl_probe') as probe:
+        proc = procs.start('controller', node_command('force_controller', ns=ns))
+        pw = probe.record(f'{ns}/pulse_width', Float64)
+        probe.publish_when_matched(f'{ns}/force_target', Float64(data=TARGET_N), procs=[proc])
+        probe.spin_until(lambda: probe.publisher(f'{ns}/force_target', Float64)
+                         .wait_for_all_acked(Duration(seconds=0)),
+                         'the controller to acknowledge the target', procs=[proc])
+        mark = pw.mark()
+        probe.wait_for_messages(pw, PERIODS_BEFORE_TARGET, mark=mark, procs=[proc])
+        assert set(pw.data_since(0)) == {0.0}
+
+
+def test_a_stale_target_stops_stimulation_when_target_timeout_is_set(tmp_path):
+    ns = unique_namespace()
+    with ProcessGroup(tmp_path) as procs, Probe('ctrl_probe') as probe:
+        proc = procs.start('controller', node_command(
+            'force_controller', ns=ns, params={'target_timeout_s': 0.3}))
+        pw = probe.record(f'{ns}/pulse_width', Float64)
+        force_pub = probe.publisher(f'{ns}/force', Float64)
+        probe.spin_until(lambda: force_pub.get_subscription_count() > 0,
+                         'controller subscribed to force', procs=[proc])
+        feedback = probe.node.create_timer(0.005, lambda: force_pub.publish(Float64(data=0.0)))
+        probe.publish_when_matched(f'{ns}/force_target', Float64(data=TARGET_N), procs=[proc])
+        on = probe.wait_for_value(pw, lambda v: v > 0.0, 'stimulation', procs=[proc])
+        off = probe.wait_for_value(pw, lambda v: v == 0.0, 'zero after the target expired',
+                                   mark=on, procs=[proc])
+        feedback.cancel()
+        # Feedback kept coming: only the target's age can have stopped it.
+        probe.spin_until(lambda: 'target_timeout_s' in proc.output(), 'the warning',
+                         procs=[proc])
+        assert off > on
 
 
 def test_stale_force_feedback_stops_stimulation_with_a_warning(ctrl):

@@ -1,5 +1,6 @@
 """An example FES force controller (pure Python; the ROS node wraps it)."""
-from .pi import (FEEDFORWARD_CHOICES, ControllerParams, ForceController, ImposedLength,
-                 LengthRate)
+from .pi import (FEEDFORWARD_CHOICES, ControllerInputs, ControllerParams, ForceController,
+                 ImposedLength, LengthRate)
 
-__all__ = ['FEEDFORWARD_CHOICES', 'ControllerParams', 'ForceController', 'ImposedLength', 'LengthRate']
+__all__ = ['FEEDFORWARD_CHOICES', 'ControllerInputs', 'ControllerParams', 'ForceController',
+           'ImposedLength', 'LengthRate']

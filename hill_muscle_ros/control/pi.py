@@ -53,6 +53,15 @@ DEFAULT_LENGTH_RATE_WINDOW_S = 0.005
 #: [s] stamped length set points are read this far ahead: half of a 100 Hz
 #: control period, the middle of the interval the pulse width will act over.
 DEFAULT_LENGTH_PREVIEW_S = 0.005
+#: [s] force feedback older than this stops stimulation. Longer than any
+#: stall of a simulator or sensor process that a loop should ride through
+#: (hundreds of ms were seen on a loaded 2-core machine), and equal to the
+#: simulator's stimulation watchdog (``input_timeout_s``, 0.5 s), so that
+#: both ends of the loop give up on a silent peer after the same time.
+DEFAULT_FEEDBACK_TIMEOUT_S = 0.5
+#: [s] 0: a force target is a set point that holds until the next one (what
+#: ``ros2 topic pub --once`` means); a positive value makes it expire.
+DEFAULT_TARGET_TIMEOUT_S = 0.0
 #: Feedforward choices: the nominal model's inverse dynamics (uses the
 #: imposed length), the inverse recruitment curve (force only), or none.
 FEEDFORWARD_CHOICES = ('model', 'recruitment', 'none')
@@ -79,6 +88,9 @@ class ControllerParams:
     :param pw_max_s: [s] largest pulse width the stimulator may send (PW_max)
     :param rate_hz: [Hz] control and stimulation rate
     :param feedback_timeout_s: [s] stop stimulating if no force arrives this long
+        (:class:`ControllerInputs`)
+    :param target_timeout_s: [s] stop stimulating if no target arrives this
+        long; 0 (the default) keeps a target until the next one, as a set point
     :param reference_tau_s: [s] the PI loop tracks the target through a first-order
         lag of this time constant (a two-degree-of-freedom design): the
         feedforward moves the muscle at once, and the feedback only corrects
@@ -105,8 +117,11 @@ class ControllerParams:
         's', 'largest pulse width sent; also the recruitment scale PW_max', 1e-9, 1.0))
     rate_hz: float = field(default=100.0, metadata=_spec(
         'Hz', 'control and stimulation rate', 1e-3, 1e5))
-    feedback_timeout_s: float = field(default=0.2, metadata=_spec(
+    feedback_timeout_s: float = field(default=DEFAULT_FEEDBACK_TIMEOUT_S, metadata=_spec(
         's', 'stop stimulating when force feedback is older than this', 1e-3, 1e3))
+    target_timeout_s: float = field(default=DEFAULT_TARGET_TIMEOUT_S, metadata=_spec(
+        's', 'stop stimulating when the newest force_target is older than this '
+        '(0: a target holds until the next one)', 0.0, 1e6))
     reference_tau_s: float = field(default=DEFAULT_REFERENCE_TAU_S, metadata=_spec(
         's', 'time constant of the reference model the feedback tracks (0: the target itself)',
         0.0, 10.0))
@@ -366,3 +381,65 @@ class ForceController:
         if not saturated:
             self.integral_s += p.ki_s_per_n_s * error * dt_s
         return min(max(unclamped, 0.0), p.pw_max_s)
+
+
+class ControllerInputs:
+    """What the controller has heard, and whether it may act on it.
+
+    The controller acts only on inputs it has received: until a force target
+    and a fresh force measurement have both arrived it sends no stimulation
+    and integrates nothing (a target made up as 0 N would wind the integral
+    against the real force). The same holds when the feedback goes stale
+    (older than ``feedback_timeout_s``) or, with ``target_timeout_s`` > 0,
+    when the target does. Between those, a control period without a new
+    force sample (the plant was briefly late) holds the last output instead
+    of integrating the old error again: a stall shorter than the timeout is
+    ridden through, not turned into a dropout.
+
+    Times are in seconds of the node's clock.
+
+    :param feedback_timeout_s: [s] age at which the force feedback is stale
+    :param target_timeout_s: [s] age at which the target is stale; 0: never
+    """
+
+    #: :meth:`state` values.
+    READY = 'ready'
+    NO_TARGET = 'no force_target received yet'
+    NO_FEEDBACK = 'no force feedback received yet'
+    STALE_FEEDBACK = 'force feedback stale'
+    STALE_TARGET = 'force_target stale'
+
+    def __init__(self, feedback_timeout_s: float, target_timeout_s: float = 0.0) -> None:
+        self.feedback_timeout_s = feedback_timeout_s
+        self.target_timeout_s = target_timeout_s
+        self.target_n: float | None = None     # [N] F*, None until one arrives
+        self.target_t_s: float | None = None   # [s] when it arrived
+        self.force_n: float | None = None      # [N] F, None until one arrives
+        self.force_t_s: float | None = None    # [s] when it arrived
+        self._force_is_new = False
+
+    def set_target(self, target_n: float, now_s: float) -> None:
+        """A validated force target ``target_n`` [N] received at ``now_s`` [s]."""
+        self.target_n, self.target_t_s = target_n, now_s
+
+    def set_force(self, force_n: float, now_s: float) -> None:
+        """A validated force measurement ``force_n`` [N] received at ``now_s`` [s]."""
+        self.force_n, self.force_t_s = force_n, now_s
+        self._force_is_new = True
+
+    def state(self, now_s: float) -> str:
+        """:data:`READY`, or the reason the controller must not stimulate at ``now_s``."""
+        if self.target_n is None:
+            return self.NO_TARGET
+        if self.force_t_s is None:
+            return self.NO_FEEDBACK
+        if now_s - self.force_t_s > self.feedback_timeout_s:
+            return self.STALE_FEEDBACK
+        if self.target_timeout_s > 0.0 and now_s - self.target_t_s > self.target_timeout_s:
+            return self.STALE_TARGET
+        return self.READY
+
+    def take_new_force(self) -> bool:
+        """Whether a force sample arrived since the last call."""
+        new, self._force_is_new = self._force_is_new, False
+        return new

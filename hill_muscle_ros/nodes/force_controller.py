@@ -7,8 +7,14 @@ imposed ``length_command`` [m] (std_msgs/Float64) and publishes
 anti-windup, clamped to [0, PW_max]). The default ``model`` feedforward
 inverts a nominal muscle, declared with the simulator's parameter names (so
 one ``--params-file`` configures both), at the imposed length and its rate.
-With no force feedback for ``feedback_timeout_s`` it stops stimulating and
-warns; on shutdown it publishes zero stimulation.
+
+It acts only on inputs it has received (:class:`~hill_muscle_ros.control.ControllerInputs`):
+it publishes zero stimulation, and integrates nothing, until both a
+``force_target`` and a ``force`` message have arrived; again whenever the
+force is older than ``feedback_timeout_s`` (or, with ``target_timeout_s`` >
+0, the target is older than that), with one warning per transition. A
+control period without a new force sample holds the last pulse width. On
+shutdown it publishes zero stimulation.
 
 Run: ``ros2 run hill_muscle_ros force_controller`` or ``hill-muscle controller``.
 """
@@ -22,7 +28,7 @@ from rclpy.node import Node
 from geometry_msgs.msg import PointStamped
 from std_msgs.msg import Float64
 
-from ..control import ControllerParams, ForceController, ImposedLength
+from ..control import ControllerInputs, ControllerParams, ForceController, ImposedLength
 from ..model import MuscleParams
 from ..model.muscle import check_dl_mt
 from ._common import (OUTPUT_QOS, RELIABLE_QOS, BadInputWarner, StartupError,
@@ -70,12 +76,13 @@ class ForceControllerNode(Node):
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         self._warner = BadInputWarner(self.get_logger())
-        self._target_n = 0.0
-        self._force_n: float | None = None
-        self._force_stamp_ns: int | None = None
-        self._last_tick_ns: int | None = None
-        self._starved = False
         p = self.controller.params
+        self.inputs = ControllerInputs(p.feedback_timeout_s, p.target_timeout_s)
+        #: ControllerInputs.state of the last tick: a change is logged once.
+        self.input_state = ControllerInputs.NO_TARGET
+        self._last_tick_ns: int | None = None
+        #: [s] the pulse width last published
+        self.pulse_width_s = 0.0
         self._pub = self.create_publisher(Float64, 'pulse_width', OUTPUT_QOS)
         self._sub_target = self.create_subscription(Float64, 'force_target', self._on_target,
                                                     RELIABLE_QOS)
@@ -97,23 +104,28 @@ class ForceControllerNode(Node):
 
     # -- inputs ---------------------------------------------------------------
 
+    def _now_s(self) -> float:
+        return self.get_clock().now().nanoseconds / _NS_PER_S
+
     def _on_target(self, msg: Float64) -> None:
         try:
-            self._target_n = self.controller.check_target(msg.data)
+            target_n = self.controller.check_target(msg.data)
         except ValueError as err:
             self._warner.warn(self._sub_target.topic_name,
                               f'ignoring {self._sub_target.topic_name} = {msg.data!r}: {err}; '
-                              f'keeping {self._target_n!r} N')
+                              f'keeping {self.inputs.target_n!r} N')
+            return
+        self.inputs.set_target(target_n, self._now_s())
 
     def _on_force(self, msg: Float64) -> None:
         try:
-            self._force_n = self.controller.check_force(msg.data)
+            force_n = self.controller.check_force(msg.data)
         except ValueError as err:
             self._warner.warn(self._sub_force.topic_name,
                               f'ignoring {self._sub_force.topic_name} = {msg.data!r}: {err}; '
-                              f'keeping {self._force_n!r} N')
+                              f'keeping {self.inputs.force_n!r} N')
             return
-        self._force_stamp_ns = self.get_clock().now().nanoseconds
+        self.inputs.set_force(force_n, self._now_s())
 
     def _on_length(self, msg: Float64) -> None:
         try:
@@ -149,6 +161,8 @@ class ForceControllerNode(Node):
         except (ValueError, TypeError) as err:
             return SetParametersResult(successful=False, reason=str(err))
         self.controller.params, self.controller.model = new, model
+        self.inputs.feedback_timeout_s = new.feedback_timeout_s
+        self.inputs.target_timeout_s = new.target_timeout_s
         self._length.plain.window_s = new.length_rate_window_s
         self._length.preview_s = new.length_preview_s
         return SetParametersResult(successful=True)
@@ -164,27 +178,46 @@ class ForceControllerNode(Node):
                 else min((now_ns - self._last_tick_ns) / _NS_PER_S,
                          MAX_DT_PERIODS / p.rate_hz))
         self._last_tick_ns = now_ns
-        fresh = (self._force_stamp_ns is not None
-                 and (now_ns - self._force_stamp_ns) / _NS_PER_S <= p.feedback_timeout_s)
-        if not fresh:
-            if not self._starved and self._force_stamp_ns is not None:
-                self.get_logger().warning(
-                    f'no force feedback for more than {p.feedback_timeout_s} s: '
-                    f'stimulation stopped until it returns')
-            self._starved = self._force_stamp_ns is not None
+        now_s = now_ns / _NS_PER_S
+        state = self.inputs.state(now_s)
+        self._log_transition(state, p)
+        self.input_state = state
+        if state != ControllerInputs.READY:
+            # Nothing made up: no stimulation and no integral on inputs never heard.
             self.controller.reset()
+            self.inputs.take_new_force()
             self._publish(0.0)
             return
-        if self._starved:
-            self.get_logger().info('force feedback is back: stimulating again')
-            self._starved = False
-        if dt_s <= 0.0:
-            return  # sim time paused or went back: nothing to integrate over
-        dl_mt_m, rate = self._length.at(now_ns / _NS_PER_S)
-        self._publish(self.controller.update(self._target_n, self._force_n, dt_s,
+        if dt_s <= 0.0 or not self.inputs.take_new_force():
+            # Sim time paused, or no new force since the last period (a plant
+            # briefly late): hold, rather than integrate the old error again.
+            self._publish(self.pulse_width_s)
+            return
+        dl_mt_m, rate = self._length.at(now_s)
+        self._publish(self.controller.update(self.inputs.target_n, self.inputs.force_n, dt_s,
                                              dl_mt_m, rate))
 
+    def _log_transition(self, state: str, p: ControllerParams) -> None:
+        """One log line when the input state changes."""
+        if state == self.input_state:
+            return
+        log = self.get_logger()
+        if state == ControllerInputs.STALE_FEEDBACK:
+            log.warning(f'no force feedback on {self._sub_force.topic_name} for more than '
+                        f'{p.feedback_timeout_s:g} s (feedback_timeout_s): stimulation stopped '
+                        'until it returns')
+        elif state == ControllerInputs.STALE_TARGET:
+            log.warning(f'no {self._sub_target.topic_name} for more than '
+                        f'{p.target_timeout_s:g} s (target_timeout_s): stimulation stopped '
+                        'until the next target')
+        elif state == ControllerInputs.READY:
+            log.info(f'target {self.inputs.target_n:g} N and force feedback received: '
+                     'stimulating')
+        else:
+            log.info(f'not stimulating: {state}')
+
     def _publish(self, pulse_width_s: float) -> None:
+        self.pulse_width_s = pulse_width_s
         self._pub.publish(Float64(data=pulse_width_s))
 
     def on_exit(self) -> None:
