@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from hill_muscle_ros.domain_lock import lock_free_domain
+from stall_watch import StallWatcher
 
 #: Domain IDs 1..100 stay clear of 0 (the default most people use), of the
 #: demo's 101..199, and within the range Fast DDS maps to valid UDP ports.
@@ -47,17 +48,12 @@ def pytest_configure(config):
     os.environ.pop('ROS_STATIC_PEERS', None)
 
 
-#: A test that runs ROS processes over DDS is run again, at most this many
-#: times, when it fails: on a 2-core machine a process can be descheduled for
-#: a few hundred milliseconds, which no timing claim survives. Pure-model
-#: tests never rerun, and a ROS test that fails every time still fails.
-ROS_TEST_RERUNS = 2
-
-
-def pytest_collection_modifyitems(config, items):
-    for item in items:
-        if item.get_closest_marker('ros') is not None:
-            item.add_marker(pytest.mark.flaky(reruns=ROS_TEST_RERUNS))
+@pytest.fixture(scope='session')
+def stall_watcher(tmp_path_factory):
+    """One :class:`~stall_watch.StallWatcher` for the whole run: the only
+    evidence on which a test may repeat a timing measurement."""
+    with StallWatcher(tmp_path_factory.mktemp('stall_watch') / 'stalls.log') as watcher:
+        yield watcher
 
 
 @pytest.fixture(scope='session')

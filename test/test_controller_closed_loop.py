@@ -26,10 +26,12 @@ this test, which plays the user (``force_target``) and the length rig
 Both the ``initial`` and the ``instantaneous`` model variants are run.
 
 On a shared 2-core machine a process can be descheduled for 0.1-0.3 s. A
-failed run in which the simulator or the controller stalled for longer than
-:data:`STALL_S` inside the measured window is repeated, up to
-:data:`ATTEMPTS` runs; a failed run without such a stall fails at once.
-Measured numbers are printed (``pytest -s``) for the README.
+failed run is repeated only if the stall watcher (``stall_watch``), a
+process of its own, measured the machine leaving it unscheduled during that
+run; the stall is printed. A failed run without one fails at once, so a
+stall of the nodes themselves is a failure. The longest gap in the
+simulator's stamps and the controller's output is printed with the
+measurements (``pytest -s``).
 """
 from __future__ import annotations
 
@@ -43,6 +45,7 @@ from rclpy.time import Time
 from std_msgs.msg import Float64
 
 from ros_helpers import Probe, ProcessGroup, node_command
+from stall_watch import repeat_only_on_external_stall
 
 pytestmark = pytest.mark.ros
 
@@ -73,11 +76,6 @@ PRE_RAMP_WINDOW_S = 0.5
 RECOVERY_S = 1.0
 #: [s] of simulated time watched after the ramp's end.
 WATCH_AFTER_RAMP_S = 1.5
-#: [s] a gap this long in the simulator's stamps or the controller's output
-#: (five control periods) means the machine stalled a process: such a run
-#: may be repeated (see :func:`assert_on_a_run_that_ran`).
-STALL_S = 0.05
-ATTEMPTS = 3
 #: [s] window over which the steady pulse width is averaged.
 PW_AVERAGE_S = 0.5
 #: [s] how far ahead the rig sends its set points: several DDS hops.
@@ -250,30 +248,10 @@ def run_stretch(procs, probe, length: str) -> dict:
     return metrics
 
 
-def assert_on_a_run_that_ran(run, check, *args) -> dict:
-    """Run and check; if the check fails on a run in which a process stalled
-    for more than :data:`STALL_S`, try again, up to :data:`ATTEMPTS` runs.
-
-    A stall is the machine's doing, not the loop's: no 100 Hz controller can
-    hold a muscle it does not hear from. A run without a stall decides; the
-    criteria themselves are never relaxed.
-    """
-    tried = []
-    for _ in range(ATTEMPTS):
-        metrics = run(*args)
-        failure = check(metrics)
-        if failure is None:
-            return metrics
-        tried.append(metrics)
-        assert metrics['stall_s'] > STALL_S, f'{failure}: {metrics}'
-    raise AssertionError(f'every one of {ATTEMPTS} runs had a process stall longer than '
-                         f'{STALL_S} s in the measured window, and failed: {tried}')
-
-
 @pytest.fixture
-def loop_env(tmp_path):
+def loop_env(tmp_path, stall_watcher):
     with ProcessGroup(tmp_path) as procs, Probe('closed_loop_probe') as probe:
-        yield procs, probe
+        yield procs, probe, stall_watcher
 
 
 @pytest.mark.parametrize('length', VARIANTS)
@@ -285,7 +263,8 @@ def test_step_to_20N_settles_within_2_percent_in_under_1_5_s_with_under_10_perce
         if not m['overshoot'] < MAX_OVERSHOOT:
             return f'overshoot {m["overshoot"]:.3f}'
         return None
-    assert_on_a_run_that_ran(lambda *a: run_step(*a)[0], check, *loop_env, length)
+    procs, probe, watcher = loop_env
+    repeat_only_on_external_stall(lambda: run_step(procs, probe, length)[0], check, watcher)
 
 
 @pytest.mark.parametrize('length', VARIANTS)
@@ -295,4 +274,5 @@ def test_15N_is_held_within_1N_through_a_stretch_once_settled(loop_env, length):
             if not m[key] <= HOLD_TOL_N:
                 return f'{key} {m[key]:.3f} N'
         return None
-    assert_on_a_run_that_ran(run_stretch, check, *loop_env, length)
+    procs, probe, watcher = loop_env
+    repeat_only_on_external_stall(lambda: run_stretch(procs, probe, length), check, watcher)
