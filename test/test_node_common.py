@@ -55,8 +55,9 @@ def test_descriptor_comes_from_the_field_metadata(field):
         assert (r.from_value, r.to_value) == (spec['low'], spec['high'])
     else:
         assert f'[{spec["unit"]}]' in desc.description
-        r = desc.floating_point_range[0]
-        assert (r.from_value, r.to_value) == (spec['low'], spec['high'])
+        # No closed range can say "> 0": the bounds are in words, the model checks them.
+        assert not desc.floating_point_range
+        assert desc.additional_constraints == '> 0 and <= 1e+12 (finite)'
 
 
 def test_every_muscle_parameter_has_a_live_change_rule():
@@ -91,3 +92,64 @@ def test_bad_input_warning_reports_how_many_were_suppressed():
     warner._period_s = 0.0
     warner.warn('/a', 'third')
     assert log.lines == ['first', 'third (1 more since the last warning)']
+
+
+# -- parameter introspection (a real rclpy node, no other process) ----------------
+
+import rclpy  # noqa: E402
+
+from hill_muscle_ros.nodes._common import (StartupError, declare_checked,  # noqa: E402
+                                           declared_parameter_names, number_descriptor,
+                                           parameter_overrides, reject_unknown_overrides)
+
+
+@pytest.fixture
+def node_with_overrides():
+    """A node started with ``-p`` overrides, in a context of its own."""
+    context = rclpy.Context()
+    rclpy.init(args=['--ros-args', '-p', 'rate_hz:=-5.0', '-p', 'k_se_typo:=3.0',
+                     '-p', 'n_units:=1.5'], context=context)
+    node = rclpy.create_node('introspection_probe', context=context,
+                             start_parameter_services=False)
+    yield node
+    node.destroy_node()
+    rclpy.try_shutdown(context=context)
+
+
+def test_parameter_overrides_are_the_command_line_values(node_with_overrides):
+    # Pins the one place that reads rclpy's private state (no public API in 7.1.6).
+    overrides = parameter_overrides(node_with_overrides)
+    assert {n: p.value for n, p in overrides.items()} == {
+        'rate_hz': -5.0, 'k_se_typo': 3.0, 'n_units': 1.5}
+
+
+def test_declared_parameter_names_list_what_was_declared(node_with_overrides):
+    before = declared_parameter_names(node_with_overrides)
+    node_with_overrides.declare_parameter('frame_id', 'muscle')
+    assert 'use_sim_time' in before and 'frame_id' not in before
+    assert declared_parameter_names(node_with_overrides) == sorted(before + ['frame_id'])
+
+
+def test_out_of_range_override_names_parameter_value_and_range(node_with_overrides):
+    with pytest.raises(StartupError) as err:
+        declare_checked(node_with_overrides, 'rate_hz', 1000.0,
+                        number_descriptor('step rate', 'Hz', 1.0, 10_000.0))
+    message = str(err.value)
+    assert message.startswith('parameter `rate_hz` = -5.0 rejected: ')
+    assert 'out of range' in message and 'Invalid parameter value' not in message
+
+
+def test_wrong_type_override_names_the_parameter_and_both_types(node_with_overrides):
+    with pytest.raises(StartupError, match=r'parameter `n_units`: got 1\.5 \(float\), '
+                                           r'expected a int like 100'):
+        declare_checked(node_with_overrides, 'n_units', 100,
+                        number_descriptor('motor units', '-', 1, 1000, integer=True))
+
+
+def test_unknown_override_is_named_with_the_declared_parameters(node_with_overrides):
+    node_with_overrides.declare_parameter('frame_id', 'muscle')
+    declared = ', '.join(declared_parameter_names(node_with_overrides))
+    assert 'frame_id' in declared
+    with pytest.raises(StartupError) as err:
+        reject_unknown_overrides(node_with_overrides)
+    assert str(err.value) == f'unknown parameter `k_se_typo` (got 3.0); this node has: {declared}'

@@ -27,37 +27,22 @@ from rclpy.exceptions import (InvalidParameterTypeException,
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
-from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile,
-                       ReliabilityPolicy)
 from rclpy.signals import SignalHandlerOptions
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange,
                                 ParameterDescriptor)
+from rcl_interfaces.srv import ListParameters
+from rclpy.parameter import Parameter
 
 from ..model import MuscleParams
 from ..params_file import SIMULATOR_NODE_KEYS
+# The QoS profiles live below the nodes and the recording code; re-exported here.
+from ..qos import OUTPUT_HISTORY_DEPTH, OUTPUT_QOS, QUEUE_DEPTH, RELIABLE_QOS  # noqa: F401
+from ..timebase import NS_PER_S
 
 #: Exit status of a node that could not start (bad parameter, bad file).
 EXIT_FAILURE = 1
 #: Exit status of a node that ran to its end or was interrupted.
 EXIT_SUCCESS = 0
-
-#: Depth of every subscription queue.
-QUEUE_DEPTH = 10
-#: Reliable, volatile, keep-last 10: what ``create_subscription(..., 10)`` gives.
-RELIABLE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=QUEUE_DEPTH,
-                          reliability=ReliabilityPolicy.RELIABLE,
-                          durability=DurabilityPolicy.VOLATILE)
-#: History a publisher keeps for reliable redelivery: 1 s of messages at 1 kHz.
-#: With only 10, a subscriber that is descheduled for 10 ms (a recorder
-#: writing a chunk on a busy machine) loses messages that DDS had to drop
-#: before the subscriber acknowledged them; the cost is memory only.
-OUTPUT_HISTORY_DEPTH = 1000
-#: Reliable, volatile, keep-last 1000: every output of the package's nodes.
-#: A reliable publisher also matches best-effort subscribers (such as the
-#: sensor-data QoS), so every subscriber receives the outputs.
-OUTPUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=OUTPUT_HISTORY_DEPTH,
-                        reliability=ReliabilityPolicy.RELIABLE,
-                        durability=DurabilityPolicy.VOLATILE)
 
 #: [s] at most one bad-input warning per topic in this period.
 BAD_INPUT_THROTTLE_S = 1.0
@@ -264,7 +249,7 @@ def declare_checked(node: Node, name: str, default: Any,
 
     :return: the parameter's value (override or default)
     """
-    given = node._parameter_overrides.get(name)  # noqa: SLF001 - only to quote it
+    given = parameter_overrides(node).get(name)  # only to quote it
     value = given.value if given is not None else default
     try:
         return node.declare_parameter(name, default, descriptor).value
@@ -274,7 +259,10 @@ def declare_checked(node: Node, name: str, default: Any,
             f'parameter `{name}`: got {value!r} ({type(value).__name__}), expected a '
             f'{type(default).__name__} like {default!r}{hint}') from None
     except InvalidParameterValueException as err:
-        reason = str(err.args[0]).split('Reason: ', 1)[-1]
+        # rclpy 7.1.6 keeps the descriptor's reason only inside the message,
+        # 'Invalid parameter value (v) for parameter. Reason: <reason>: <name>',
+        # with no attribute for it; without that marker the whole message is quoted.
+        reason = str(err).split('Reason: ', 1)[-1]
         raise StartupError(f'parameter `{name}` = {value!r} rejected: {reason}') from None
 
 
@@ -319,6 +307,23 @@ OTHER_NODE_PARAMETERS = frozenset((
 ))
 
 
+def parameter_overrides(node: Node) -> dict[str, Parameter]:
+    """The overrides the node was started with (``--params-file``, ``-p``), by name.
+
+    rclpy 7.1.6 has no public accessor for them: ``Node`` keeps them in
+    ``_parameter_overrides`` (and the rcl getter is on its private
+    ``_rclpy`` node handle). This is the one place that reads that attribute;
+    ``test_node_common.py`` pins what it returns, so an rclpy that changes
+    it fails there. A copy is returned.
+    """
+    return dict(node._parameter_overrides)  # noqa: SLF001 - no public API in rclpy 7.1.6
+
+
+def declared_parameter_names(node: Node) -> list[str]:
+    """Every parameter the node has declared, sorted (public ``Node.list_parameters``)."""
+    return sorted(node.list_parameters([], ListParameters.Request.DEPTH_RECURSIVE).names)
+
+
 def reject_unknown_overrides(node: Node) -> None:
     """Stop start-up on an override that no node of this package has.
 
@@ -330,17 +335,18 @@ def reject_unknown_overrides(node: Node) -> None:
     """
     from ..control import ControllerParams  # the controller's field names
 
-    known = (set(node._parameters)  # noqa: SLF001 - rclpy has no public listing
+    declared = declared_parameter_names(node)
+    known = (set(declared)
              | set(MuscleParams.field_names())
              | {f.name for f in dataclasses.fields(ControllerParams)}
              | OTHER_NODE_PARAMETERS)
-    overrides = node._parameter_overrides  # noqa: SLF001
+    overrides = parameter_overrides(node)
     unknown = sorted(set(overrides) - known)
     if unknown:
         name = unknown[0]
         raise StartupError(
             f'unknown parameter `{name}` (got {overrides[name].value!r}); '
-            f'this node has: {", ".join(sorted(node._parameters))}')  # noqa: SLF001
+            f'this node has: {", ".join(declared)}')
 
 
 # -- bad input ------------------------------------------------------------------
@@ -381,8 +387,6 @@ class BadInputWarner:
 
 # -- fixed-step schedule ----------------------------------------------------------
 
-_NS_PER_S = 1_000_000_000
-
 
 class StepSchedule:
     """Whole steps due since a start instant, with no accumulated drift.
@@ -397,7 +401,7 @@ class StepSchedule:
     """
 
     def __init__(self, rate_hz: float, real_time_factor: float, start_ns: int) -> None:
-        self.steps_per_ns = rate_hz * real_time_factor / _NS_PER_S
+        self.steps_per_ns = rate_hz * real_time_factor / NS_PER_S
         self.start_ns = start_ns
         self.steps_done = 0
         self.late_ticks = 0

@@ -42,7 +42,8 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
-from ..recording.bag_writer import BagOutputError, BagWriter
+from ..recording.bag_writer import BagOutputError, BagWriter, read_msg_file
+from ..timebase import NS_PER_S
 from ._common import EXIT_FAILURE, EXIT_SUCCESS, StartupError
 
 NODE_NAME = 'recorder'
@@ -93,7 +94,6 @@ CDR_HEADER_BYTES = 4
 _STAMP_LE = struct.Struct('<iI')
 _STAMP_BE = struct.Struct('>iI')
 _HEADER_TYPE_LINE = 'std_msgs/Header header'
-_NS_PER_S = 1_000_000_000
 
 
 def _never_called(_msg: Any) -> None:
@@ -114,8 +114,7 @@ def message_class(type_name: str) -> type:
 
 def has_header_first(type_name: str) -> bool:
     """Whether the type's first field is a ``std_msgs/Header`` (its stamp leads the CDR)."""
-    from ..recording.bag_writer import _read_msg_file  # same .msg source as the schema
-    for line in _read_msg_file(type_name).splitlines():
+    for line in read_msg_file(type_name).splitlines():  # the .msg source of the schema
         line = line.split('#', 1)[0].strip()
         if line:
             return ' '.join(line.split()) in (_HEADER_TYPE_LINE, 'Header header')
@@ -126,7 +125,7 @@ def header_stamp_ns(data: bytes) -> int:
     """[ns] ``header.stamp`` of a serialized message whose first field is a Header."""
     little = len(data) > 1 and data[1] & 1
     sec, nanosec = (_STAMP_LE if little else _STAMP_BE).unpack_from(data, CDR_HEADER_BYTES)
-    return sec * _NS_PER_S + nanosec
+    return sec * NS_PER_S + nanosec
 
 
 def request_qos(offered: list[QoSProfile]) -> QoSProfile:

@@ -36,6 +36,8 @@ from typing import Any, Callable, Iterable, Mapping
 import yaml
 from mcap.writer import CompressionType, Writer
 
+from ..timebase import NS_PER_S
+
 #: rosbag2 metadata format version written by ROS 2 Jazzy (QoS policies as strings,
 #: ``offered_qos_profiles`` as a YAML list in ``metadata.yaml``).
 ROSBAG2_METADATA_VERSION = 9
@@ -59,7 +61,6 @@ CHUNK_SIZE_BYTES = 768 * 1024
 MIN_FREE_BYTES = 16 * 1024 * 1024
 #: Guards against a cyclic (broken) set of .msg files, as rosbag2 does.
 MAX_DEFINITION_DEPTH = 50
-NS_PER_S = 1_000_000_000
 #: The MCAP header's free-form writer name.
 LIBRARY = 'hill_muscle_ros (mcap python writer)'
 
@@ -100,7 +101,12 @@ def share_directory(package: str) -> Path:
                       f'nor in {prefix / "share"})')
 
 
-def _split_type(type_name: str) -> tuple[str, str, str]:
+def split_type_name(type_name: str) -> tuple[str, str, str]:
+    """``(package, namespace, name)`` of a ROS interface type name.
+
+    :param type_name: ``pkg/msg/Type`` (or the short ``pkg/Type``, namespace ``msg``)
+    :raises ValueError: naming the text if it is not a type name
+    """
     match = _TYPE_NAME.match(type_name)
     if match is None:
         raise ValueError(f'`type_name` must look like `pkg/msg/Type` or `pkg/Type`, '
@@ -109,8 +115,16 @@ def _split_type(type_name: str) -> tuple[str, str, str]:
     return package, namespace or 'msg', name
 
 
-def _read_msg_file(type_name: str) -> str:
-    package, namespace, name = _split_type(type_name)
+def read_msg_file(type_name: str) -> str:
+    """The text of the type's own ``.msg`` file, as installed (without its dependencies).
+
+    The same source :func:`message_definition` builds a bag's schema from.
+
+    :param type_name: e.g. ``geometry_msgs/msg/WrenchStamped``
+    :raises ValueError: if ``type_name`` is not a type name
+    :raises LookupError: if the package or its ``.msg`` file is not installed
+    """
+    package, namespace, name = split_type_name(type_name)
     path = share_directory(package) / namespace / f'{name}.msg'
     try:
         return path.read_text(encoding='utf-8')
@@ -142,9 +156,9 @@ def message_definition(type_name: str) -> str:
     def append(name: str, depth: int) -> str:
         if depth <= 0:
             raise LookupError(f'reached max recursion depth resolving {type_name}')
-        text = _read_msg_file(name)
+        text = read_msg_file(name)
         result = text
-        for dep in _msg_dependencies(text, _split_type(name)[0]):
+        for dep in _msg_dependencies(text, split_type_name(name)[0]):
             if dep not in seen:
                 seen.add(dep)
                 result += '\n' + DEFINITION_SEPARATOR + f'MSG: {dep}\n'
@@ -159,7 +173,7 @@ def type_description_hash(type_name: str) -> str:
 
     :return: e.g. ``RIHS01_705ba9...``, or ``''`` if the package ships none
     """
-    package, namespace, name = _split_type(type_name)
+    package, namespace, name = split_type_name(type_name)
     full = f'{package}/{namespace}/{name}'
     try:
         doc = json.loads((share_directory(package) / namespace / f'{name}.json')

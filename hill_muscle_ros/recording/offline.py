@@ -21,8 +21,9 @@ from std_msgs.msg import Float64
 
 from ..model import MuscleParams, Protocol
 from ..model.simulate import SimulationResult
-from ..nodes._common import RELIABLE_QOS
-from .bag_writer import NS_PER_S, BagWriter
+from ..qos import OUTPUT_QOS
+from ..timebase import NS_PER_S
+from .bag_writer import BagWriter
 
 FLOAT64 = 'std_msgs/msg/Float64'
 WRENCH_STAMPED = 'geometry_msgs/msg/WrenchStamped'
@@ -68,7 +69,8 @@ def write_simulation_bag(bag_dir: str | os.PathLike, result: SimulationResult,
         for topic, type_name in ((stim_topic, FLOAT64), (length_topic, FLOAT64),
                                  (force_topic, FLOAT64), (ce_topic, FLOAT64),
                                  (wrench_topic, WRENCH_STAMPED)):
-            writer.add_topic(topic, type_name, offered_qos_profiles=[RELIABLE_QOS])
+            # What the live publishers (the player's and the simulator's outputs) offer.
+            writer.add_topic(topic, type_name, offered_qos_profiles=[OUTPUT_QOS])
         wrench = WrenchStamped()
         wrench.header.frame_id = frame_id
         for k, t_s in enumerate(result.t_s):

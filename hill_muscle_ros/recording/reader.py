@@ -18,7 +18,8 @@ from mcap.exceptions import McapError
 from mcap.reader import NonSeekingReader, SeekingReader
 from mcap_ros2.decoder import DecoderFactory
 
-from .bag_writer import METADATA_FILE, NS_PER_S
+from ..timebase import NS_PER_S
+from .bag_writer import METADATA_FILE
 
 #: Message types whose ``header.stamp`` is the publish time.
 _STAMPED_FIELD = 'header'
