@@ -20,6 +20,7 @@ from hill_muscle_ros.model import MuscleParams, Protocol, simulate
 from hill_muscle_ros.nodes.recorder import READY_MESSAGE
 from hill_muscle_ros.recording.reader import read_bag
 from ros_helpers import DEFAULT_TIMEOUT_S, ProcessGroup, Probe, node_command
+from stall_watch import repeat_only_on_external_stall
 
 pytestmark = pytest.mark.ros
 
@@ -43,7 +44,8 @@ def _wait_for_text(proc, text, procs, timeout_s=DEFAULT_TIMEOUT_S):
 
 
 #: A live run is repeated (at most this many times in all) when the machine
-#: demonstrably disturbed it, so that it is no fair test of the recording:
+#: demonstrably disturbed it (the stall watcher measured it), so that it is
+#: no fair test of the recording:
 #: DDS discovery so slow that the simulator missed the player's start (the
 #: player starts on its first subscriber), or the player or the simulator
 #: stalled just before a sample time (a 100 ms stall during a ramp moves the
@@ -111,18 +113,21 @@ def _disturbance(run) -> str:
 
 
 @pytest.fixture(scope='module')
-def live_run(tmp_path_factory, protocol_paths):
-    """Protocol II over DDS, recorded; a probe in the test records the wrench too."""
-    reasons = []
-    for attempt in range(MAX_ATTEMPTS):
+def live_run(tmp_path_factory, protocol_paths, stall_watcher):
+    """Protocol II over DDS, recorded; a probe in the test records the wrench too.
+
+    A disturbed run (see :func:`_disturbance`) is repeated only when the stall
+    watcher measured the machine leaving it unscheduled during that run.
+    """
+    attempts = iter(range(MAX_ATTEMPTS))
+
+    def one_run():
+        attempt = next(attempts)
         tmp = tmp_path_factory.mktemp(f'live{attempt}')
-        run = _one_live_run(tmp, f'/live{os.getpid()}_{attempt}', protocol_paths['II'])
-        reason = _disturbance(run)
-        if not reason:
-            run['retries'] = reasons
-            return run
-        reasons.append(reason)
-    pytest.fail(f'{MAX_ATTEMPTS} live runs disturbed by the machine: {reasons}')
+        return _one_live_run(tmp, f'/live{os.getpid()}_{attempt}', protocol_paths['II'])
+
+    return repeat_only_on_external_stall(one_run, lambda run: _disturbance(run) or None,
+                                         stall_watcher, MAX_ATTEMPTS)
 
 
 def test_recorder_stops_cleanly_after_a_live_run(live_run):
