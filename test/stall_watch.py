@@ -30,6 +30,8 @@ WATCH_PERIOD_S = 0.001
 DEFAULT_STALL_S = 0.05
 #: Runs in all, at most, when each failed one had a measured external stall.
 DEFAULT_ATTEMPTS = 3
+#: Characters of a measurement quoted in a failure message.
+QUOTE_CHARS = 600
 #: [s] how long the watcher may take to start.
 START_TIMEOUT_S = 30.0
 
@@ -121,7 +123,7 @@ def repeat_only_on_external_stall(run: Callable[[], Any], check: Callable[[Any],
         if not stalls:
             raise AssertionError(f'{failure}, with no external stall longer than '
                                  f'{watcher.stall_s * 1e3:.0f} ms measured during the run: '
-                                 f'{result}')
+                                 f'{str(result)[:QUOTE_CHARS]}')
         longest_ms = max(d for _, d in stalls) * 1e3
         print(f'\nREPEATED run {attempt} of {attempts}: {failure}; the machine left the stall '
               f'watcher unscheduled {len(stalls)} time(s), longest {longest_ms:.0f} ms')

@@ -14,11 +14,13 @@ from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import Reader
 from std_msgs.msg import Float64
 
-from hill_muscle_ros.demo import (SIMULATOR_LAG_LIMIT_S, live_force_at, protocol_start_ns,
-                                  simulator_lag_s, summary_times)
 from hill_muscle_ros.model import MuscleParams, Protocol, simulate
-from hill_muscle_ros.nodes.recorder import READY_MESSAGE
+from hill_muscle_ros.nodes.recorder import subscriptions_node_name
+from hill_muscle_ros.recording.analysis import (SIMULATOR_LAG_LIMIT_S, live_force_at,
+                                                protocol_start_ns, simulator_lag_s,
+                                                summary_times)
 from hill_muscle_ros.recording.reader import read_bag
+from hill_muscle_ros.timebase import NS_PER_S
 from ros_helpers import DEFAULT_TIMEOUT_S, ProcessGroup, Probe, node_command
 from stall_watch import repeat_only_on_external_stall
 
@@ -26,21 +28,18 @@ pytestmark = pytest.mark.ros
 
 #: [N] agreement asked of the recorded force with the offline simulation.
 FORCE_TOLERANCE_N = 0.5
-NS_PER_S = 1_000_000_000
-POLL_S = 0.05
 #: [s] allowance beyond the protocol's 6 s for the player to start and finish.
 PLAYER_SLACK_S = 60.0
 TOPICS = ('pulse_width', 'length_command', 'force', 'ce_length', 'wrench')
 
 
-def _wait_for_text(proc, text, procs, timeout_s=DEFAULT_TIMEOUT_S):
-    deadline = time.monotonic() + timeout_s
-    while text not in proc.output():
-        dead = [p for p in procs if p.returncode is not None]
-        if dead or time.monotonic() > deadline:
-            raise AssertionError(f'waiting for {text!r} in {proc.name}\n'
-                                 + '\n'.join(p.describe() for p in procs))
-        time.sleep(POLL_S)
+def _wait_until_recording(probe, ns, procs):
+    """The recorder is up and spinning (it answers its parameter service), and the
+    graph shows it subscribed to the simulator's wrench."""
+    probe.wait_until_serving(f'{ns}/recorder', DEFAULT_TIMEOUT_S, procs)
+    probe.wait_for_endpoints(f'{ns}/wrench', publisher=f'{ns}/simulator',
+                             subscriber='/' + subscriptions_node_name('recorder'),
+                             timeout_s=DEFAULT_TIMEOUT_S, watch=procs)
 
 
 #: A live run is repeated (at most this many times in all) when the machine
@@ -68,12 +67,13 @@ def _one_live_run(tmp, ns, protocol_file):
         sim = procs.start('simulator', node_command('simulator', ns=ns))
         rec = procs.start('recorder', node_command('recorder', ns=ns,
                                                    params={'output': str(bag)}))
-        _wait_for_text(rec, READY_MESSAGE, [sim, rec])
-        # The recorder holds the muscle at rest before the protocol starts.
-        _wait_for_text(rec, f'{ns}/wrench (', [sim, rec])
         probe.wait_for_messages(seen, 1, procs=[sim, rec])
+        # The recorder holds the muscle at rest before the protocol starts.
+        _wait_until_recording(probe, ns, [sim, rec])
+        # Both listeners, the simulator and the recorder, before the first knot.
         player = procs.start('player', node_command(
-            'protocol_player', ns=ns, params={'protocol': str(protocol_file)}))
+            'protocol_player', ns=ns, params={'protocol': str(protocol_file),
+                                              'min_subscribers': 2}))
         probe.spin_until(lambda: player.returncode is not None, 'the end of the protocol',
                          timeout_s=6.0 + PLAYER_SLACK_S, procs=[sim, rec])
         assert player.returncode == 0, player.describe()
@@ -227,7 +227,7 @@ def test_sim_time_run_logs_in_sim_time(tmp_path):
                                                     params={'publish_clock': True}))
         rec = procs.start('recorder', node_command(
             'recorder', ns=ns, params={'output': str(bag), 'use_sim_time': True}))
-        _wait_for_text(rec, READY_MESSAGE, [sim, rec])
+        _wait_until_recording(probe, ns, [sim, rec])
         probe.wait_for_messages(seen, 2000, procs=[sim, rec], timeout_s=60)
         rec.popen.send_signal(signal.SIGINT)
         assert rec.wait() == 0, rec.output()
