@@ -27,7 +27,7 @@ def muscle_params():
         k_se_n_per_m=st.floats(1e3, 5e4),
         k_pe_n_per_m=st.floats(1e2, 1e4),
         l_rest_m=st.floats(0.08, 0.16),
-        l_opt_m=st.floats(0.08, 0.14),
+        l_opt_m=st.floats(0.101, 0.14),   # l_rest / l_opt < 1.597: FL at rest > 1 %
         fv_a_n=st.floats(2.0, 40.0),
         fv_b_m_per_s=st.floats(0.01, 0.1),
         fv_a_ecc_n=st.floats(2.0, 40.0),

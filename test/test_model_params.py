@@ -4,7 +4,8 @@ import math
 
 import pytest
 
-from hill_muscle_ros.model import MuscleParams
+from hill_muscle_ros.model import MuscleParams, force_length
+from hill_muscle_ros.model.params import MIN_FL_AT_REST, rest_ratio_range
 
 FLOAT_FIELDS = [f.name for f in dataclasses.fields(MuscleParams)
                 if f.type == 'float']
@@ -97,3 +98,55 @@ def test_replace_validates_like_construction():
 def test_integer_too_large_for_a_float_is_rejected_by_name():
     with pytest.raises(ValueError, match='`k_se_n_per_m` must be positive and finite'):
         MuscleParams(k_se_n_per_m=10 ** 400)
+
+
+def test_float_above_the_descriptor_bound_is_rejected_by_name():
+    with pytest.raises(ValueError,
+                       match=r'`k_se_n_per_m` must be at most 1e\+12, got 10000000000000\.0'):
+        MuscleParams(k_se_n_per_m=1e13)
+
+
+#: The accepted range of l_rest / l_opt, from Eq. 1 written as 1 - 2.777 (x - 1)^2
+#: (its vertex form): FL(x) = 0.01 at x = 1 -+ sqrt(0.99 / 2.777).
+_RATIO_LOW = 1.0 - math.sqrt(0.99 / 2.777)
+_RATIO_HIGH = 1.0 + math.sqrt(0.99 / 2.777)
+#: [-] relative step across a bound of the ratio: far above rounding, far below
+#: any physical difference.
+_ACROSS = 1e-9
+
+
+def test_optimal_length_that_leaves_no_force_at_rest_is_rejected_naming_both():
+    # l_rest / l_opt = 125: far outside the force-length range.
+    with pytest.raises(ValueError) as err:
+        MuscleParams(l_opt_m=0.001)
+    text = str(err.value)
+    assert '`l_rest_m` / `l_opt_m`' in text
+    assert 'l_rest_m = 0.125' in text and 'l_opt_m = 0.001' in text
+    assert '= 125 (FL = 0)' in text
+
+
+@pytest.mark.parametrize('ratio', [_RATIO_LOW * (1 + _ACROSS), _RATIO_HIGH * (1 - _ACROSS), 1.0,
+                                   1.25])
+def test_rest_length_inside_the_force_length_range_is_accepted(ratio):
+    p = MuscleParams(l_rest_m=0.1 * ratio, l_opt_m=0.1)
+    assert force_length(p.l_rest_m / p.l_opt_m) >= MIN_FL_AT_REST
+
+
+@pytest.mark.parametrize('ratio', [_RATIO_LOW * (1 - _ACROSS), _RATIO_HIGH * (1 + _ACROSS), 0.3,
+                                   1.6, 2.0])
+def test_rest_length_outside_the_force_length_range_is_rejected(ratio):
+    with pytest.raises(ValueError, match=r'`l_rest_m` / `l_opt_m` must be in \(0\.4029, '
+                                         r'1\.5971\)'):
+        MuscleParams(l_rest_m=0.1 * ratio, l_opt_m=0.1)
+
+
+def test_rest_ratio_range_is_where_force_length_reaches_the_bound():
+    low, high = rest_ratio_range()
+    assert low == pytest.approx(_RATIO_LOW, rel=1e-12)
+    assert high == pytest.approx(_RATIO_HIGH, rel=1e-12)
+    assert MIN_FL_AT_REST == 0.01
+
+
+def test_live_replace_of_one_length_is_checked_against_the_other():
+    with pytest.raises(ValueError, match='l_rest_m = 0.125 / l_opt_m = 0.05'):
+        MuscleParams().replace(l_opt_m=0.05)

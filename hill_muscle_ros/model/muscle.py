@@ -67,7 +67,8 @@ def check_recruitment(recruitment: float, name: str = 'recruitment') -> float:
     return r
 
 
-def recruitment_from_pulse_width(pulse_width_s: float, pw_max_s: float) -> float:
+def recruitment_from_pulse_width(pulse_width_s: float, pw_max_s: float,
+                                 name: str = 'pulse_width_s') -> float:
     """Recruitment of an FES pulse: R = clip(PW / PW_max, 0, 1).
 
     Saturation above PW_max is the stimulator's physics, not a correction:
@@ -75,11 +76,12 @@ def recruitment_from_pulse_width(pulse_width_s: float, pw_max_s: float) -> float
 
     :param pulse_width_s: [s] stimulation pulse width (PW)
     :param pw_max_s: [s] pulse width that recruits every unit (PW_max)
+    :param name: what to call the value in the error message (e.g. the topic)
     :return: [-] recruitment R in [0, 1]
     """
     pw = float(pulse_width_s)
     if not (math.isfinite(pw) and pw >= 0.0):
-        raise ValueError(f'`pulse_width_s` must be finite and non-negative, '
+        raise ValueError(f'`{name}` must be finite and non-negative, '
                          f'got {pulse_width_s!r}')
     return min(pw / pw_max_s, 1.0)
 

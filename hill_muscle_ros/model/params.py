@@ -12,11 +12,27 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
+from .curves import FL_A, FL_B, FL_C
+
 UNITS_CHOICES = ('multi', 'single')
 LENGTH_CHOICES = ('initial', 'instantaneous')
 
-#: Upper bound used in parameter descriptors for "any positive float".
+#: Upper bound of every float parameter: far beyond any muscle, it only turns a
+#: typo or an overflow-prone value (1e300 N/m) into an error. The model and
+#: the ROS parameter descriptors use the same bound.
 _FLOAT_MAX = 1.0e12
+#: [-] Smallest normalised force FL(l_rest / l_opt) accepted at rest length.
+#: FL (curves.py, Eq. 1) is 1 - 2.777 (x - 1)^2: zero for |x - 1| >= 0.6. A
+#: run starts at rest length, and with ``length: initial`` every unit
+#: recruited there keeps FL(l_rest / l_opt) for good, so a muscle whose rest
+#: length is outside that range makes no active force at all: l_opt_m 0.001
+#: for l_rest_m 0.125 (x = 125) is a typo, not a muscle. The bound is 1 % of
+#: f_iso_max rather than 0 because the coefficients are given to 3 decimals:
+#: near the roots their rounding (up to 0.0005 (x^2 + x + 1), about 0.003 at
+#: x = 1.6) is as large as FL itself, so a smaller FL is zero within the
+#: model's own precision. Accepted: 0.4029 < l_rest / l_opt < 1.5971 (the
+#: paper's muscle: 1.25, FL = 0.83).
+MIN_FL_AT_REST = 0.01
 #: Most virtual units the memory accepts; far beyond any real motor pool, it
 #: only guards against a typo allocating absurd memory in the naive reference.
 N_UNITS_MAX = 1_000_000_000
@@ -33,6 +49,17 @@ def finite_float(value: Any) -> float | None:
     except (OverflowError, TypeError, ValueError):
         return None
     return f if math.isfinite(f) else None
+
+
+def rest_ratio_range() -> tuple[float, float]:
+    """[-] the open range of l_rest / l_opt where FL >= :data:`MIN_FL_AT_REST`.
+
+    The roots of FL(x) = MIN_FL_AT_REST, from the parabola's vertex.
+    """
+    x_peak = -FL_B / (2.0 * FL_A)
+    fl_peak = FL_C - FL_B * FL_B / (4.0 * FL_A)
+    half_width = math.sqrt((fl_peak - MIN_FL_AT_REST) / -FL_A)
+    return x_peak - half_width, x_peak + half_width
 
 
 def _spec(unit: str, description: str, *, low: float | None = None,
@@ -114,8 +141,27 @@ class MuscleParams:
                 if number is None or number <= 0.0:
                     raise ValueError(f'`{f.name}` must be positive and finite, '
                                      f'got {value!r}')
+                if number > spec['high']:
+                    raise ValueError(f'`{f.name}` must be at most {spec["high"]:g}, '
+                                     f'got {value!r}')
                 # Integers from YAML (``45`` for ``45.0``) are accepted as floats.
                 object.__setattr__(self, f.name, number)
+        self._check_rest_length_makes_force()
+
+    def _check_rest_length_makes_force(self) -> None:
+        """Reject l_rest / l_opt where FL is below :data:`MIN_FL_AT_REST`.
+
+        :raises ValueError: naming both parameters, their values and the range
+        """
+        x = self.l_rest_m / self.l_opt_m
+        fl = (FL_A * x + FL_B) * x + FL_C
+        if fl < MIN_FL_AT_REST:
+            low, high = rest_ratio_range()
+            raise ValueError(
+                f'`l_rest_m` / `l_opt_m` must be in ({low:.4f}, {high:.4f}), where the '
+                f'force-length relation gives at least {MIN_FL_AT_REST:g} of f_iso_max at '
+                f'rest length, got l_rest_m = {self.l_rest_m!r} / l_opt_m = '
+                f'{self.l_opt_m!r} = {x:.6g} (FL = {max(fl, 0.0):.6g})')
 
     @classmethod
     def field_names(cls) -> tuple[str, ...]:

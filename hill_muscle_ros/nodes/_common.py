@@ -234,10 +234,16 @@ def field_descriptor(field: dataclasses.Field, *, read_only: bool = False,
         return ParameterDescriptor(
             description=description, read_only=read_only,
             additional_constraints=f'one of: {", ".join(spec["choices"])}')
-    integer = field.type == 'int'
-    constraints = '' if integer else 'positive and finite'
-    return number_descriptor(description, spec['unit'], spec['low'], spec['high'],
-                             integer=integer, read_only=read_only, constraints=constraints)
+    if field.type == 'int':
+        return number_descriptor(description, spec['unit'], spec['low'], spec['high'],
+                                 integer=True, read_only=read_only)
+    # No floating_point_range: a ROS range is closed, so none can say "> 0"
+    # (from_value 0.0 would claim 0 is accepted), and rclpy checks a range
+    # before the node's callback, answering with its range text instead of
+    # the model's reason. The model checks these bounds; the words say them.
+    return ParameterDescriptor(
+        description=f'[{spec["unit"]}] {description}', read_only=read_only,
+        additional_constraints=f'> {spec["low"]:g} and <= {spec["high"]:g} (finite)')
 
 
 def declare_checked(node: Node, name: str, default: Any,
