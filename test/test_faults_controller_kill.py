@@ -27,6 +27,7 @@ from std_msgs.msg import Float64
 from hill_muscle_ros.control import ControllerParams
 from hill_muscle_ros.model import Muscle, MuscleParams
 from ros_helpers import Probe, ProcessGroup, node_command
+from stall_watch import repeat_only_on_external_stall
 
 pytestmark = [pytest.mark.faults, pytest.mark.ros]
 
@@ -64,7 +65,8 @@ def offline_transition(pulse_width_s: float, n_before: int, n_after: int) -> tup
     return held, after
 
 
-def test_killed_controller_leaves_the_muscle_at_R0_after_the_timeout(tmp_path):
+def one_kill(tmp_path) -> dict:
+    """Close the loop, hold, SIGKILL the controller; what the simulator did after."""
     ns = f'/kill_{os.getpid()}_{next(_RUNS)}'
     with ProcessGroup(tmp_path) as procs, Probe('kill_probe') as probe:
         sim = procs.start('simulator', node_command('simulator', ns=ns, params={
@@ -97,12 +99,33 @@ def test_killed_controller_leaves_the_muscle_at_R0_after_the_timeout(tmp_path):
     first = int(np.argmax(r0))
     assert r0[first], f'force never reached the R = 0 value {after[0]} N'
     t_trip = t[first] - t_kill
-    period_s = 1.0 / ControllerParams().rate_hz
     print(f'\nMEASURED kill: watchdog tripped {t_trip:.4f} s after the kill '
           f'(timeout {INPUT_TIMEOUT_S} s); force {f[first - 1]:.3f} N -> {f[first]:.3f} N, '
           f'offline {held:.3f} N -> {after[0]:.3f} N')
-    assert INPUT_TIMEOUT_S - period_s - DDS_SLACK_S <= t_trip
-    assert t_trip <= INPUT_TIMEOUT_S + DT_S + DDS_SLACK_S
     # From the trip on, the force is the core's R = 0 trajectory, step for step.
     steps = np.round((t[first:] - t[first]) * RATE_HZ).astype(int)
     np.testing.assert_allclose(f[first:], after[steps], rtol=0.0, atol=1e-9)
+    return {'t_trip_s': float(t_trip)}
+
+
+def trip_outside_bounds(run: dict) -> str | None:
+    """Why the watchdog's trip time is wrong, or None."""
+    period_s = 1.0 / ControllerParams().rate_hz
+    low = INPUT_TIMEOUT_S - period_s - DDS_SLACK_S
+    high = INPUT_TIMEOUT_S + DT_S + DDS_SLACK_S
+    if not low <= run['t_trip_s'] <= high:
+        return f'watchdog tripped {run["t_trip_s"]:.4f} s after the kill, outside [{low}, {high}]'
+    return None
+
+
+def test_killed_controller_leaves_the_muscle_at_R0_after_the_timeout(tmp_path, stall_watcher):
+    # The trip time is measured against stamps seen through DDS: a run the
+    # machine stalled is repeated, only then (stall_watch).
+    runs = iter(range(10))
+
+    def run() -> dict:
+        run_dir = tmp_path / f'run{next(runs)}'
+        run_dir.mkdir()
+        return one_kill(run_dir)
+
+    repeat_only_on_external_stall(run, trip_outside_bounds, stall_watcher)
