@@ -141,6 +141,44 @@ def test_a_stale_target_stops_stimulation_when_target_timeout_is_set(tmp_path):
         assert off > on
 
 
+#: [s] a plant stall shorter than the feedback timeout (0.5 s), as long as the
+#: simulator stalls that a loop must ride through.
+PLANT_STALL_S = 0.3
+#: Pulse widths at the end of the stall that must all be the held one: the
+#: first one or two of the stall were still computed from the last samples.
+HELD_PERIODS = 20
+
+
+def test_a_plant_stall_shorter_than_the_feedback_timeout_holds_the_pulse_width(tmp_path):
+    """No dropout and no integration on an old error while the force is briefly late."""
+    ns = unique_namespace()
+    with ProcessGroup(tmp_path) as procs, Probe('ctrl_probe') as probe:
+        proc = procs.start('controller', node_command('force_controller', ns=ns))
+        pw = probe.record(f'{ns}/pulse_width', Float64)
+        force_pub = probe.publisher(f'{ns}/force', Float64)
+        probe.spin_until(lambda: force_pub.get_subscription_count() > 0,
+                         'controller subscribed to force', procs=[proc])
+        # A muscle stuck below the target: the integral moves every period it is fed.
+        feedback = probe.node.create_timer(
+            0.001, lambda: force_pub.publish(Float64(data=TARGET_N / 2)))
+        probe.publish_when_matched(f'{ns}/force_target', Float64(data=TARGET_N), procs=[proc])
+        probe.wait_for_value(pw, lambda v: v > 0.0, 'stimulation', procs=[proc])
+        feedback.cancel()
+        stall = pw.mark()
+        probe.spin_for(PLANT_STALL_S)  # the stimulus: the plant says nothing this long
+        during = pw.data_since(stall)
+        feedback = probe.node.create_timer(
+            0.001, lambda: force_pub.publish(Float64(data=TARGET_N / 2)))
+        back = pw.mark()
+        probe.wait_for_messages(pw, 5, mark=back, procs=[proc])
+        feedback.cancel()
+        after = pw.data_since(back)
+
+    assert len(during) > HELD_PERIODS
+    assert all(v > 0.0 for v in during + after)
+    assert len(set(during[-HELD_PERIODS:])) == 1
+
+
 def test_stale_force_feedback_stops_stimulation_with_a_warning(ctrl):
     probe, pw, proc = ctrl['probe'], ctrl['pw'], ctrl['proc']
     # No more force messages: after feedback_timeout_s the output must be 0.
