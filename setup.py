@@ -20,7 +20,22 @@ setup(
         ('share/' + PACKAGE + '/config', glob('config/*.yaml')),
         ('share/' + PACKAGE + '/config/protocols', glob('config/protocols/*.yaml')),
     ],
-    install_requires=['setuptools', 'numpy', 'PyYAML', 'matplotlib'],
+    # Every third-party import under hill_muscle_ros/ except the ROS 2 packages
+    # (rclpy, rcl_interfaces, std_msgs, geometry_msgs, std_srvs, rosgraph_msgs,
+    # ament_index_python, ...; see the module docstring). Lower bounds, not
+    # pins: this is a library; requirements-dev.txt pins the versions CI runs.
+    # numpy, PyYAML and matplotlib were tested at both ends: the pinned
+    # versions and Ubuntu 24.04's (the ROS 2 Jazzy platform's apt packages:
+    # numpy 1.26.4, PyYAML 6.0.1, matplotlib 3.6.3). mcap has no apt package;
+    # its bounds are the tested versions.
+    install_requires=[
+        'setuptools',
+        'numpy>=1.26',
+        'PyYAML>=6.0',
+        'matplotlib>=3.6',
+        'mcap>=1.6.0',
+        'mcap-ros2-support>=0.6.0',
+    ],
     extras_require={
         'test': ['pytest', 'hypothesis', 'scipy', 'rosbags'],
     },
