@@ -1,6 +1,7 @@
 """Where the package's installed data lives (protocols, parameter files)."""
 from __future__ import annotations
 
+import sysconfig
 from pathlib import Path
 
 PACKAGE = 'hill_muscle_ros'
@@ -13,7 +14,9 @@ def config_dir() -> Path:
 
     Under a colcon install it is ``share/hill_muscle_ros/config`` found through
     the ament index; in a source checkout (editable install) it is the
-    repository's ``config/``.
+    repository's ``config/``; after a plain ``pip install .`` (no ament
+    environment) it is ``<prefix>/share/hill_muscle_ros/config``, where pip
+    puts the package's data files.
     """
     try:
         from ament_index_python.packages import get_package_share_directory
@@ -21,8 +24,11 @@ def config_dir() -> Path:
         if share.is_dir():
             return share
     except (ImportError, LookupError, OSError, ValueError):
-        pass  # not on AMENT_PREFIX_PATH: fall back to the source tree
-    return Path(__file__).resolve().parents[1] / 'config'
+        pass  # not on AMENT_PREFIX_PATH: try the source tree, then pip's data prefix
+    source = Path(__file__).resolve().parents[1] / 'config'
+    if (source / 'muscle.yaml').is_file():
+        return source
+    return Path(sysconfig.get_path('data')) / 'share' / PACKAGE / 'config'
 
 
 def protocol_path(spec: str) -> Path:
