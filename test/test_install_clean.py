@@ -1,0 +1,111 @@
+"""A clean install works: every runtime import is declared.
+
+A fresh virtual environment gets only what a user installs: the ROS 2 wheels
+of ``requirements-ros.txt`` and ``pip install .`` (which brings
+``install_requires``), none of the development pins. Then every module of the
+package must import there, the installed requirements must be consistent and
+the installed command must find the data files it ships. A module that
+imports something neither file declares fails here, naming the module.
+
+pip uses this machine's configuration (its cache and local indexes, as
+``make`` does), so after the first run the set-up mostly reuses cached wheels.
+The source is copied first: pip builds a ``setup.py`` project in its source
+directory, and the checkout must stay untouched.
+"""
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+pytestmark = pytest.mark.slow
+
+REPO = Path(__file__).resolve().parents[1]
+#: [s] generous bound on venv creation plus both installs; a warm pip cache
+#: needs far less, a cold one downloads the ROS wheels.
+INSTALL_TIMEOUT_S = 900.0
+#: [s] bound on one command run in the new environment.
+RUN_TIMEOUT_S = 120.0
+#: What the copy of the source leaves out: VCS data, environments, build and
+#: run outputs (the same as .gitignore, plus .git).
+COPY_IGNORE = shutil.ignore_patterns('.git', '.venv', 'build', 'install', 'log', 'runs',
+                                     '__pycache__', '*.egg-info', '.pytest_cache',
+                                     '.hypothesis')
+#: Imports every module of the installed package and prints those that fail.
+IMPORT_ALL = '''
+import importlib, pkgutil, sys
+import hill_muscle_ros
+print('package at', hill_muscle_ros.__file__)
+names = ['hill_muscle_ros'] + [m.name for m in pkgutil.walk_packages(
+    hill_muscle_ros.__path__, 'hill_muscle_ros.')]
+failed = []
+for name in names:
+    try:
+        importlib.import_module(name)
+    except Exception as err:  # report every module, not just the first
+        failed.append(f'{name}: {type(err).__name__}: {err}')
+print(len(names), 'modules imported,', len(failed), 'failed')
+print('\\n'.join(failed))
+sys.exit(1 if failed else 0)
+'''
+
+
+def _clean_env() -> dict:
+    """The environment of a user's shell: nothing that points at this checkout,
+    its venv or a ROS install; pip's own configuration is kept."""
+    env = dict(os.environ)
+    for name in ('PYTHONPATH', 'PYTHONHOME', 'VIRTUAL_ENV', 'AMENT_PREFIX_PATH',
+                 'COLCON_PREFIX_PATH', 'COVERAGE_PROCESS_START'):
+        env.pop(name, None)
+    return env
+
+
+def _run(args, cwd: Path, timeout_s: float) -> subprocess.CompletedProcess:
+    return subprocess.run([str(a) for a in args], cwd=cwd, env=_clean_env(), text=True,
+                          capture_output=True, timeout=timeout_s)
+
+
+@pytest.fixture(scope='module')
+def clean_venv(tmp_path_factory):
+    """[Path] a new venv with the ROS wheels and this package installed."""
+    root = tmp_path_factory.mktemp('install_clean')
+    source = root / 'src'
+    shutil.copytree(REPO, source, ignore=COPY_IGNORE)
+    venv = root / 'venv'
+    python = shutil.which('python3.11') or sys.executable
+    start = time.monotonic()
+    made = _run([python, '-m', 'venv', venv], root, RUN_TIMEOUT_S)
+    assert made.returncode == 0, f'python -m venv failed:\n{made.stderr}'
+    installed = _run([venv / 'bin' / 'python', '-m', 'pip', 'install',
+                      '--disable-pip-version-check', '-q',
+                      '-r', source / 'requirements-ros.txt', source], root, INSTALL_TIMEOUT_S)
+    elapsed_s = time.monotonic() - start
+    print(f'\nclean venv + requirements-ros.txt + pip install .: {elapsed_s:.1f} s')
+    assert installed.returncode == 0, (f'pip install failed after {elapsed_s:.0f} s:\n'
+                                       f'{installed.stdout[-3000:]}\n{installed.stderr[-3000:]}')
+    return venv
+
+
+def test_every_module_imports_in_a_clean_install(clean_venv, tmp_path):
+    # Run outside the checkout so that only the installed package can be imported.
+    proc = _run([clean_venv / 'bin' / 'python', '-c', IMPORT_ALL], tmp_path, RUN_TIMEOUT_S)
+    assert proc.returncode == 0, f'modules that do not import:\n{proc.stdout}\n{proc.stderr}'
+    assert str(clean_venv) in proc.stdout, f'imported from elsewhere:\n{proc.stdout}'
+
+
+def test_installed_requirements_are_consistent(clean_venv, tmp_path):
+    proc = _run([clean_venv / 'bin' / 'python', '-m', 'pip', 'check'], tmp_path, RUN_TIMEOUT_S)
+    assert proc.returncode == 0, f'pip check:\n{proc.stdout}\n{proc.stderr}'
+
+
+def test_installed_command_finds_its_shipped_protocol_and_parameters(clean_venv, tmp_path):
+    """``--protocol II`` and the default parameters file are data files of the
+    package: they must be found without a source tree or a ROS environment."""
+    proc = _run([clean_venv / 'bin' / 'hill-muscle', 'simulate', '--protocol', 'II'],
+                tmp_path, RUN_TIMEOUT_S)
+    assert proc.returncode == 0, f'hill-muscle simulate failed:\n{proc.stderr}'
+    assert proc.stdout.startswith('Protocol II: units=multi, length=initial, 1000 Hz'), \
+        proc.stdout
