@@ -34,8 +34,6 @@ import argparse
 import itertools
 import os
 import random
-import signal
-import subprocess
 import sys
 import time
 from dataclasses import dataclass
@@ -44,14 +42,17 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-BIN = Path(sys.executable).parent
+sys.path.insert(0, str(REPO))
+
+from hill_muscle_ros.supervisor import (GraphProbe, ProcessGroup, node_command,  # noqa: E402
+                                        ros_environment)
+from hill_muscle_ros.timebase import NS_PER_S  # noqa: E402
 
 #: DDS domain for the benchmark: above the range the tests draw from (1..100).
 DOMAIN_RANGE = (101, 200)
 RATE_HZ = 1000.0
-STEP_NS = round(1e9 / RATE_HZ)
+STEP_NS = round(NS_PER_S / RATE_HZ)
 STARTUP_TIMEOUT_S = 60.0
-STOP_TIMEOUT_S = 10.0
 EDGE_TIMEOUT_S = 2.0
 LATENCY_EDGES = 200
 #: [s] random pause between latency probes, so they fall at every tick phase.
@@ -97,24 +98,7 @@ def set_ros_env() -> dict[str, str]:
     if 'ROS_DOMAIN_ID' not in os.environ or int(os.environ['ROS_DOMAIN_ID']) < DOMAIN_RANGE[0]:
         os.environ['ROS_DOMAIN_ID'] = str(random.Random(os.getpid()).randint(*DOMAIN_RANGE))
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    return os.environ.copy()
-
-
-def start(cmd: list[str], log: Path, env: dict[str, str]) -> subprocess.Popen:
-    with open(log, 'wb') as f:
-        return subprocess.Popen(cmd, env=env, stdout=f, stderr=subprocess.STDOUT,
-                                start_new_session=True)
-
-
-def stop(proc: subprocess.Popen) -> None:
-    """SIGINT, then SIGKILL after a timeout."""
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(STOP_TIMEOUT_S)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+    return ros_environment()
 
 
 def cpu_seconds(pid: int) -> float:
@@ -178,21 +162,19 @@ def run(seconds: float, log_dir: Path, executor: str | None = None
     env = set_ros_env()
     if executor is not None:
         env['HILL_MUSCLE_EXECUTOR'] = executor
-    import rclpy
     from geometry_msgs.msg import WrenchStamped
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from std_msgs.msg import Float64
 
     ns = f'/bench_{os.getpid()}_{next(_RUNS)}'   # a namespace of its own per run
     log_dir.mkdir(parents=True, exist_ok=True)
-    sim = start([str(BIN / 'simulator'), '--ros-args', '-r', f'__ns:={ns}',
-                 '-p', f'rate_hz:={RATE_HZ}', '-p', 'input_timeout_s:=0.0'],
-                log_dir / 'simulator.log', env)
-    echo = start([sys.executable, '-c', ECHO_NODE, '--ros-args', '-r', f'__ns:={ns}'],
-                 log_dir / 'echo.log', env)
-    rclpy.init()
-    node = rclpy.create_node('bench_observer', namespace=ns)
-    try:
+    with ProcessGroup(log_dir, env) as procs, \
+            GraphProbe('bench_observer', namespace=ns) as probe:
+        sim = procs.start('simulator', node_command(
+            'simulator', ns=ns, params={'rate_hz': RATE_HZ, 'input_timeout_s': 0.0}))
+        echo = procs.start('echo', [sys.executable, '-c', ECHO_NODE,
+                                    '--ros-args', '-r', f'__ns:={ns}'])
+        node = probe.node
         qos = QoSProfile(depth=QUEUE_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
         recv_ns, stamp_ns, forces, pongs = [], [], [], []
         # Only the topics a phase needs are subscribed, so that this Python
@@ -200,7 +182,7 @@ def run(seconds: float, log_dir: Path, executor: str | None = None
         wrench_sub = node.create_subscription(
             WrenchStamped, 'wrench',
             lambda m: (recv_ns.append(time.time_ns()),
-                       stamp_ns.append(m.header.stamp.sec * 1_000_000_000
+                       stamp_ns.append(m.header.stamp.sec * NS_PER_S
                                        + m.header.stamp.nanosec)), qos)
         node.create_subscription(
             Float64, 'pong',
@@ -210,11 +192,7 @@ def run(seconds: float, log_dir: Path, executor: str | None = None
         pub_ping = node.create_publisher(Float64, 'ping', qos)
 
         def spin_until(cond, timeout_s, what):
-            deadline = time.monotonic() + timeout_s
-            while not cond():
-                if time.monotonic() > deadline:
-                    raise TimeoutError(f'timed out waiting for {what}; logs in {log_dir}')
-                rclpy.spin_once(node, timeout_sec=0.01)
+            probe.spin_until(cond, what, timeout_s, [sim, echo])
 
         def spin_for(duration_s):
             """Keep taking messages for ``duration_s``: the pause between probes.
@@ -226,7 +204,7 @@ def run(seconds: float, log_dir: Path, executor: str | None = None
             """
             deadline = time.monotonic() + duration_s
             while time.monotonic() < deadline:
-                rclpy.spin_once(node, timeout_sec=SPIN_SLICE_S)
+                probe.spin_once(SPIN_SLICE_S)
 
         spin_until(lambda: len(recv_ns) > 0 and pub_r.get_subscription_count() > 0
                    and pub_ping.get_subscription_count() > 0, STARTUP_TIMEOUT_S,
@@ -242,7 +220,7 @@ def run(seconds: float, log_dir: Path, executor: str | None = None
             if time.monotonic() >= next_control:
                 pub_r.publish(Float64(data=0.5))
                 next_control += CONTROL_PERIOD_S
-            rclpy.spin_once(node, timeout_sec=0.001)
+            probe.spin_once(0.001)
         cpu1 = cpu_seconds(sim.pid)
         wall = time.monotonic() - t0
         recv = np.array(recv_ns, dtype=np.int64)
@@ -251,7 +229,7 @@ def run(seconds: float, log_dir: Path, executor: str | None = None
         step_gaps = np.diff(stamp) // STEP_NS
         lag = (recv - stamp) / 1e6
         steps = int((stamp[-1] - stamp[0]) // STEP_NS)
-        wall_span_s = (recv[-1] - recv[0]) / 1e9
+        wall_span_s = (recv[-1] - recv[0]) / NS_PER_S
         # Drift: how far the simulated time fell behind the clock over the run
         # (the change of stamp -> receipt lag; its constant part is DDS latency).
         n_edge = max(1, len(lag) // 20)
@@ -300,11 +278,6 @@ def run(seconds: float, log_dir: Path, executor: str | None = None
             spin_until(lambda: pongs and pongs[-1][0] == float(i), EDGE_TIMEOUT_S, 'pong')
             probes.append((t_pub, *pongs[-1][1]))
         echo_latency = LatencyResult.of(probes)
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-        stop(sim)
-        stop(echo)
     return node_result, sim_latency, echo_latency
 
 

@@ -31,10 +31,12 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from hill_muscle_ros.demo import (DemoConfig, live_samples_at, record_live_run,  # noqa: E402
-                                  simulator_stats, summary_times)
+from hill_muscle_ros.demo import (DemoConfig, DemoError, record_live_run,  # noqa: E402
+                                  simulator_stats)
 from hill_muscle_ros.model import Muscle, Protocol, simulate  # noqa: E402
 from hill_muscle_ros.params_file import load_muscle_params  # noqa: E402
+from hill_muscle_ros.recording.analysis import (BagContentError, live_samples_at,  # noqa: E402
+                                                summary_times)
 from hill_muscle_ros.recording.reader import read_bag  # noqa: E402
 from hill_muscle_ros.resources import default_params_file, protocol_path  # noqa: E402
 
@@ -122,7 +124,6 @@ def late_stimulation_error_n(protocol: Protocol, params, offline, rate_hz: float
 def one_run(rtf: float, index: int, protocol: Protocol, offline, rate_hz: float,
             result: RtfResult, lookahead_s: float | None = None) -> None:
     """One live run at ``rtf``; appends its numbers (or its failure) to ``result``."""
-    from hill_muscle_ros.demo import DemoError
     name = f'rtf_{rtf:g}_{index}_{time.strftime("%H%M%S")}'
     bag_dir, log_dir = OUT_DIR / name, OUT_DIR / 'logs' / name
     log_dir.mkdir(parents=True, exist_ok=True)
@@ -133,7 +134,7 @@ def one_run(rtf: float, index: int, protocol: Protocol, offline, rate_hz: float,
         record_live_run(config, bag_dir, protocol, log_dir)
         bag = read_bag(bag_dir)
         samples = live_samples_at(bag, times, sim_time=True)
-    except DemoError as err:   # e.g. the recorder matched the player after it ended
+    except (DemoError, BagContentError) as err:   # e.g. the recorder matched the player late
         result.failures.append(str(err).splitlines()[0].replace(str(REPO) + '/', ''))
         return
     err = {t: abs(f - float(offline.force_n[offline.at(t_f)]))

@@ -9,10 +9,13 @@
 6. prints the force at the end of each second (next to the offline
    simulation of the same protocol), the message count per topic and the bag.
 
-Every child runs in its own process group and is stopped (SIGINT, then
-SIGKILL of the group) when the demo ends, whatever the reason: normal end,
-error, Ctrl-C, SIGTERM or SIGHUP. Children also get SIGTERM from the kernel
-if the demo itself dies (``PR_SET_PDEATHSIG``).
+The processes are run by :mod:`hill_muscle_ros.supervisor`: every child
+runs in its own process group and is stopped (SIGINT, then SIGKILL of the
+group) when the demo ends, whatever the reason: normal end, error, Ctrl-C,
+SIGTERM or SIGHUP. Children also get SIGTERM from the kernel if the demo
+itself dies (``PR_SET_PDEATHSIG``). Readiness comes from the ROS graph, seen
+by a probe node in this process; the bag analysis is
+:mod:`hill_muscle_ros.recording.analysis`.
 
 With ``--real-time-factor X`` the run goes faster (or slower) than real
 time on simulated time: the simulator publishes ``/clock`` and runs X
@@ -38,12 +41,10 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import ctypes
 import datetime as _dt
 import os
 import re
 import signal
-import subprocess
 import sys
 import time
 from dataclasses import dataclass
@@ -53,9 +54,12 @@ from typing import Sequence
 import numpy as np
 
 from .domain_lock import lock_free_domain
-from .model import LENGTH_CHOICES, UNITS_CHOICES, MuscleParams, Protocol, simulate
+from .model import LENGTH_CHOICES, UNITS_CHOICES, Protocol
 from .params_file import load_muscle_params
+from .recording.analysis import BagContentError, analyse
 from .resources import default_params_file, protocol_path
+from .supervisor import (GraphProbe, ProcessGroup, SupervisorError, node_command,
+                         ros_environment)
 
 PROG = 'python -m hill_muscle_ros.demo'
 DEFAULT_RUNS_DIR = Path('runs')
@@ -68,13 +72,8 @@ STARTUP_TIMEOUT_S = 60.0
 PLAYER_SLACK_S = 60.0
 #: [s] how long a child may take to exit after SIGINT before its group is killed.
 STOP_TIMEOUT_S = 15.0
-#: [s] poll period while waiting on children.
+#: [s] poll period while waiting for a free domain.
 POLL_S = 0.05
-#: Units on the plot (the bag and the topics are SI).
-US_PER_S, MM_PER_M = 1e6, 1e3
-NS_PER_S = 1_000_000_000
-#: prctl option that sends a signal to a child when its parent dies (Linux).
-_PR_SET_PDEATHSIG = 1
 #: [s] shortest look-ahead of the stamped length commands, in simulated time.
 MIN_LOOKAHEAD_S = 0.05
 #: [s] of wall time the length is sent ahead: the knot crosses two DDS hops
@@ -94,68 +93,7 @@ class DemoError(RuntimeError):
     """The demo could not complete; the message says which step and why."""
 
 
-# --------------------------------------------------------------------------- processes
-
-def _die_with_parent() -> None:  # runs in the child between fork and exec
-    # A demo started in the background of a script inherits SIGINT ignored;
-    # the nodes must still stop cleanly on the SIGINT the demo sends them.
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
-    try:
-        ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
-    except (OSError, AttributeError):
-        pass  # not Linux: the try/finally in the parent still stops the children
-
-
-class Child:
-    """One ROS process of the demo, in its own process group, logging to a file."""
-
-    def __init__(self, name: str, cmd: list[str], log_path: Path, env: dict[str, str]) -> None:
-        self.name = name
-        self.log_path = log_path
-        self._log = open(log_path, 'wb')
-        self.popen = subprocess.Popen(cmd, stdout=self._log, stderr=subprocess.STDOUT, env=env,
-                                      start_new_session=True, preexec_fn=_die_with_parent)
-
-    def output(self) -> str:
-        return self.log_path.read_text(encoding='utf-8', errors='replace')
-
-    def poll(self) -> int | None:
-        return self.popen.poll()
-
-    def stop(self, timeout_s: float = STOP_TIMEOUT_S) -> int:
-        """SIGINT (a clean stop), then SIGKILL of the whole group after ``timeout_s``."""
-        if self.popen.poll() is None:
-            try:
-                self.popen.send_signal(signal.SIGINT)
-                self.popen.wait(timeout=timeout_s)
-            except subprocess.TimeoutExpired:
-                self.kill()
-        self._log.close()
-        return self.popen.returncode
-
-    def kill(self) -> None:
-        try:
-            os.killpg(self.popen.pid, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
-        self.popen.wait()
-
-    def tail(self, chars: int = 2000) -> str:
-        return f'--- {self.name} log ({self.log_path}):\n{self.output()[-chars:]}'
-
-
-def _wait(condition, what: str, timeout_s: float, children: Sequence[Child]) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not condition():
-        dead = [c for c in children if c.poll() is not None]
-        if dead:
-            raise DemoError(f'{dead[0].name} exited ({dead[0].poll()}) while waiting for '
-                            f'{what}\n{dead[0].tail()}')
-        if time.monotonic() > deadline:
-            raise DemoError(f'timed out after {timeout_s:g} s waiting for {what}\n'
-                            + '\n'.join(c.tail() for c in children))
-        time.sleep(POLL_S)
-
+# --------------------------------------------------------------------------- domain
 
 #: Lock file that claims a demo domain on this machine while a run uses it.
 _DOMAIN_LOCK_PATTERN = 'hill_muscle_ros_demo_domain_{}.lock'
@@ -193,27 +131,6 @@ def claimed_domain():
             raise DemoError(f'every DDS domain of {candidates[0]}..{candidates[-1]} is held by '
                             f'another demo run on this machine after {STARTUP_TIMEOUT_S:g} s')
         time.sleep(POLL_S)
-
-
-def ros_environment(domain_id: int | None = None) -> dict[str, str]:
-    """The children's environment: an isolated DDS domain, discovery on this host only.
-
-    :param domain_id: the ROS_DOMAIN_ID (see :func:`claimed_domain`); ``None``:
-        ``HILL_MUSCLE_DEMO_DOMAIN`` or one picked by the process ID, unclaimed
-    """
-    env = os.environ.copy()
-    if domain_id is None:
-        domain_id = int(env.get('HILL_MUSCLE_DEMO_DOMAIN',
-                                DEMO_DOMAIN_BASE + os.getpid() % DEMO_DOMAIN_SPAN))
-    env.update(ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
-               PYTHONUNBUFFERED='1', RCUTILS_LOGGING_BUFFERED_STREAM='0',
-               RCUTILS_COLORIZED_OUTPUT='0')
-    env.pop('ROS_STATIC_PEERS', None)
-    return env
-
-
-def _node(module: str, *ros_args: str) -> list[str]:
-    return [sys.executable, '-m', f'hill_muscle_ros.nodes.{module}', '--ros-args', *ros_args]
 
 
 # --------------------------------------------------------------------------- the run
@@ -255,14 +172,19 @@ def _run_name(config: DemoConfig) -> str:
 
 def record_live_run(config: DemoConfig, bag_dir: Path, protocol: Protocol,
                     log_dir: Path) -> None:
-    """Run simulator, recorder and player; return once the bag is closed."""
+    """Run simulator, recorder and player; return once the bag is closed.
+
+    :raises DemoError: if a process fails or a step times out (with its log)
+    """
     with claimed_domain() as domain:
-        _record_live_run(config, bag_dir, protocol, log_dir, ros_environment(domain))
+        try:
+            _record_live_run(config, bag_dir, protocol, log_dir, domain)
+        except SupervisorError as err:
+            raise DemoError(str(err)) from None
 
 
-def _record_live_run(config: DemoConfig, bag_dir: Path, protocol: Protocol, log_dir: Path,
-                     env: dict[str, str]) -> None:
-    from .nodes.recorder import READY_MESSAGE
+def _node_args(config: DemoConfig, bag_dir: Path) -> tuple[list[str], list[str], list[str]]:
+    """``--ros-args`` of the simulator, the recorder and the player."""
     spec = config.protocol if config.protocol in ('I', 'II') else str(Path(config.protocol)
                                                                         .resolve())
     muscle = [f'{k}:={v}' for k, v in (('units', config.units), ('length', config.length)) if v]
@@ -280,266 +202,59 @@ def _record_live_run(config: DemoConfig, bag_dir: Path, protocol: Protocol, log_
         _, settings = load_muscle_params(default_params_file())
         timeout_s = float(settings.get('input_timeout_s', 0.0)) * max(1.0, float(rtf))
         sim_args += ['-p', f'input_timeout_s:={timeout_s!r}']
-    lookahead_s = config.lookahead()
     rec_args = ['-p', f'output:={bag_dir}', *sim_time_args]
-    player_args = ['-p', f'protocol:={spec}', '-p', f'lookahead_s:={float(lookahead_s)!r}',
+    player_args = ['-p', f'protocol:={spec}', '-p', f'lookahead_s:={float(config.lookahead())!r}',
                    '-p', f'min_subscribers:={DEMO_MIN_SUBSCRIBERS}',
                    '-p', f'wait_for_subscribers_s:={STARTUP_TIMEOUT_S!r}', *sim_time_args]
-    children: list[Child] = []
-    try:
-        sim = Child('simulator', _node('simulator', *sim_args), log_dir / 'simulator.log', env)
-        children.append(sim)
-        rec = Child('recorder', _node('recorder', *rec_args), log_dir / 'recorder.log', env)
-        children.append(rec)
-        # The recorder receives the simulator (the muscle at rest) before the
-        # player starts: the plain-length analysis on sim time anchors time 0
-        # on the last wrench at rest (see protocol_start_ns), and on sim time
-        # the recorder's log times are its clock when it takes a message, so
-        # a recorder still busy starting up (measured: 0.1 s of wall time, 1 s
-        # of simulated time at RTF 10) would log the protocol's first
-        # messages late. The player's min_subscribers 2 then guarantees that
-        # the recorder also gets the player's first message.
-        _wait(lambda: READY_MESSAGE in rec.output() and '/wrench (' in rec.output(),
-              'the recorder to receive the simulator', STARTUP_TIMEOUT_S, children)
-        player = Child('protocol_player', _node('protocol_player', *player_args),
-                       log_dir / 'protocol_player.log', env)
-        children.append(player)
+    return sim_args, rec_args, player_args
+
+
+def _record_live_run(config: DemoConfig, bag_dir: Path, protocol: Protocol, log_dir: Path,
+                     domain: int) -> None:
+    from .nodes.recorder import NODE_NAME as RECORDER, subscriptions_node_name
+    sim_args, rec_args, player_args = _node_args(config, bag_dir)
+    rtf, lookahead_s = config.real_time_factor, config.lookahead()
+    env = ros_environment(domain)
+    # The probe in this process sees the children's graph: same domain, same discovery range.
+    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = env['ROS_AUTOMATIC_DISCOVERY_RANGE']
+
+    def node(name: str, args: list[str]) -> list[str]:
+        return node_command(name, extra_ros_args=args, bin_dir=None)
+
+    with ProcessGroup(log_dir, env, STOP_TIMEOUT_S) as procs, \
+            GraphProbe('demo_probe', domain_id=domain) as probe:
+        sim = procs.start('simulator', node('simulator', sim_args))
+        rec = procs.start('recorder', node('recorder', rec_args))
+        # The simulator and the recorder are up and spinning (each answers its
+        # parameter service), and the graph shows the recorder subscribed to
+        # the simulator's wrench, before the player starts: the plain-length
+        # analysis on sim time anchors time 0 on the last wrench at rest (see
+        # protocol_start_ns), and on sim time the recorder's log times are its
+        # clock when it takes a message, so a recorder still starting up
+        # (measured: 0.1 s of wall time, 1 s of simulated time at RTF 10)
+        # would log the protocol's first messages late. The player's
+        # min_subscribers 2 then guarantees that the recorder also gets the
+        # player's first message.
+        for name in ('/simulator', f'/{RECORDER}'):
+            probe.wait_until_serving(name, STARTUP_TIMEOUT_S, [sim, rec])
+        probe.wait_for_endpoints('/wrench', publisher='/simulator',
+                                 subscriber='/' + subscriptions_node_name(RECORDER),
+                                 timeout_s=STARTUP_TIMEOUT_S, watch=[sim, rec])
+        player = procs.start('protocol_player', node('protocol_player', player_args))
         on_sim_time = '' if rtf is None else f', sim time at real_time_factor {rtf:g}'
         ahead = '' if lookahead_s == 0.0 else f', length sent {lookahead_s:g} s ahead'
         print(f'running {protocol.name} ({protocol.duration_s:g} s) over ROS 2 '
-              f'(ROS_DOMAIN_ID={env["ROS_DOMAIN_ID"]}{on_sim_time}{ahead}) ...', flush=True)
-        _wait(lambda: player.poll() is not None, 'the protocol to end',
-              (protocol.duration_s + lookahead_s) / (rtf or 1.0) + STARTUP_TIMEOUT_S
-              + PLAYER_SLACK_S, [sim, rec])
-        if player.poll() != 0:
-            raise DemoError(f'the protocol player failed ({player.poll()})\n{player.tail()}')
-        if rec.stop() != 0:
-            raise DemoError(f'the recorder failed ({rec.popen.returncode})\n{rec.tail()}')
+              f'(ROS_DOMAIN_ID={domain}{on_sim_time}{ahead}) ...', flush=True)
+        procs.wait_until(lambda: player.returncode is not None, 'the protocol to end',
+                         (protocol.duration_s + lookahead_s) / (rtf or 1.0) + STARTUP_TIMEOUT_S
+                         + PLAYER_SLACK_S, watch=[sim, rec])
+        if player.returncode != 0:
+            raise DemoError(f'the protocol player failed ({player.returncode})\n'
+                            f'{player.describe()}')
+        if rec.stop(STOP_TIMEOUT_S) != 0:
+            raise DemoError(f'the recorder failed ({rec.returncode})\n{rec.describe()}')
         # The simulator logs its timing statistics as it exits.
-        sim.stop()
-    finally:
-        for child in reversed(children):
-            child.stop()
-
-
-#: The player's topic of length knots sent ahead (``lookahead_s`` > 0).
-STAMPED_TOPIC = 'length_command_stamped'
-
-
-def stamped_length(bag):
-    """The bag's ``length_command_stamped`` knots, or ``None`` if it has none."""
-    if bag.has_topic(STAMPED_TOPIC) and bag.topic(STAMPED_TOPIC).count:
-        return bag.topic(STAMPED_TOPIC)
-    return None
-
-
-def protocol_start_ns(bag, sim_time: bool = False) -> int:
-    """[ns] when the protocol started, on the recorder's receive clock.
-
-    With the length sent ahead (``length_command_stamped`` in the bag, from
-    its first message on), the stamp of the first knot: the player's time 0,
-    exactly, in the simulator's stamp clock.
-
-    With ``sim_time`` (a run on /clock) and a protocol that starts with
-    stimulation, the simulator's time instead: the stamp of its last
-    ``wrench`` at rest before the first non-zero force. The recorder's sim
-    time receive clock only advances with its polling and /clock (coarse at
-    a high real-time factor), and the first non-zero force may be stamped up
-    to a tick's worth of steps late (a tick runs real_time_factor steps and
-    publishes the last one); but the stimulation arrived between the two
-    ticks, so it acted from the step after the last rest stamp.
-
-    The player's first message, if the bag has it (its sequence number is 1).
-    If the recorder matched the player late (slow DDS discovery) and the
-    protocol starts with stimulation, the simulator's first non-zero force
-    marks the start instead, to within a step and the DDS latency. Otherwise
-    the first recorded message minus the missed periods (approximate).
-    """
-    knots = stamped_length(bag)
-    if knots is not None and (not len(knots.sequence) or knots.sequence[0] <= 1):
-        return int(knots.stamps_ns()[0])
-    stim = stimulation_topic(bag)
-    if sim_time and stim.values()[0] > 0.0:
-        wrench = bag.topic('wrench')
-        active = np.flatnonzero(wrench.values() > 0.0)
-        if len(active) and active[0] > 0:
-            return int(wrench.stamps_ns()[active[0] - 1])
-    first_seq = int(stim.sequence[0]) if len(stim.sequence) else 1
-    if first_seq <= 1:
-        return int(stim.log_time_ns[0])
-    wrench = bag.topic('wrench')
-    active = np.flatnonzero(wrench.values() > 0.0)
-    # Valid only if the bag holds the muscle at rest before the onset.
-    if stim.values()[0] > 0.0 and len(active) and active[0] > 0:
-        return int(wrench.stamps_ns()[active[0]])
-    period_ns = int(np.median(np.diff(stim.log_time_ns))) if stim.count > 1 else 0
-    return int(stim.log_time_ns[0]) - (first_seq - 1) * period_ns
-
-
-def stimulation_topic(bag):
-    """The player's stimulation topic in a bag: ``pulse_width`` or ``recruitment``."""
-    for name in ('pulse_width', 'recruitment'):
-        if bag.has_topic(name) and bag.topic(name).count:
-            return bag.topic(name)
-    raise DemoError(f'{bag.path}: no pulse_width or recruitment messages: {bag.counts()}')
-
-
-def live_force_at(bag, times_s: Sequence[float], sim_time: bool = False) -> list[float]:
-    """[N] the recorded force at each time since the protocol started.
-
-    The force is the last ``wrench`` stamped at or before that time; time 0
-    is the player's first message (:func:`protocol_start_ns`, with
-    ``sim_time`` for a run on /clock). NaN before the first wrench.
-    """
-    return [f for _, f in live_samples_at(bag, times_s, sim_time)]
-
-
-def live_samples_at(bag, times_s: Sequence[float],
-                    sim_time: bool = False) -> list[tuple[float, float]]:
-    """([s], [N]) the recorded sample each time reads: its time and force.
-
-    As :func:`live_force_at`, with the time of the sample since the protocol
-    started. The simulator publishes once per tick, the last of the tick's
-    steps, so at real_time_factor X the sample read at a time may be up to X
-    steps older: a force changing at 13 N/s (Protocol II's ramps) moves
-    0.13 N in 10 ms. Comparing it with the offline force at the sample's own
-    time measures the simulation, not the publishing rate. (NaN, NaN) before
-    the first wrench.
-    """
-    wrench = bag.topic('wrench')
-    t_force = (wrench.stamps_ns() - protocol_start_ns(bag, sim_time)) / NS_PER_S
-    force = wrench.values()
-    out = []
-    for t in times_s:
-        i = int(np.searchsorted(t_force, t, side='right')) - 1
-        out.append((float(t_force[i]), float(force[i])) if i >= 0
-                   else (float('nan'), float('nan')))
-    return out
-
-
-def simulator_lag_s(bag) -> float | None:
-    """[s] from the player's first non-zero stimulation to the simulator's first force.
-
-    A healthy run reacts within a few steps. The player starts when *a*
-    subscriber matches, which may be the recorder; if DDS discovery between
-    the player and the simulator is slow (a heavily loaded machine), the
-    simulator misses the start of the protocol and this lag shows it.
-    ``None`` if the protocol does not start with stimulation.
-    """
-    stim = stimulation_topic(bag)
-    values = stim.values()
-    if not len(values) or values[0] <= 0.0 or stim.sequence[0] > 1:
-        return None
-    wrench = bag.topic('wrench')
-    active = np.flatnonzero(wrench.values() > 0.0)
-    if not len(active):
-        return float('inf')
-    return (int(wrench.log_time_ns[active[0]]) - int(stim.log_time_ns[0])) / NS_PER_S
-
-
-#: [s] a simulator reacting later than this to the first stimulation missed the start.
-SIMULATOR_LAG_LIMIT_S = 0.1
-
-
-#: [s] the force "at the end of each second" is read this long before the
-#: whole second: protocol events fall on whole seconds (an R step at 3 s makes
-#: the force rise at ~150 N/s), so a few ms of DDS and scheduling jitter would
-#: swing a reading taken exactly there, and the player's final zero
-#: stimulation arrives at the last one.
-END_OF_SECOND_MARGIN_S = 0.05
-
-
-def summary_times(duration_s: float) -> list[float]:
-    """[s] the end of each whole second of the protocol (see :data:`END_OF_SECOND_MARGIN_S`)."""
-    seconds = [float(s) for s in range(1, int(np.floor(duration_s)) + 1)] or [duration_s]
-    return [round(s - END_OF_SECOND_MARGIN_S, 6) for s in seconds]
-
-
-def analyse(bag_dir: Path, protocol: Protocol, params: MuscleParams,
-            rate_hz: float, plot_path: Path, real_time_factor: float | None = None) -> str:
-    """Read the bag, write the plot, and return the summary text.
-
-    :param real_time_factor: [-] set for a run on sim time (see :class:`DemoConfig`)
-    """
-    from .recording.reader import read_bag
-    bag = read_bag(bag_dir)
-    if not bag.has_topic('wrench') or not bag.topic('wrench').count:
-        raise DemoError(f'{bag_dir}: no wrench messages from the simulator: {bag.counts()}')
-    stim, wrench = stimulation_topic(bag), bag.topic('wrench')
-    stim_name = stim.name.rsplit('/', 1)[-1]
-    sim_time = real_time_factor is not None
-    t0 = protocol_start_ns(bag, sim_time)
-    t_force = (wrench.stamps_ns() - t0) / NS_PER_S
-    force = wrench.values()
-    offline = simulate(protocol, params, rate_hz)
-    times = summary_times(protocol.duration_s)
-    samples = live_samples_at(bag, times, sim_time)
-
-    on_sim_time = '' if not sim_time else f' on sim time at real_time_factor {real_time_factor:g}'
-    lines = [f'{protocol.name}: units={params.units}, length={params.length}; live run over '
-             f'ROS 2{on_sim_time} vs the offline simulation',
-             f'{"t_s":>6}  {"live_force_n":>12}  {"offline_force_n":>15}  {"diff_n":>7}']
-    for t, (t_live, live) in zip(times, samples):
-        # The offline force at the recorded sample's own time (see live_samples_at).
-        off = float(offline.force_n[offline.at(t_live if np.isfinite(t_live) else t)])
-        lines.append(f'{t:6.3f}  {live:12.3f}  {off:15.3f}  {live - off:+7.3f}')
-    age_ms = max((t - t_live for t, (t_live, _) in zip(times, samples)
-                  if np.isfinite(t_live)), default=float('nan')) * 1e3
-    lines.append(f'(live: the last wrench at or before t_s, at most {age_ms:.0f} ms earlier; '
-                 'offline: at that sample\'s time)')
-    lag = simulator_lag_s(bag)
-    # On sim time the receive clock runs real_time_factor times faster.
-    if lag is not None and lag > SIMULATOR_LAG_LIMIT_S * (real_time_factor or 1.0):
-        lines.append(f'WARNING: the simulator reacted {lag:.3f} s after the first stimulation: '
-                     'DDS discovery was slow and it missed the start of the protocol '
-                     '(the player starts on its first subscriber). Run the demo again.')
-    first_seq = int(stim.sequence[0]) if len(stim.sequence) else 0
-    if first_seq > 1:
-        lines.append(f'WARNING: the recorder matched the player late (slow DDS discovery); '
-                     f'its first {first_seq - 1} messages are not in the bag.')
-    lines.append('messages per topic:')
-    lines += [f'  {name:<20} {count:6d}' for name, count in bag.counts().items()]
-    knots = stamped_length(bag)
-    if knots is not None:   # the length at the times it was to be reached
-        t_length = (knots.stamps_ns() - t0) / NS_PER_S
-        length = np.array([m.point.x for m in knots.messages], dtype=float)
-    else:
-        plain = bag.topic('length_command')
-        t_length, length = (plain.log_time_ns - t0) / NS_PER_S, plain.values()
-    _plot(plot_path, protocol, t_force, force, (stim.log_time_ns - t0) / NS_PER_S,
-          stim.values(), stim_name, t_length, length, offline)
-    lines.append(f'bag:  {bag_dir}  (open with `ros2 bag info`, Foxglove, PlotJuggler, rosbags)')
-    lines.append(f'plot: {plot_path}')
-    return '\n'.join(lines)
-
-
-def _plot(path: Path, protocol: Protocol, t_force, force, t_stim, stim, stim_name,
-          t_length, length, offline) -> None:
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-    fig, (ax_f, ax_s, ax_l) = plt.subplots(3, 1, sharex=True, figsize=(8, 7),
-                                           gridspec_kw={'height_ratios': [3, 1, 1]})
-    ax_f.plot(offline.t_s, offline.force_n, color='0.6', lw=3, label='offline simulation')
-    ax_f.plot(t_force, force, color='C0', lw=1, label='live, recorded (wrench)')
-    ax_f.set_ylabel('force [N]')
-    ax_f.set_title(f'{protocol.name}: live run read back from the bag')
-    ax_f.legend(loc='best')
-    if stim_name == 'pulse_width':
-        ax_s.step(t_stim, stim * US_PER_S, where='post', color='C1')
-        ax_s.set_ylabel('pulse width [µs]')
-    else:
-        ax_s.step(t_stim, stim, where='post', color='C1')
-        ax_s.set_ylabel('recruitment [-]')
-    ax_l.plot(t_length, length * MM_PER_M, color='C2')
-    ax_l.set_ylabel('length command [mm]')
-    ax_l.set_xlabel('time since the protocol started [s]')
-    for ax in (ax_f, ax_s, ax_l):
-        ax.grid(True, alpha=0.3)
-    ax_l.set_xlim(-0.2, protocol.duration_s + 0.5)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+        sim.stop(STOP_TIMEOUT_S)
 
 
 def run_demo(config: DemoConfig) -> int:
@@ -559,8 +274,11 @@ def run_demo(config: DemoConfig) -> int:
     log_dir = config.runs_dir / 'logs' / bag_dir.name
     log_dir.mkdir(parents=True, exist_ok=True)
     record_live_run(config, bag_dir, protocol, log_dir)
-    print(analyse(bag_dir, protocol, params, rate_hz, bag_dir / 'force.png',
-                  config.real_time_factor))
+    try:
+        print(analyse(bag_dir, protocol, params, rate_hz, bag_dir / 'force.png',
+                      config.real_time_factor))
+    except BagContentError as err:
+        raise DemoError(str(err)) from None
     if config.real_time_factor is not None:
         stats = simulator_stats((log_dir / 'simulator.log').read_text(errors='replace'))
         if stats is not None:

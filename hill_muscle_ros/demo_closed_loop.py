@@ -17,7 +17,6 @@ import datetime as _dt
 import math
 import os
 import signal
-import subprocess
 import sys
 import time
 from dataclasses import dataclass
@@ -28,7 +27,10 @@ import numpy as np
 import yaml
 
 from .model.protocol import Knots
+from .recording.analysis import closed_loop_summary
 from .resources import config_dir
+from .supervisor import GraphProbe, ProcessGroup, node_command, ros_environment
+from .timebase import NS_PER_S
 
 #: Default namespace of the demo's nodes, so that it does not cross-talk with
 #: another package's run (``make demo`` uses the root namespace).
@@ -42,7 +44,6 @@ STOP_TIMEOUT_S = 10.0
 TAIL_S = 0.2
 RECORDED = ('force', 'wrench', 'pulse_width', 'force_target', 'length_command')
 PROFILE_KEYS = ('name', 'duration_s', 'force_target_n', 'dl_mt_m')
-_NS_PER_S = 1e9
 EXIT_ERROR = 1
 
 
@@ -103,99 +104,57 @@ def default_profile() -> Path:
     return config_dir() / 'target_profile.yaml'
 
 
-# -- processes ------------------------------------------------------------------
-
-
-class Processes:
-    """Node subprocesses, each in its own session; all stopped on :meth:`stop_all`."""
-
-    def __init__(self, log_dir: Path, namespace: str) -> None:
-        self.log_dir = log_dir
-        self.namespace = namespace
-        self.procs: dict[str, subprocess.Popen] = {}
-
-    def start(self, name: str, executable: str, ros_args: Sequence[str]) -> subprocess.Popen:
-        exe = Path(sys.executable).parent / executable
-        log = open(self.log_dir / f'{name}.log', 'wb')
-        proc = subprocess.Popen([str(exe), '--ros-args', '-r', f'__ns:={self.namespace}', *ros_args],
-                                stdout=log, stderr=subprocess.STDOUT, env=os.environ.copy(),
-                                start_new_session=True)
-        self.procs[name] = proc
-        return proc
-
-    def stop(self, name: str) -> int:
-        """SIGINT, then SIGKILL of its process group after :data:`STOP_TIMEOUT_S`."""
-        proc = self.procs[name]
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(timeout=STOP_TIMEOUT_S)
-            except subprocess.TimeoutExpired:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait()
-        return proc.returncode
-
-    def stop_all(self) -> None:
-        for name in reversed(list(self.procs)):
-            self.stop(name)
-
-    def check_alive(self) -> None:
-        for name, proc in self.procs.items():
-            if proc.poll() is not None:
-                log = (self.log_dir / f'{name}.log').read_text(errors='replace')[-2000:]
-                raise RuntimeError(f'{name} exited with status {proc.returncode}:\n{log}')
-
-
 # -- the run ------------------------------------------------------------------------
 
 
 def run(profile: TargetProfile, out: Path, namespace: str) -> tuple[Path, int]:
     """Run the profile live and record it.
 
+    The nodes are processes of a :class:`~hill_muscle_ros.supervisor.ProcessGroup`
+    (logs in ``out``); this process publishes the profile from a
+    :class:`~hill_muscle_ros.supervisor.GraphProbe` node, which also tells
+    when every node is subscribed.
+
     :return: the bag directory, and [ns] the simulator's stamp at which the
         profile started (its t = 0)
+    :raises hill_muscle_ros.supervisor.SupervisorError: if a node exits or a wait times out
     """
-    import rclpy
     from geometry_msgs.msg import WrenchStamped
     from std_msgs.msg import Float64
 
-    from .nodes._common import RELIABLE_QOS
+    from .qos import RELIABLE_QOS
 
     bag = out / 'bag'
-    procs = Processes(out, namespace)
-    rclpy.init(args=[])
-    node = rclpy.create_node('closed_loop_demo', namespace=namespace)
-    try:
-        procs.start('simulator', 'simulator', [])
-        procs.start('controller', 'force_controller', [])
-        procs.start('recorder', 'recorder', [
-            '-p', f'output:={bag}', '-p', 'topics:=[' + ','.join(f'"{t}"' for t in RECORDED) + ']'])
-        target_pub = node.create_publisher(Float64, 'force_target', RELIABLE_QOS)
-        length_pub = node.create_publisher(Float64, 'length_command', RELIABLE_QOS)
+
+    def node(executable: str, **params: Any) -> list[str]:
+        return node_command(executable, ns=namespace, params=params, bin_dir=None)
+
+    # The probe and the nodes share this process's discovery settings (see main).
+    with ProcessGroup(out, ros_environment(discovery_range=None), STOP_TIMEOUT_S) as procs, \
+            GraphProbe('closed_loop_demo', namespace=namespace) as probe:
+        procs.start('simulator', node('simulator'))
+        procs.start('controller', node('force_controller'))
+        recorder = procs.start('recorder', node('recorder', output=str(bag),
+                                                topics=list(RECORDED)))
+        target_pub = probe.node.create_publisher(Float64, 'force_target', RELIABLE_QOS)
+        length_pub = probe.node.create_publisher(Float64, 'length_command', RELIABLE_QOS)
         latest = {}
-        node.create_subscription(WrenchStamped, 'wrench',
-                                 lambda m: latest.__setitem__('stamp', m.header.stamp),
-                                 RELIABLE_QOS)
+        probe.node.create_subscription(WrenchStamped, 'wrench',
+                                       lambda m: latest.__setitem__('stamp', m.header.stamp),
+                                       RELIABLE_QOS)
 
         def sim_now_s() -> float | None:
             stamp = latest.get('stamp')
-            return None if stamp is None else stamp.sec + stamp.nanosec / _NS_PER_S
-
-        def spin_until(condition, what: str, timeout_s: float = START_TIMEOUT_S) -> None:
-            deadline = time.monotonic() + timeout_s
-            while not condition():
-                procs.check_alive()
-                if time.monotonic() > deadline:
-                    raise RuntimeError(f'timed out after {timeout_s:g} s waiting for {what}')
-                rclpy.spin_once(node, timeout_sec=0.02)
+            return None if stamp is None else stamp.sec + stamp.nanosec / NS_PER_S
 
         # Everyone listens before the profile starts: controller and recorder
         # on the target, simulator and recorder on the length, recorder on the rest.
-        spin_until(lambda: (target_pub.get_subscription_count() >= 2
-                            and length_pub.get_subscription_count() >= 2
-                            and all(node.count_subscribers(t) >= 2
-                                    for t in ('force', 'pulse_width', 'wrench'))
-                            and sim_now_s() is not None), 'the nodes to start and connect')
+        probe.spin_until(lambda: (target_pub.get_subscription_count() >= 2
+                                  and length_pub.get_subscription_count() >= 2
+                                  and all(probe.node.count_subscribers(t) >= 2
+                                          for t in ('force', 'pulse_width', 'wrench'))
+                                  and sim_now_s() is not None),
+                         'the nodes to start and connect', START_TIMEOUT_S, procs.processes)
         print(f'{profile.name}: {profile.duration_s:g} s through simulator, controller and '
               f'recorder in {namespace}', flush=True)
         t0 = sim_now_s()
@@ -210,76 +169,23 @@ def run(profile: TargetProfile, out: Path, namespace: str) -> tuple[Path, int]:
             length_pub.publish(Float64(data=float(profile.dl_mt_m(t_prof))))
             next_tick += period_s
             while time.monotonic() < next_tick:
-                rclpy.spin_once(node, timeout_sec=max(0.0, next_tick - time.monotonic()))
+                probe.spin_once(max(0.0, next_tick - time.monotonic()))
             procs.check_alive()
-        status = procs.stop('recorder')
+        status = recorder.stop(STOP_TIMEOUT_S)
         if status != 0:
             raise RuntimeError(f'recorder exited with status {status}; see {out}/recorder.log')
-    finally:
-        procs.stop_all()
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return bag, round(t0 * _NS_PER_S)
+    return bag, round(t0 * NS_PER_S)
 
 
 def plot(bag: Path, png: Path, profile: TargetProfile, t0_ns: int,
          namespace: str) -> dict[str, float]:
     """Target and force (top), pulse width (bottom), against time, from the bag.
 
-    :return: summary numbers (RMS and largest tracking error, counts)
+    :return: summary numbers (RMS and largest tracking error, counts); see
+        :func:`hill_muscle_ros.recording.analysis.closed_loop_summary`
     """
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-
-    from .recording.reader import read_bag
-
-    title = profile.name
-    data = read_bag(bag)
-    wrench = data.topic(f'{namespace}/wrench')
-    target = data.topic(f'{namespace}/force_target')
-    pw = data.topic(f'{namespace}/pulse_width')
-    dl = data.topic(f'{namespace}/length_command')
-    # Stamps are the simulator's time; receive times are on the same (system)
-    # clock, as the nodes run without sim time.
-    t0 = t0_ns
-    t_f = (wrench.stamps_ns() - t0) / _NS_PER_S
-    force = wrench.values()
-    t_target = (target.log_time_ns - t0) / _NS_PER_S
-    target_v = target.values()
-    keep = (t_f >= 0.0) & (t_f <= profile.duration_s)
-    t_f, force = t_f[keep], force[keep]
-    # The target in force at each force sample (zero-order hold, as the controller sees it).
-    idx = np.clip(np.searchsorted(t_target, t_f, side='right') - 1, 0, len(target_v) - 1)
-    err = force - target_v[idx]
-
-    fig, (ax_f, ax_pw) = plt.subplots(2, 1, sharex=True, figsize=(9, 6),
-                                      gridspec_kw={'height_ratios': [2, 1]})
-    ax_f.step(t_target, target_v, where='post', color='0.4', lw=2, label='target F* [N]')
-    ax_f.plot(t_f, force, color='tab:red', lw=1, label='force F [N]')
-    ax_dl = ax_f.twinx()
-    ax_dl.plot((dl.log_time_ns - t0) / _NS_PER_S, dl.values() * 1e3, color='tab:green',
-               lw=1, ls='--', label='stretch ΔL_MT [mm]')
-    ax_dl.set_ylabel('ΔL_MT [mm]')
-    ax_f.set_ylabel('force [N]')
-    ax_f.set_title(f'{title}: force controller closed around the simulated muscle')
-    lines = ax_f.get_legend_handles_labels()
-    more = ax_dl.get_legend_handles_labels()
-    ax_f.legend(lines[0] + more[0], lines[1] + more[1], loc='upper left')
-    ax_pw.step((pw.log_time_ns - t0) / _NS_PER_S, pw.values() * 1e6, where='post',
-               color='tab:blue', lw=1)
-    ax_pw.set_ylabel('pulse width [µs]')
-    ax_pw.set_xlabel('time [s] (simulated, from the start of the profile)')
-    for ax in (ax_f, ax_pw):
-        ax.grid(alpha=0.3)
-    ax_pw.set_xlim(0.0, profile.duration_s + TAIL_S)
-    fig.tight_layout()
-    png.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(png, dpi=120)
-    plt.close(fig)
-    return {'rms_error_n': float(np.sqrt(np.mean(err ** 2))),
-            'max_abs_error_n': float(np.abs(err).max()),
-            **{f'count {name}': float(n) for name, n in data.counts().items()}}
+    return closed_loop_summary(bag, png, profile.name, profile.duration_s, t0_ns, namespace,
+                               TAIL_S)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -24,35 +24,29 @@ Typical use::
   never a bare sleep; the deadlines are generous because the test machine is
   small and shared. A timeout message includes the tail of every process log,
   and a process that dies while the test waits fails the wait at once.
+
+The processes, the waiting loop and the graph probe are those of
+:mod:`hill_muscle_ros.supervisor`, which the demos and the benchmarks use
+too; here a failed wait is a failed test (``AssertionError``).
 """
 from __future__ import annotations
 
-import os
-import signal
-import subprocess
-import sys
 import time
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
-import rclpy
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.parameter_client import AsyncParameterClient
 
-from hill_muscle_ros.nodes._common import RELIABLE_QOS
+from hill_muscle_ros import supervisor
+from hill_muscle_ros.qos import RELIABLE_QOS
+from hill_muscle_ros.supervisor import (LOG_TAIL_CHARS, SPIN_SLICE_S,  # noqa: F401
+                                        STOP_TIMEOUT_S, VENV_BIN, GraphProbe,
+                                        SupervisorError, node_command)
 
 #: [s] default deadline of a wait: long, as the 2-core box is shared and a
 #: cold Python + DDS start can take several seconds under load.
 DEFAULT_TIMEOUT_S = 30.0
-#: [s] grace period between SIGINT and SIGKILL when stopping a process.
-STOP_TIMEOUT_S = 10.0
-#: Characters of a process log quoted in a failure message.
-LOG_TAIL_CHARS = 3000
-#: [s] one executor spin slice while waiting.
-SPIN_SLICE_S = 0.02
-
-VENV_BIN = Path(sys.executable).parent
 
 
 def ros_env(**extra: str) -> dict[str, str]:
@@ -61,133 +55,45 @@ def ros_env(**extra: str) -> dict[str, str]:
     ``conftest.py`` put ROS_DOMAIN_ID and ROS_AUTOMATIC_DISCOVERY_RANGE into
     ``os.environ``; copying it passes them on.
     """
-    env = os.environ.copy()
-    env.update(PYTHONUNBUFFERED='1', RCUTILS_LOGGING_BUFFERED_STREAM='0',
-               RCUTILS_COLORIZED_OUTPUT='0')
-    env.update(extra)
-    return env
+    return supervisor.ros_environment(**extra)
 
 
-def node_command(executable: str, *, ns: str | None = None,
-                 params: dict[str, Any] | None = None,
-                 params_files: Iterable[str | Path] = (),
-                 extra_ros_args: Iterable[str] = (), bin_dir: Path = VENV_BIN) -> list[str]:
-    """Command line for a node console script with ``--ros-args``.
+class NodeProcess(supervisor.Process):
+    """One node process with its output in a log file (:class:`hill_muscle_ros.supervisor.Process`).
 
-    :param executable: console script name (``simulator``, ``protocol_player``, ...)
-    :param ns: namespace (``-r __ns:=...``)
-    :param params: ``-p name:=value`` overrides; floats keep their decimal point
-    :param params_files: ``--params-file`` arguments, in order (later wins)
-    :param extra_ros_args: anything else after ``--ros-args``
-    :param bin_dir: where the executable lives (the venv, or a colcon install)
+    A wait that fails is a failed test: :meth:`wait` raises ``AssertionError``.
     """
-    cmd = [str(bin_dir / executable), '--ros-args']
-    for f in params_files:
-        cmd += ['--params-file', str(f)]
-    if ns:
-        cmd += ['-r', f'__ns:={ns}']
-    for name, value in (params or {}).items():
-        cmd += ['-p', f'{name}:={_param_text(value)}']
-    cmd += list(extra_ros_args)
-    return cmd
-
-
-def _param_text(value: Any) -> str:
-    """A ``-p`` value that ROS parses back to the same type."""
-    if isinstance(value, bool):
-        return 'true' if value else 'false'
-    if isinstance(value, float):
-        text = repr(value)
-        # ROS reads `1e-05` as a string: a double needs its decimal point.
-        return text if '.' in text else f'{value:.12f}'.rstrip('0')
-    return str(value)
-
-
-class NodeProcess:
-    """One node process with its output in a log file.
-
-    :param name: short name for messages and the log file
-    :param cmd: command line
-    :param log_path: file that receives stdout and stderr
-    :param env: environment (default :func:`ros_env`)
-    """
-
-    def __init__(self, name: str, cmd: list[str], log_path: Path,
-                 env: dict[str, str] | None = None) -> None:
-        self.name = name
-        self.cmd = cmd
-        self.log_path = log_path
-        self._log = open(log_path, 'wb')
-        # Own session: a SIGKILL of its group cannot reach the test runner.
-        self.popen = subprocess.Popen(cmd, stdout=self._log, stderr=subprocess.STDOUT,
-                                      env=env if env is not None else ros_env(),
-                                      start_new_session=True)
-
-    @property
-    def returncode(self) -> int | None:
-        """Exit status, or ``None`` while running."""
-        return self.popen.poll()
-
-    def output(self) -> str:
-        """Everything the process has written so far."""
-        return self.log_path.read_text(encoding='utf-8', errors='replace')
 
     def wait(self, timeout_s: float = DEFAULT_TIMEOUT_S) -> int:
         """Wait for the process to exit on its own; fail the test on timeout."""
         try:
-            return self.popen.wait(timeout=timeout_s)
-        except subprocess.TimeoutExpired:
-            raise AssertionError(f'{self.name} still running after {timeout_s:g} s:\n'
-                                 f'{self.output()[-LOG_TAIL_CHARS:]}') from None
-
-    def stop(self, timeout_s: float = STOP_TIMEOUT_S) -> int:
-        """SIGINT (a clean shutdown), then SIGKILL of its process group."""
-        if self.popen.poll() is None:
-            try:
-                self.popen.send_signal(signal.SIGINT)
-                self.popen.wait(timeout=timeout_s)
-            except subprocess.TimeoutExpired:
-                try:
-                    os.killpg(self.popen.pid, signal.SIGKILL)
-                except ProcessLookupError:
-                    pass
-                self.popen.wait()
-        self._log.close()
-        return self.popen.returncode
-
-    def describe(self) -> str:
-        """Name, status and log tail, for failure messages."""
-        status = 'running' if self.returncode is None else f'exited {self.returncode}'
-        return (f'--- {self.name} ({status}): {" ".join(self.cmd)}\n'
-                f'{self.output()[-LOG_TAIL_CHARS:]}')
+            return super().wait(timeout_s)
+        except SupervisorError as err:
+            raise AssertionError(str(err)) from None
 
 
-class ProcessGroup:
+class ProcessGroup(supervisor.ProcessGroup):
     """Starts node processes and stops them all when the ``with`` block ends.
+
+    SIGINT, then SIGKILL of each process group after :data:`STOP_TIMEOUT_S`.
 
     :param log_dir: directory for the log files (e.g. pytest's ``tmp_path``)
     """
 
+    process_class = NodeProcess
+
     def __init__(self, log_dir: Path) -> None:
-        self.log_dir = Path(log_dir)
-        self.processes: list[NodeProcess] = []
+        super().__init__(log_dir, env=ros_env())
 
-    def start(self, name: str, cmd: list[str], env: dict[str, str] | None = None) -> NodeProcess:
-        """Start a process; it is stopped when the group closes."""
-        proc = NodeProcess(name, cmd, self.log_dir / f'{name}.log', env)
-        self.processes.append(proc)
-        return proc
-
-    def stop_all(self) -> None:
-        """Stop every process, the most recently started first."""
-        for proc in reversed(self.processes):
-            proc.stop()
-
-    def __enter__(self) -> 'ProcessGroup':
-        return self
-
-    def __exit__(self, *exc_info) -> None:
-        self.stop_all()
+    def wait_until(self, condition: Callable[[], Any], what: str,
+                   timeout_s: float = DEFAULT_TIMEOUT_S,
+                   watch: Iterable[NodeProcess] | None = None, step=None) -> Any:
+        """Wait for ``condition`` (no ROS spinning); a watched process that exits fails
+        the test at once with its log tail (default: every process of the group)."""
+        try:
+            return super().wait_until(condition, what, timeout_s, watch, step)
+        except SupervisorError as err:
+            raise AssertionError(str(err)) from None
 
 
 class Recording:
@@ -226,35 +132,21 @@ class Recording:
         return [m.data for m in self.messages[mark:]]
 
 
-class Probe:
+class Probe(GraphProbe):
     """An rclpy node in the test process, in its own context.
 
     Records topics, publishes, calls services and sets parameters of the
-    nodes under test. Use it as a context manager so that it shuts down.
+    nodes under test; tells readiness from the graph
+    (:class:`hill_muscle_ros.supervisor.GraphProbe`). Use it as a context
+    manager so that it shuts down.
 
     :param name: node name
     """
 
     def __init__(self, name: str = 'test_probe') -> None:
-        self.context = rclpy.Context()
-        rclpy.init(args=[], context=self.context)
-        self.node = rclpy.create_node(name, context=self.context)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
+        super().__init__(name)
         self._recordings: dict[str, Recording] = {}
         self._publishers: dict[str, Any] = {}
-
-    def close(self) -> None:
-        """Destroy the node and shut its context down."""
-        self.executor.shutdown()
-        self.node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
-
-    def __enter__(self) -> 'Probe':
-        return self
-
-    def __exit__(self, *exc_info) -> None:
-        self.close()
 
     # -- waiting ----------------------------------------------------------------
 
@@ -268,27 +160,18 @@ class Probe:
         :param timeout_s: [s] deadline
         :param procs: processes that must stay alive meanwhile; their logs
             are quoted if the wait fails
-        :raises AssertionError: on timeout or if one of ``procs`` exits
+        :raises AssertionError: on timeout or at once if one of ``procs`` exits
         """
-        procs = list(procs)
-        deadline = time.monotonic() + timeout_s
-        while True:
-            value = condition()
-            if value:
-                return value
-            dead = [p for p in procs if p.returncode is not None]
-            if dead or time.monotonic() > deadline:
-                reason = (f'{", ".join(p.name for p in dead)} exited' if dead
-                          else f'timed out after {timeout_s:g} s')
-                logs = '\n'.join(p.describe() for p in procs)
-                raise AssertionError(f'waiting for {what}: {reason}\n{logs}')
-            self.executor.spin_once(timeout_sec=SPIN_SLICE_S)
+        try:
+            return super().spin_until(condition, what, timeout_s, procs)
+        except SupervisorError as err:
+            raise AssertionError(str(err)) from None
 
     def spin_for(self, duration_s: float) -> None:
         """Keep receiving for ``duration_s`` (to collect messages, not to sync)."""
         end = time.monotonic() + duration_s
         while time.monotonic() < end:
-            self.executor.spin_once(timeout_sec=SPIN_SLICE_S)
+            self.spin_once()
 
     def wait_for_messages(self, rec: Recording, count: int = 1, *, mark: int = 0,
                           timeout_s: float = DEFAULT_TIMEOUT_S,

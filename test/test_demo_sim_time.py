@@ -22,12 +22,13 @@ import time
 import numpy as np
 import pytest
 
-from hill_muscle_ros.demo import (live_samples_at, simulator_stats, stimulation_topic,
-                                  summary_times)
+from hill_muscle_ros.demo import simulator_stats
 from hill_muscle_ros.model import Protocol, simulate
 from hill_muscle_ros.params_file import load_muscle_params
+from hill_muscle_ros.recording.analysis import live_samples_at, stimulation_topic, summary_times
 from hill_muscle_ros.recording.reader import read_bag
 from hill_muscle_ros.resources import default_params_file, protocol_path
+from hill_muscle_ros.timebase import NS_PER_S
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -40,7 +41,6 @@ DEMO_TIMEOUT_S = 180.0
 #: from the protocol's duration by the recorder's polling (10 ms of wall time,
 #: 0.1 s of sim time at RTF 10) and the player's tick granularity.
 SPAN_TOLERANCE_S = 0.5
-NS_PER_S = 1e9
 #: Added to the run's ROS_DOMAIN_ID for the sim-time demo's processes.
 SIM_TIME_DOMAIN_OFFSET = 100
 #: [s] of simulated time a reading may lag the time it is for: one tick of

@@ -4,7 +4,6 @@ import itertools
 import os
 import resource
 import signal
-import subprocess
 import sys
 import time
 
@@ -19,7 +18,8 @@ from rosbags.rosbag2 import Reader
 from std_msgs.msg import Float64
 
 from hill_muscle_ros.recording.reader import read_bag
-from ros_helpers import DEFAULT_TIMEOUT_S, ProcessGroup, node_command, ros_env
+from hill_muscle_ros.timebase import NS_PER_S
+from ros_helpers import DEFAULT_TIMEOUT_S, ProcessGroup, node_command
 
 pytestmark = pytest.mark.ros
 
@@ -27,9 +27,6 @@ RATE_HZ = 1000.0
 #: The simulator's three outputs and the player's two: five topics at 1 kHz.
 TOPICS = ('pulse_width', 'length_command', 'force', 'ce_length', 'wrench')
 NS_PER_MS = 1_000_000
-NS_PER_S = 1_000_000_000
-#: [s] poll period when waiting on a process's output.
-POLL_S = 0.05
 
 #: Publishes message k (k = 0, 1, ...) on every topic at RATE_HZ: Float64 data = k,
 #: WrenchStamped force.x = k stamped k ms. Starts once every topic has a
@@ -59,7 +56,7 @@ for k in range(n):
         time.sleep(delay)
     for t, p in pubs:
         if t.endswith('wrench'):
-            wrench.header.stamp.sec, wrench.header.stamp.nanosec = divmod(k * 1000000, 10**9)
+            wrench.header.stamp.sec, wrench.header.stamp.nanosec = divmod(k * 1000000, 1000000000)
             wrench.wrench.force.x = float(k)
             p.publish(wrench)
         else:
@@ -92,18 +89,11 @@ def publisher_cmd(n: int, ns: str, topics=TOPICS):
     return [sys.executable, '-c', PUBLISHER, str(RATE_HZ), str(n), ','.join(names)]
 
 
-def wait_for_output(proc, text, timeout_s=DEFAULT_TIMEOUT_S, procs=()):
-    """Wait until ``text`` appears in a process's log; fail if a watched process exits."""
-    deadline = time.monotonic() + timeout_s
-    while text not in proc.output():
-        for p in (proc, *procs):
-            if p.returncode is not None and text not in proc.output():
-                raise AssertionError(f'{p.name} exited while waiting for {text!r}\n'
-                                     + '\n'.join(q.describe() for q in (proc, *procs)))
-        if time.monotonic() > deadline:
-            raise AssertionError(f'timed out waiting for {text!r}\n'
-                                 + '\n'.join(q.describe() for q in (proc, *procs)))
-        time.sleep(POLL_S)
+def wait_for_output(procs, proc, text, timeout_s=DEFAULT_TIMEOUT_S, watch=()):
+    """Wait until ``text`` appears in the log of ``proc`` (the test publisher's progress
+    lines); ``proc`` or a watched process that exits fails the wait at once."""
+    procs.wait_until(lambda: text in proc.output(), f'{text!r} in the log of {proc.name}',
+                     timeout_s, watch=[proc, *watch])
 
 
 def published_count(proc) -> int:
@@ -133,7 +123,7 @@ def full_run(tmp_path_factory):
         rec = procs.start('recorder', recorder_cmd(bag, ns))
         pub = procs.start('publisher', publisher_cmd(n, ns))
         # 'done' comes after every message was acknowledged by the recorder's reader.
-        wait_for_output(pub, f'done {n}', timeout_s=60, procs=[rec])
+        wait_for_output(procs, pub, f'done {n}', timeout_s=60, watch=[rec])
         status = stop(rec, signal.SIGINT)
     return bag, n, status, rec.output(), ns
 
@@ -209,7 +199,7 @@ def test_stop_signal_mid_run_leaves_a_complete_bag_without_holes(tmp_path, sig, 
     with ProcessGroup(tmp_path) as procs:
         rec = procs.start('recorder', recorder_cmd(bag, ns))
         pub = procs.start('publisher', publisher_cmd(60_000, ns))
-        wait_for_output(pub, 'published 1500', timeout_s=60, procs=[rec])
+        wait_for_output(procs, pub, 'published 1500', timeout_s=60, watch=[rec])
         sent_before_signal = published_count(pub)
         status = stop(rec, sig)
     assert status == 0, rec.output()
@@ -230,7 +220,7 @@ def test_sigkill_leaves_the_closed_chunks_readable(tmp_path, ns):
     with ProcessGroup(tmp_path) as procs:
         rec = procs.start('recorder', recorder_cmd(bag, ns))
         pub = procs.start('publisher', publisher_cmd(60_000, ns))
-        wait_for_output(pub, 'published 3000', timeout_s=60, procs=[rec])
+        wait_for_output(procs, pub, 'published 3000', timeout_s=60, watch=[rec])
         rec.popen.send_signal(signal.SIGKILL)
         rec.wait()
     assert not (bag / 'metadata.yaml').exists()
@@ -279,19 +269,10 @@ def _limit_file_size():
 
 def test_write_error_mid_run_stops_cleanly_keeping_what_was_written(tmp_path, ns):
     bag = tmp_path / 'bag'
-    log = open(tmp_path / 'recorder.log', 'wb')
     with ProcessGroup(tmp_path) as procs:
-        rec = subprocess.Popen(recorder_cmd(bag, ns), stdout=log, stderr=subprocess.STDOUT,
-                               env=ros_env(), preexec_fn=_limit_file_size,
-                               start_new_session=True)
-        try:
-            procs.start('publisher', publisher_cmd(60_000, ns))
-            status = rec.wait(timeout=120)
-        finally:
-            if rec.poll() is None:
-                os.killpg(rec.pid, signal.SIGKILL)
-                rec.wait()
-            log.close()
+        rec = procs.start('recorder', recorder_cmd(bag, ns), preexec_fn=_limit_file_size)
+        procs.start('publisher', publisher_cmd(60_000, ns))
+        status = rec.wait(timeout_s=120)
     output = (tmp_path / 'recorder.log').read_text()
     assert status != 0, output
     assert 'stopping' in output and 'Traceback' not in output
@@ -315,6 +296,6 @@ def test_topics_resolve_in_the_namespace_and_unknown_types_are_discovered(tmp_pa
             extra_ros_args=['-p', f'topics:=[force, {elsewhere}]']))
         pub = procs.start('publisher', publisher_cmd(n, ns, topics=(
             f'{ns}/left/force', elsewhere)))
-        wait_for_output(pub, f'done {n}', timeout_s=60, procs=[rec])
+        wait_for_output(procs, pub, f'done {n}', timeout_s=60, watch=[rec])
         assert stop(rec, signal.SIGINT) == 0
     assert read_bag(bag).counts() == {f'{ns}/left/force': n, elsewhere: n}

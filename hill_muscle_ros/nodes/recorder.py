@@ -96,6 +96,16 @@ _STAMP_BE = struct.Struct('>iI')
 _HEADER_TYPE_LINE = 'std_msgs/Header header'
 
 
+def subscriptions_node_name(node_name: str) -> str:
+    """Name of the hidden node that holds a recorder's subscriptions.
+
+    The ROS graph shows the recorder's subscriptions under this node, e.g.
+    ``_recorder_subscriptions`` for ``recorder``: a launcher waits there for
+    the recorder to be subscribed.
+    """
+    return f'_{node_name}_subscriptions'
+
+
 def _never_called(_msg: Any) -> None:
     """Subscriptions are drained by :meth:`Recorder.take_all`, never by an executor."""
 
@@ -222,7 +232,7 @@ class Recorder(Node):
         # Holds the subscriptions; never spun (see TAKE_PERIOD_S). Hidden ('_'),
         # and without global arguments so that a `__node:=` remap cannot give it
         # this node's name. Topic names given to it are already resolved.
-        self._reader = rclpy.create_node(f'_{self.get_name()}_subscriptions',
+        self._reader = rclpy.create_node(subscriptions_node_name(self.get_name()),
                                          use_global_arguments=False,
                                          start_parameter_services=False)
         self._subs: dict[str, Any] = {}
