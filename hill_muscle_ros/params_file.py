@@ -16,7 +16,7 @@ from .model.protocol import safe_load_yaml
 #: Parameters of the simulator node that are not muscle parameters. They are
 #: valid in the file; the offline CLI reads ``rate_hz`` and ignores the rest.
 SIMULATOR_NODE_KEYS = ('rate_hz', 'real_time_factor', 'input_timeout_s', 'frame_id',
-                       'publish_clock', 'use_sim_time')
+                       'publish_clock', 'publish_every_n_steps', 'use_sim_time')
 
 #: Section names that apply to the simulator: every node, or the node by name.
 _WILDCARD = '/**'

@@ -203,7 +203,7 @@ def test_reset_drops_the_knots_sent_ahead(sim):
 @pytest.mark.parametrize('make_bad, needle', [
     (lambda now: _knot(now, math.nan), '= nan stamped'),
     (lambda now: _knot(now, math.inf), '= inf stamped'),
-    (lambda now: _knot(now, -1.5), '`length_command_stamped` must be finite and within'),
+    (lambda now: _knot(now, -1.5), '/length_command_stamped` must be finite and within'),
     (lambda now: _knot(0, 0.0), '`header.stamp` is 0 (unset)'),
     (lambda now: _knot(now + 7200 * 10**9, 0.0), 'more than 3600 s'),
     (lambda now: _knot(now, 0.0, frame_id='world'), "`header.frame_id` must be empty or"),

@@ -9,6 +9,7 @@ import math
 import pytest
 import yaml
 from geometry_msgs.msg import WrenchStamped
+from rclpy.parameter_client import AsyncParameterClient
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
@@ -113,22 +114,51 @@ def test_params_file_values_are_loaded(sim):
 
 
 @pytest.mark.parametrize('name, value, reason', [
-    # out of the descriptor's range: rclpy's own check
-    ('k_se_n_per_m', -3.0, 'k_se_n_per_m out of range'),
-    # in range, but the model wants it positive: the set-parameters callback
+    # The model's reason, negative or zero alike (no descriptor range answers first).
+    ('k_se_n_per_m', -3.0, '`k_se_n_per_m` must be positive and finite, got -3.0'),
     ('k_pe_n_per_m', 0.0, '`k_pe_n_per_m` must be positive and finite, got 0.0'),
+    ('k_pe_n_per_m', 1e13, '`k_pe_n_per_m` must be at most 1e+12, got 10000000000000.0'),
     ('units', 'triple', "`units` must be one of multi, single, got 'triple'"),
-    ('n_units', 0, 'n_units out of range'),
-    # rclpy's type check runs first; its reason names the types, not the name
-    ('f_iso_max_n', 45, 'Wrong parameter type'),
+    # l_rest / l_opt = 125: no force at rest; the reason names both parameters.
+    ('l_opt_m', 0.001, 'l_rest_m = 0.125 / l_opt_m = 0.001'),
+    ('frame_id', '', "`frame_id` must be a non-empty frame name without a leading '/' "
+                     "(tf2 convention), got ''"),
+    ('frame_id', '/muscle', "got '/muscle'"),
+    # The integer range is exact, so rclpy's check of it is the truth; its text
+    # names the parameter and the value too.
+    ('n_units', 0, 'Parameter n_units out of range. Min: 1, Max: 1000000000, value: 0'),
 ])
-def test_rejected_live_parameter_gives_reason(sim, name, value, reason):
+def test_rejected_live_parameter_gives_reason_naming_it_and_the_value(sim, name, value, reason):
+    before = sim['probe'].get_parameters('/left/simulator', [name], procs=sim['procs'])
     results = sim['probe'].set_parameters('/left/simulator', {name: value}, procs=sim['procs'])
     assert not results[0].successful
     assert reason in results[0].reason
-    got = sim['probe'].get_parameters('/left/simulator', [name], procs=sim['procs'])
-    assert got[name] == getattr(DEFAULTS, name)
+    assert name in results[0].reason
+    assert sim['probe'].get_parameters('/left/simulator', [name], procs=sim['procs']) == before
     _settle(sim, 'left', 'force', math.isfinite, 'still publishing')
+
+
+def test_wrong_live_parameter_type_is_rejected_by_rclpy(sim):
+    # rclpy's type check runs before any callback; its reason names the types.
+    results = sim['probe'].set_parameters('/left/simulator', {'f_iso_max_n': 45},
+                                          procs=sim['procs'])
+    assert not results[0].successful
+    assert 'Wrong parameter type' in results[0].reason
+
+
+def test_descriptors_state_exactly_what_is_accepted(sim):
+    client = AsyncParameterClient(sim['probe'].node, '/left/simulator')
+    sim['probe'].spin_until(client.services_are_ready, 'parameter services',
+                            procs=sim['procs'])
+    future = client.describe_parameters(['k_se_n_per_m', 'n_units', 'frame_id'])
+    sim['probe'].spin_until(future.done, 'describe_parameters', procs=sim['procs'])
+    k_se, n_units, frame_id = future.result().descriptors
+    # "> 0" has no closed range (from_value 0.0 would claim 0 is accepted).
+    assert not k_se.floating_point_range
+    assert k_se.additional_constraints == '> 0 and <= 1e+12 (finite)'
+    assert [(r.from_value, r.to_value, r.step) for r in n_units.integer_range] == \
+        [(1, 1_000_000_000, 1)]
+    assert frame_id.additional_constraints == "non-empty, without a leading '/'"
 
 
 def test_read_only_rate_is_rejected_live(sim):
@@ -207,6 +237,44 @@ GOOD_INPUTS = {
 }
 
 
+def _rejection_line(sim, topic, value_text, log_start):
+    """Send a bad value on /left/topic until a warning names it; return that line.
+
+    Warnings are throttled per topic (1 s): an earlier test may have used this
+    second's, so the value is sent again until its own line appears.
+    """
+    needle = f'ignoring /left/{topic} = {value_text}:'
+    pub = sim['probe'].publisher(f'/left/{topic}', Float64)
+
+    def line():
+        found = [ln for ln in sim['sims']['left'].output()[log_start:].splitlines()
+                 if needle in ln]
+        if not found:
+            pub.publish(Float64(data=float(value_text)))
+        return found[0] if found else None
+
+    sim['probe'].spin_until(lambda: pub.get_subscription_count() > 0,
+                            f'a subscriber on /left/{topic}', procs=sim['procs'])
+    return sim['probe'].spin_until(line, f'the warning {needle!r}', procs=sim['procs'])
+
+
+@pytest.mark.parametrize('topic, value_text, reason', [
+    ('pulse_width', 'nan', '`/left/pulse_width` must be finite and non-negative, got nan'),
+    ('pulse_width', 'inf', '`/left/pulse_width` must be finite and non-negative, got inf'),
+    ('pulse_width', '-0.0001',
+     '`/left/pulse_width` must be finite and non-negative, got -0.0001'),
+    ('recruitment', 'nan', '`/left/recruitment` must be in [0, 1], got nan'),
+    ('length_command', '-inf',
+     '`/left/length_command` must be finite and within ±1.0 m of rest, got -inf'),
+])
+def test_bad_input_warning_names_the_full_topic_and_the_value(sim, topic, value_text, reason):
+    log_start = len(sim['sims']['left'].output())
+    line = _rejection_line(sim, topic, value_text, log_start)
+    assert reason in line
+    # A non-finite or negative width is not a unit mix-up.
+    assert 'microseconds' not in line
+
+
 @pytest.mark.parametrize('topic', sorted(GOOD_INPUTS))
 def test_nan_and_inf_input_keep_last_good_value(sim, topic):
     good, force_n = GOOD_INPUTS[topic]
@@ -221,14 +289,16 @@ def test_nan_and_inf_input_keep_last_good_value(sim, topic):
     assert forces, 'the node stopped publishing'
     assert all(math.isfinite(f) for f in forces)
     assert max(abs(f - force_n) for f in forces) < FORCE_TOL_N
-    log = sim['sims']['left'].output()
-    assert f'ignoring /left/{topic} = nan' in log
+    # The warning names the value (resent while an earlier test's warning
+    # holds this topic's throttle second).
+    _rejection_line(sim, topic, 'nan', 0)
 
 
 def test_microsecond_pulse_width_is_rejected_with_hint(sim):
-    _publish(sim, '/left/pulse_width', 500.0)
-    sim['probe'].spin_until(lambda: 'looks like microseconds' in sim['sims']['left'].output(),
-                            'the microseconds hint', procs=sim['procs'])
+    line = _rejection_line(sim, 'pulse_width', '500.0', len(sim['sims']['left'].output()))
+    assert ('`/left/pulse_width` must be at most 100 x pw_max_s (0.05 s), got 500.0. It looks '
+            'like microseconds: pulse_width is in seconds (REP 103), e.g. 0.0005 for 500 us'
+            in line)
     rec = sim['recs']['left']['force']
     mark = rec.mark()
     sim['probe'].spin_for(WATCH_S)
@@ -264,7 +334,9 @@ def test_namespaced_simulators_do_not_cross_talk(sim):
 
 
 @pytest.mark.parametrize('override, needle', [
-    ('k_se_n_per_m:=-3.0', "`k_se_n_per_m` = -3.0"),
+    ('k_se_n_per_m:=-3.0', "parameter `k_se_n_per_m` must be positive and finite, got -3.0"),
+    ('l_opt_m:=0.001', 'l_rest_m = 0.125 / l_opt_m = 0.001'),
+    ("frame_id:=''", "parameter `frame_id` must be a non-empty frame name"),
     ('f_iso_max_n:=45', '`f_iso_max_n`: got 45'),
     ('units:=triple', "`units` must be one of multi, single, got 'triple'"),
 ])
@@ -277,3 +349,15 @@ def test_bad_startup_parameter_exits_nonzero_naming_it(tmp_path, override, needl
     assert status != 0
     assert needle in log
     assert 'Traceback' not in log
+
+
+def test_exit_statistics_name_the_node_by_its_namespace(tmp_path):
+    # Two nodes called quad in two namespaces must not log alike.
+    with ProcessGroup(tmp_path) as procs, Probe('stats_probe') as probe:
+        proc = procs.start('quad', node_command(
+            'simulator', ns='/left_leg', params={'rate_hz': SHARED_RATE_HZ},
+            extra_ros_args=['-r', '__node:=quad']))
+        force = probe.record('/left_leg/force', Float64)
+        probe.wait_for_messages(force, procs=[proc])
+        assert proc.stop() == 0
+    assert '[left_leg.quad.stats]: ran ' in proc.output()

@@ -4,8 +4,11 @@ Subscribes ``pulse_width`` [s], ``recruitment`` [-] and ``length_command``
 [m] (std_msgs/Float64, zero-order hold), steps :class:`Muscle` at a fixed
 dt = 1 / ``rate_hz`` against the steady clock, and publishes ``force`` [N],
 ``ce_length`` [m] and ``wrench`` (geometry_msgs/WrenchStamped, force along +x)
-after every tick; optionally ``/clock``. A ``reset`` service (std_srvs/Trigger)
-returns the muscle to rest. See README "ROS 2 nodes" for the tables.
+for every step, stamped with the step's simulated time; optionally ``/clock``.
+A tick that runs several steps (a late tick catching up, ``real_time_factor``
+> 1, ``rate_hz`` > 1 kHz) publishes them all, in order, as a burst, so a
+recording has every step. A ``reset`` service (std_srvs/Trigger) returns the
+muscle to rest. See README "ROS 2 nodes" for the tables.
 
 Length commands sent ahead: ``length_command_stamped``
 (geometry_msgs/PointStamped) carries dl_MT [m] in ``point.x`` (along +x of the
@@ -62,12 +65,18 @@ DEFAULT_INPUT_TIMEOUT_S = 0.5
 #: [s] 0 disables the watchdog; an hour is longer than any FES session gap.
 INPUT_TIMEOUT_RANGE_S = (0.0, 3600.0)
 DEFAULT_FRAME_ID = 'muscle'
+#: Publish every step's outputs by default: a recording at rate_hz has them all.
+DEFAULT_PUBLISH_EVERY_N_STEPS = 1
+#: [-] every step up to one output per million steps.
+PUBLISH_EVERY_N_STEPS_RANGE = (1, 1_000_000)
 
 #: [s] the timer never ticks faster than this: at a higher step rate or a real
-#: time factor > 1 each tick runs several steps (publishing the last one).
+#: time factor > 1 each tick runs several steps (and publishes each of them).
 MIN_TICK_PERIOD_S = 0.001
 #: [s] of clock time one tick may catch up at most, so that a long stall (a
-#: suspended process) cannot freeze the node while it runs a huge backlog.
+#: suspended process) cannot freeze the node while it runs a huge backlog. It
+#: also bounds a tick's burst of messages per output: 100 at 1 kHz (a
+#: subscriber that must not lose any needs a queue at least that deep).
 MAX_CATCH_UP_S = 0.1
 #: A pulse width this many times PW_max is not an FES pulse: it is rejected
 #: with a hint, since it is most likely microseconds sent for seconds.
@@ -87,6 +96,18 @@ STAMPED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=STAMPED_QUEUE_DE
 MAX_STAMP_LEAD_S = 3600.0
 #: [ns] per s; a header stamp's nanosec field is below this.
 _NS_PER_S = 1_000_000_000
+
+
+def check_frame_id(frame_id: str) -> str:
+    """Validate the ``frame_id`` parameter: a tf2 frame name.
+
+    :raises ValueError: if it is empty (REP 103/105 frames have names) or
+        starts with ``/`` (tf2 rejects such frame ids)
+    """
+    if not frame_id or frame_id.startswith('/'):
+        raise ValueError(f'`frame_id` must be a non-empty frame name without a leading '
+                         f"'/' (tf2 convention), got {frame_id!r}")
+    return frame_id
 
 
 class Simulator(Node):
@@ -110,13 +131,27 @@ class Simulator(Node):
                 'stimulation watchdog: R drops to 0 after this long without a '
                 'pulse_width or recruitment message; 0 disables', 's', *INPUT_TIMEOUT_RANGE_S))
         self._frame_id = declare_checked(self, 'frame_id', DEFAULT_FRAME_ID, ParameterDescriptor(
-            description='frame_id of the wrench output'))
+            description='frame_id of the wrench output',
+            additional_constraints="non-empty, without a leading '/'"))
         self._publish_clock = declare_checked(self, 'publish_clock', False, ParameterDescriptor(
             description='publish /clock (sim time from 0) and stamp outputs with it',
             read_only=True))
+        # Publishing costs far more CPU than a step (about 45 us per step with
+        # a subscriber against 2 us for the model): every step is right at
+        # 1 kHz and real time, but at real_time_factor 100 it would take
+        # several cores, so fast runs may publish every n-th step instead.
+        self._publish_every = declare_checked(
+            self, 'publish_every_n_steps', DEFAULT_PUBLISH_EVERY_N_STEPS, number_descriptor(
+                'publish the outputs (and /clock) of every n-th step, stamped with its '
+                'simulated time; 1 publishes every step', '-', *PUBLISH_EVERY_N_STEPS_RANGE,
+                integer=True, read_only=True))
         for name, value in (('rate_hz', rate_hz), ('real_time_factor', rtf)):
             if not math.isfinite(value):
                 raise StartupError(f'parameter `{name}` must be finite, got {value!r}')
+        try:
+            check_frame_id(self._frame_id)
+        except ValueError as err:
+            raise StartupError(f'parameter {err}') from None
         reject_unknown_overrides(self)
 
         self._params = params        # current MuscleParams (pw_max_s may differ from the muscle's)
@@ -128,8 +163,8 @@ class Simulator(Node):
         self._last_stim_t_s = 0.0    # [s] sim time of the last stimulation message
         self._watchdog_tripped = False
         self._bad_input = BadInputWarner(self.get_logger())
-        # dl_MT knots sent ahead; the track drives the steps while it is active.
-        self._track = CommandTrack(name='length_command_stamped')
+        # dl_MT knots sent ahead; the track drives the steps while it is active
+        # (made below, once the subscription gives the topic's full name).
         self._track_active = False
         self._late_warner = BadInputWarner(self.get_logger())
         self._late_knots = 0
@@ -143,6 +178,7 @@ class Simulator(Node):
         self._force_msg = Float64()
         self._ce_length_msg = Float64()
         self._wrench_msg = WrenchStamped()
+        self._wrench_msg.header.frame_id = self._frame_id
         self._clock_msg = ClockMsg()
         # /clock is absolute by ROS convention: one time source per graph.
         self._pub_clock = (self.create_publisher(ClockMsg, '/clock', OUTPUT_QOS)
@@ -156,6 +192,7 @@ class Simulator(Node):
         self._sub_dl_stamped = self.create_subscription(
             PointStamped, 'length_command_stamped', self._on_length_command_stamped,
             STAMPED_QOS)
+        self._track = CommandTrack(name=self._sub_dl_stamped.topic_name)
         self.create_service(Trigger, 'reset', self._on_reset)
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
@@ -170,7 +207,8 @@ class Simulator(Node):
         self.get_logger().info(
             f'{params.units}/{params.length} muscle, {rate_hz:g} Hz, real_time_factor '
             f'{rtf:g}, publish_clock {self._publish_clock}, watchdog '
-            f'{self._input_timeout_s:g} s')
+            f'{self._input_timeout_s:g} s, outputs of every '
+            f'{"step" if self._publish_every == 1 else f"{self._publish_every}th step"}')
 
     # -- time -------------------------------------------------------------------
 
@@ -192,15 +230,11 @@ class Simulator(Node):
                 f'on the next ticks; if this repeats, lower rate_hz ({self._rate_hz:g}) or '
                 'real_time_factor',
                 throttle_duration_sec=1.0)
-        out = None
         if self._track_active:
             # Each step reaches the track's value at its own end time.
             steps = self._schedule.steps_done + np.arange(1, n + 1)
-            dls = self._track.value_at(steps / self._rate_hz).tolist()
-            for dl in dls:
-                self._watchdog()
-                out = self._muscle.step(self._recruitment, dl, self._dt_s)
-                self._schedule.steps_done += 1
+            if not self._run_steps(self._track.value_at(steps / self._rate_hz).tolist()):
+                return
             self._dl_mt_m = self._track.consume(self.sim_time_s)
             if not len(self._track):
                 self._track_active = False   # the last value holds, as a plain command
@@ -212,23 +246,52 @@ class Simulator(Node):
             # a ramp into a staircase. With one step per tick this is the
             # plain step.
             dl_start, dl_end = self._muscle.dl_mt_m, self._dl_mt_m
-            for i in range(1, n + 1):
-                self._watchdog()
-                dl = dl_end if i == n else dl_start + (dl_end - dl_start) * (i / n)
-                out = self._muscle.step(self._recruitment, dl, self._dt_s)
-                self._schedule.steps_done += 1
-        if not (math.isfinite(out.force_n) and math.isfinite(out.l_ce_m)):
-            # Cannot happen with validated inputs and parameters; if it does,
-            # never publish it: report and return to rest.
-            self.get_logger().error(
-                f'non-finite output (force {out.force_n!r} N, l_ce {out.l_ce_m!r} m) '
-                f'with R {self._recruitment!r}, dl_mt {self._dl_mt_m!r} m: resetting',
-                throttle_duration_sec=1.0)
-            self._reset_to_rest()
-            return
-        self._publish(out.force_n, out.l_ce_m)
+            dls = [dl_start + (dl_end - dl_start) * (i / n) for i in range(1, n)]
+            dls.append(dl_end)
+            self._run_steps(dls)
+
+    def _run_steps(self, dls: list[float]) -> bool:
+        """Run one step per dl_MT value and publish each step's outputs.
+
+        Every step is published, stamped with its own simulated time, so a
+        tick that runs several (catching up, or by design at a real-time
+        factor > 1) sends them as a burst and a recording has no holes.
+
+        With ``publish_every_n_steps`` n > 1, only steps whose count is a
+        multiple of n are published.
+
+        :param dls: [m] dl_MT at the end of each step, in order
+        :return: ``False`` if a step's output was not finite (the muscle was
+            reset and the remaining values dropped)
+        """
+        step = self._muscle.step
+        schedule = self._schedule
+        publish = self._publish
+        watchdog = self._watchdog
+        isfinite = math.isfinite
+        dt_s = self._dt_s
+        every = self._publish_every
+        for dl in dls:
+            watchdog()
+            out = step(self._recruitment, dl, dt_s)
+            schedule.steps_done += 1
+            force_n, l_ce_m = out.force_n, out.l_ce_m
+            if not (isfinite(force_n) and isfinite(l_ce_m)):
+                # Cannot happen with validated inputs and parameters; if it
+                # does, never publish it: report and return to rest.
+                self.get_logger().error(
+                    f'non-finite output (force {force_n!r} N, l_ce {l_ce_m!r} m) '
+                    f'with R {self._recruitment!r}, dl_mt {dl!r} m: resetting',
+                    throttle_duration_sec=1.0)
+                self._reset_to_rest()
+                return False
+            # Steps on a fixed grid of simulated time, whatever the tick phase.
+            if not schedule.steps_done % every:
+                publish(force_n, l_ce_m)
+        return True
 
     def _publish(self, force_n: float, l_ce_m: float) -> None:
+        """Publish the outputs of the step just run, stamped with its end time."""
         sim_ns = round(self._schedule.steps_done * _NS_PER_S / self._rate_hz)
         sec, nanosec = divmod(self._stamp_origin_ns + sim_ns, _NS_PER_S)
         wrench = self._wrench_msg
@@ -242,7 +305,6 @@ class Simulator(Node):
         self._pub_force.publish(self._force_msg)
         self._ce_length_msg.data = l_ce_m
         self._pub_ce_length.publish(self._ce_length_msg)
-        wrench.header.frame_id = self._frame_id
         wrench.wrench.force.x = force_n
         self._pub_wrench.publish(wrench)
 
@@ -265,40 +327,49 @@ class Simulator(Node):
             self._watchdog_tripped = False
             self.get_logger().info(f'stimulation back: recruitment {recruitment:g}')
 
-    def _reject(self, topic: str, value: float, err: Exception, hint: str = '') -> None:
-        self._bad_input.warn(topic, f'ignoring {topic} = {value!r}: {err}{hint}; keeping '
+    def _reject(self, topic: str, value: float, err: Exception) -> None:
+        """Warn (throttled per topic) that ``value`` on ``topic`` was ignored.
+
+        :param topic: the subscription's fully qualified topic name
+        :param err: the reason, which names the topic and the value too
+        """
+        self._bad_input.warn(topic, f'ignoring {topic} = {value!r}: {err}; keeping '
                                     f'recruitment {self._recruitment:g}, length_command '
                                     f'{self._dl_mt_m:g} m')
 
     def _on_pulse_width(self, msg: Float64) -> None:
+        topic = self._sub_pw.topic_name
         pw_max_s = self._params.pw_max_s
         try:
-            if msg.data > PULSE_WIDTH_UNIT_HINT_FACTOR * pw_max_s:
-                raise ValueError(f'`pulse_width` is more than {PULSE_WIDTH_UNIT_HINT_FACTOR:g} '
-                                 f'x pw_max_s ({pw_max_s!r} s)')
-            r = recruitment_from_pulse_width(msg.data, pw_max_s)
+            # Finite and non-negative first: only a finite width can be microseconds.
+            r = recruitment_from_pulse_width(msg.data, pw_max_s, topic)
+            limit_s = PULSE_WIDTH_UNIT_HINT_FACTOR * pw_max_s
+            if msg.data > limit_s:
+                raise ValueError(
+                    f'`{topic}` must be at most {PULSE_WIDTH_UNIT_HINT_FACTOR:g} x pw_max_s '
+                    f'({limit_s:g} s), got {msg.data!r}. It looks like microseconds: '
+                    f'pulse_width is in seconds (REP 103), e.g. {msg.data * 1e-6:g} for '
+                    f'{msg.data:g} us')
         except ValueError as err:
-            hint = ''
-            if msg.data > PULSE_WIDTH_UNIT_HINT_FACTOR * pw_max_s:
-                hint = ('. It looks like microseconds: pulse_width is in seconds (REP 103), '
-                        f'e.g. {msg.data * 1e-6:g} for {msg.data:g} us')
-            self._reject(self._sub_pw.topic_name, msg.data, err, hint)
+            self._reject(topic, msg.data, err)
             return
         self._set_stimulation(r)
 
     def _on_recruitment(self, msg: Float64) -> None:
+        topic = self._sub_r.topic_name
         try:
-            r = check_recruitment(msg.data)
+            r = check_recruitment(msg.data, topic)
         except ValueError as err:
-            self._reject(self._sub_r.topic_name, msg.data, err)
+            self._reject(topic, msg.data, err)
             return
         self._set_stimulation(r)
 
     def _on_length_command(self, msg: Float64) -> None:
+        topic = self._sub_dl.topic_name
         try:
-            self._dl_mt_m = check_dl_mt(msg.data, 'length_command')
+            self._dl_mt_m = check_dl_mt(msg.data, topic)
         except ValueError as err:
-            self._reject(self._sub_dl.topic_name, msg.data, err)
+            self._reject(topic, msg.data, err)
             return
         self._track_active = False   # "now" overrides any knots sent ahead
 
@@ -412,6 +483,11 @@ class Simulator(Node):
             if p.name == 'input_timeout_s' and not math.isfinite(p.value):
                 return SetParametersResult(
                     successful=False, reason=f'`input_timeout_s` must be finite, got {p.value!r}')
+            if p.name == 'frame_id':
+                try:
+                    check_frame_id(p.value)
+                except ValueError as err:
+                    return SetParametersResult(successful=False, reason=str(err))
         return SetParametersResult(successful=True)
 
     def _apply_parameters(self, parameters: list[Parameter]) -> None:
@@ -422,6 +498,7 @@ class Simulator(Node):
                 self._input_timeout_s = p.value
             elif p.name == 'frame_id':
                 self._frame_id = p.value
+                self._wrench_msg.header.frame_id = p.value
         if new == old:
             return
         self._params = new
@@ -438,8 +515,12 @@ class Simulator(Node):
         s = self._schedule
         elapsed_s = (self._steady.now().nanoseconds - s.start_ns) / _NS_PER_S
         behind = s.target(self._steady.now().nanoseconds) - s.steps_done
-        # Not the node logger: after Ctrl-C its /rosout publisher is gone.
-        rclpy.logging.get_logger(f'{self.get_name()}.stats').info(
+        # Not the node logger: after Ctrl-C its /rosout publisher is gone. Its
+        # name is the node logger's (rcl's form of the fully qualified name,
+        # e.g. left_leg.quad for /left_leg/quad) + .stats, so two nodes named
+        # alike in different namespaces stay apart, and the node's log level
+        # (--log-level left_leg.quad:=warn) applies to it too.
+        rclpy.logging.get_logger(f'{self.get_logger().name}.stats').info(
             f'ran {s.steps_done} steps in {elapsed_s:.3f} s of steady time '
             f'({s.steps_done / elapsed_s if elapsed_s > 0 else 0.0:.1f} steps/s), '
             f'{s.ticks} ticks, {s.late_ticks} late, {behind} steps behind at exit, '
