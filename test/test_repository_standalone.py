@@ -25,7 +25,7 @@ FORBIDDEN = {
     # the specification files by name (case-sensitive: doc/model.md is ours)
     'external spec file': re.compile(r'(?<![A-Za-z0-9_])(?:' + 'MOD' + 'EL' + '|' + 'FE' + 'S'
                                      + ')' + re.escape(_DOT_MD)),
-    # numbered tracker tickets: "issue 5", "(issue 6)", "issue-5", "Issue #5", "issues 2"
+    # numbered tracker tickets (the spellings: test_patterns_flag_the_references_they_are_for)
     'tracker issue number': re.compile(r'\b' + 'iss' + r'ues?' + r'[ \t]*[-#]?[ \t]*#?\d',
                                        re.IGNORECASE),
 }
