@@ -25,7 +25,7 @@ from ..model.params import MuscleParams
 
 _DEFAULTS = MuscleParams()
 #: [N] force of the default muscle at full recruitment, held at rest length with
-#: initial-length memory: f_iso_max FL(l_rest / l_opt) = 37.19 N (MODEL.md section 6).
+#: initial-length memory: f_iso_max FL(l_rest / l_opt) = 37.19 N (doc/model.md section 6).
 DEFAULT_FF_FORCE_N = _DEFAULTS.f_iso_max_n * force_length(_DEFAULTS.l_rest_m / _DEFAULTS.l_opt_m)
 
 
