@@ -43,6 +43,9 @@ STOP_TIMEOUT_S = 10.0
 #: [s] simulated time after the profile before the recorder stops (last messages in).
 TAIL_S = 0.2
 RECORDED = ('force', 'wrench', 'pulse_width', 'force_target', 'length_command')
+#: Types of the recorded topics the package's nodes do not publish: the recorder
+#: subscribes to them at start-up (``topic:type`` entries), not on discovery.
+RECORDED_TYPES = {'force_target': 'std_msgs/msg/Float64'}
 PROFILE_KEYS = ('name', 'duration_s', 'force_target_n', 'dl_mt_m')
 EXIT_ERROR = 1
 
@@ -134,8 +137,8 @@ def run(profile: TargetProfile, out: Path, namespace: str) -> tuple[Path, int]:
             GraphProbe('closed_loop_demo', namespace=namespace) as probe:
         procs.start('simulator', node('simulator'))
         procs.start('controller', node('force_controller'))
-        recorder = procs.start('recorder', node('recorder', output=str(bag),
-                                                topics=list(RECORDED)))
+        topics = [f'{t}:{RECORDED_TYPES[t]}' if t in RECORDED_TYPES else t for t in RECORDED]
+        recorder = procs.start('recorder', node('recorder', output=str(bag), topics=topics))
         target_pub = probe.node.create_publisher(Float64, 'force_target', RELIABLE_QOS)
         length_pub = probe.node.create_publisher(Float64, 'length_command', RELIABLE_QOS)
         latest = {}

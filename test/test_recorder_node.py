@@ -12,14 +12,17 @@ import pytest
 import yaml
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
+from rclpy.duration import Duration
+from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.serialization import serialize_message
 from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import Reader
 from std_msgs.msg import Float64
 
+from hill_muscle_ros.nodes.recorder import subscriptions_node_name
 from hill_muscle_ros.recording.reader import read_bag
 from hill_muscle_ros.timebase import NS_PER_S
-from ros_helpers import DEFAULT_TIMEOUT_S, ProcessGroup, node_command
+from ros_helpers import DEFAULT_TIMEOUT_S, ProcessGroup, Probe, node_command
 
 pytestmark = pytest.mark.ros
 
@@ -299,3 +302,53 @@ def test_topics_resolve_in_the_namespace_and_unknown_types_are_discovered(tmp_pa
         wait_for_output(procs, pub, f'done {n}', timeout_s=60, watch=[rec])
         assert stop(rec, signal.SIGINT) == 0
     assert read_bag(bag).counts() == {f'{ns}/left/force': n, elsewhere: n}
+
+
+def _recorder_with_topics(procs, bag, ns, topics):
+    return procs.start('recorder', node_command(
+        'recorder', ns=ns, params={'output': str(bag), 'topics': topics}))
+
+
+def test_single_message_on_a_typed_topic_is_recorded(tmp_path, ns):
+    """A topic named with its type is subscribed before any publisher exists, so a
+    single publish after the recorder's subscription matched (as ``ros2 topic pub
+    --once -w``) is in the bag."""
+    bag = tmp_path / 'bag'
+    with ProcessGroup(tmp_path) as procs, Probe('typed_topic_probe') as probe:
+        rec = _recorder_with_topics(procs, bag, ns, ['extra:std_msgs/msg/Float64'])
+        probe.wait_for_endpoints(f'{ns}/extra', subscriber='/' + subscriptions_node_name(
+            'recorder'), timeout_s=DEFAULT_TIMEOUT_S, watch=[rec])
+        assert probe.publishers(f'{ns}/extra') == []   # subscribed with no publisher
+        pub = probe.publisher(f'{ns}/extra', Float64)
+        probe.spin_until(lambda: pub.get_subscription_count() == 1,
+                         "the recorder's subscription matched", procs=[rec])
+        pub.publish(Float64(data=42.0))
+        assert pub.wait_for_all_acked(Duration(seconds=DEFAULT_TIMEOUT_S))
+        assert stop(rec, signal.SIGINT) == 0, rec.output()
+    assert list(read_bag(bag).topic(f'{ns}/extra').values()) == [42.0]
+
+
+def test_best_effort_publisher_on_a_typed_topic_is_reported_by_name(tmp_path, ns):
+    """A best-effort publisher can never match the reliable subscription made at
+    start-up: the recorder says so, naming the topic, instead of recording nothing
+    silently."""
+    best_effort = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
+    with ProcessGroup(tmp_path) as procs, Probe('best_effort_probe') as probe:
+        rec = _recorder_with_topics(procs, tmp_path / 'bag', ns, ['extra:std_msgs/msg/Float64'])
+        probe.node.create_publisher(Float64, f'{ns}/extra', best_effort)
+        procs.wait_until(lambda: 'cannot match' in rec.output(), 'the recorder to report it')
+        assert stop(rec, signal.SIGINT) == 0, rec.output()
+    report = [line for line in rec.output().splitlines() if 'cannot match' in line]
+    assert len(report) == 1, rec.output()
+    assert f'{ns}/extra' in report[0] and 'without its type' in report[0]
+
+
+def test_typed_topic_with_an_unknown_type_is_a_clear_start_up_error(tmp_path, ns):
+    with ProcessGroup(tmp_path) as procs:
+        rec = _recorder_with_topics(procs, tmp_path / 'bag', ns,
+                                    ['extra:no_such_msgs/msg/Nothing'])
+        status = rec.wait()
+    assert status != 0
+    assert 'parameter `topics`' in rec.output() and 'no_such_msgs' in rec.output()
+    assert 'Traceback' not in rec.output()
+    assert not (tmp_path / 'bag').exists()

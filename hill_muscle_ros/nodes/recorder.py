@@ -4,14 +4,26 @@ There is no rosbag2 on PyPI; this node writes the same bag that ``ros2 bag
 record -s mcap`` writes (see :mod:`hill_muscle_ros.recording.bag_writer`),
 so ``ros2 bag info``, Foxglove, PlotJuggler and rosbags open it as it is.
 
-- Parameters: ``topics`` (names resolved in the node's namespace; default:
-  every topic of the simulator and the protocol player) and ``output`` (the
-  bag directory; default ``runs/<UTC timestamp>``; an existing non-empty
-  directory is an error, never overwritten).
-- Topics are subscribed when a publisher appears (the graph is polled every
-  20 ms), with the type and QoS the publishers offer; the package's own
-  topics are subscribed at start-up (:data:`KNOWN_TYPES`). Messages stay serialized:
-  the CDR bytes go to disk exactly as received.
+- Parameters: ``topics`` and ``output`` (the bag directory; default
+  ``runs/<UTC timestamp>``; an existing non-empty directory is an error,
+  never overwritten). Each entry of ``topics`` is a topic name (resolved in
+  the node's namespace), optionally followed by ``:`` and its type:
+  ``force_target:std_msgs/msg/Float64`` (:func:`parse_topic_entry`; a ``:``
+  cannot occur in a ROS name). Default: every topic of the simulator and
+  the protocol player.
+- A topic with a type (given, or one of the package's own topics,
+  :data:`KNOWN_TYPES`) is subscribed at start-up, before any publisher
+  exists, reliable and volatile, so a publisher that waits until the
+  recorder's subscription is matched before it publishes (``ros2 topic pub
+  --once -w N`` with N counting the recorder) loses nothing. A publisher
+  that this subscription cannot match (best effort) is reported as an
+  error, once: give such a topic by name only.
+- A topic given by name only is subscribed when a publisher appears (the
+  graph is polled every 20 ms), with the type and QoS the publishers offer.
+  What that publisher sends before the recorder's subscription has matched
+  it is not recorded: a single ``ros2 topic pub --once``, which publishes as
+  soon as one other subscriber matches and exits, is usually lost.
+- Messages stay serialized: the CDR bytes go to disk exactly as received.
 - ``log_time`` is the receive time on the node's clock (sim time with
   ``use_sim_time``), ``publish_time`` the header stamp where there is one.
 - Each message's publisher sequence number is checked: a gap means DDS lost
@@ -39,10 +51,11 @@ import rclpy
 from rcl_interfaces.msg import ParameterDescriptor, ParameterType
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSCompatibility, QoSProfile,
+                       ReliabilityPolicy, qos_check_compatible)
 from rclpy.signals import SignalHandlerOptions
 
-from ..recording.bag_writer import BagOutputError, BagWriter, read_msg_file
+from ..recording.bag_writer import BagOutputError, BagWriter, read_msg_file, split_type_name
 from ..timebase import NS_PER_S
 from ._common import EXIT_FAILURE, EXIT_SUCCESS, StartupError
 
@@ -114,6 +127,34 @@ def default_output(now: _dt.datetime | None = None) -> Path:
     """``runs/<UTC timestamp>``, e.g. ``runs/2025-01-31T12-00-00Z``."""
     now = now or _dt.datetime.now(_dt.timezone.utc)
     return Path(DEFAULT_RUNS_DIR) / now.strftime('%Y-%m-%dT%H-%M-%SZ')
+
+
+#: Separates a topic from its type in an entry of ``topics``.
+TOPIC_TYPE_SEPARATOR = ':'
+
+
+def parse_topic_entry(entry: str) -> tuple[str, str | None]:
+    """``(topic, type)`` of one entry of the ``topics`` parameter.
+
+    ``force`` gives ``('force', None)``; ``force_target:std_msgs/msg/Float64``
+    gives ``('force_target', 'std_msgs/msg/Float64')`` (``std_msgs/Float64``
+    is accepted and written in full).
+
+    :raises ValueError: naming the entry if the topic is empty or the type is
+        not ``pkg/msg/Type``
+    """
+    topic, sep, type_name = entry.partition(TOPIC_TYPE_SEPARATOR)
+    topic = topic.strip()
+    if not topic:
+        raise ValueError(f'entry {entry!r} names no topic')
+    if not sep:
+        return topic, None
+    try:
+        package, namespace, name = split_type_name(type_name.strip())
+    except ValueError:
+        raise ValueError(f'entry {entry!r}: the type after {TOPIC_TYPE_SEPARATOR!r} must look '
+                         f'like `pkg/msg/Type`, got {type_name!r}') from None
+    return topic, f'{package}/{namespace}/{name}'
 
 
 def message_class(type_name: str) -> type:
@@ -218,12 +259,20 @@ class Recorder(Node):
         self.output = Path(output) if output else default_output()
         self._wanted = []
         known = {}
-        for topic in topics:
-            resolved = self.resolve_topic_name(topic)
+        for entry in topics:
+            try:
+                topic, type_name = parse_topic_entry(entry)
+                if type_name is not None:
+                    message_class(type_name)
+                resolved = self.resolve_topic_name(topic)
+            except (ValueError, ImportError, AttributeError,
+                    rclpy.exceptions.InvalidTopicNameException) as err:
+                raise StartupError(f'parameter `topics`: {err}') from None
             if resolved not in self._wanted:
                 self._wanted.append(resolved)
-                if topic in KNOWN_TYPES:
-                    known[resolved] = KNOWN_TYPES[topic]
+                type_name = type_name or KNOWN_TYPES.get(topic)
+                if type_name is not None:
+                    known[resolved] = type_name
         try:
             self._writer = BagWriter(self.output)
         except BagOutputError as err:
@@ -272,6 +321,8 @@ class Recorder(Node):
                 continue
             if subscribed is None:
                 self._subscribe(name, types[0], request_qos([i.qos_profile for i in infos]))
+            elif not self._writer.has_topic(name):
+                self._check_publishers_match(name, [i.qos_profile for i in infos])
         if done:
             self._discovery.cancel()
 
@@ -288,6 +339,27 @@ class Recorder(Node):
         self._stats[name] = _TopicStats(name, stamped)
         self._subs[name] = self._reader.create_subscription(
             cls, name, _never_called, qos, raw=True)
+
+    def _check_publishers_match(self, name: str, offered: list[QoSProfile]) -> None:
+        """Say once, as an error, that a publisher cannot match the start-up subscription.
+
+        A best-effort publisher never matches the reliable reader subscribed
+        at start-up: nothing it sends can be recorded. Subscribing again with
+        its QoS would lose the start-up subscription's guarantee for the other
+        publishers, so the user chooses (the topic by name only).
+        """
+        sub = self._subs.get(name)
+        if sub is None or name in self._warned_types:
+            return
+        problems = [reason for compatibility, reason in
+                    (qos_check_compatible(q, sub.qos_profile) for q in offered)
+                    if compatibility == QoSCompatibility.ERROR]
+        if problems:
+            self._warned_types.add(name)
+            self.get_logger().error(
+                f'{name}: a publisher cannot match the subscription made at start-up '
+                f'({problems[0].strip()}); nothing it sends is recorded. Give {name} '
+                f'without its type to subscribe with the publishers\' QoS')
 
     def _register(self, name: str) -> None:
         """Add the topic to the bag at its first message, with the publishers' QoS."""
