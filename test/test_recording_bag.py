@@ -18,13 +18,13 @@ from rosbags.typesys import Stores, get_typestore
 from std_msgs.msg import Float64
 
 from hill_muscle_ros.recording.bag_writer import (
-    DEFINITION_SEPARATOR, BagOutputError, BagWriter, message_definition,
+    CHUNK_DURATION_S, DEFINITION_SEPARATOR, BagOutputError, BagWriter, message_definition,
     share_directory, type_description_hash)
 from hill_muscle_ros.recording.reader import read_bag
+from hill_muscle_ros.timebase import NS_PER_S
 
 N_MESSAGES = 2500
 DT_NS = 1_000_000          # 1 kHz
-NS_PER_S = 1_000_000_000
 
 
 def _wrench(k: int) -> WrenchStamped:
@@ -267,3 +267,30 @@ def test_reader_needs_no_ros_environment(bag):
     out = subprocess.run([sys.executable, '-c', code, str(path)], env=env, check=True,
                          capture_output=True, text=True, timeout=120).stdout
     assert int(out) == N_MESSAGES
+
+
+class _FakeClock:
+    """[s] a monotonic clock the test advances by hand."""
+
+    def __init__(self):
+        self.now_s = 0.0
+
+    def __call__(self):
+        return self.now_s
+
+
+def test_a_quiet_topic_reaches_the_disk_after_a_chunk_of_wall_time(tmp_path):
+    # One message, then silence: its chunk closes after CHUNK_DURATION_S of wall
+    # time whatever the log times (what a reader of a killed recording gets).
+    clock = _FakeClock()
+    writer = BagWriter(tmp_path / 'bag', wall_clock=clock)
+    writer.add_topic('/force', 'std_msgs/msg/Float64')
+    writer.write('/force', serialize_message(Float64(data=1.0)), 5 * NS_PER_S)
+    clock.now_s = 0.999 * CHUNK_DURATION_S
+    writer.flush_if_due()
+    assert writer.flushed_counts == {'/force': 0}
+    clock.now_s = CHUNK_DURATION_S
+    writer.flush_if_due()
+    assert writer.flushed_counts == {'/force': 1}
+    assert list(read_bag(tmp_path / 'bag').topic('force').values()) == [1.0]
+    writer.close()

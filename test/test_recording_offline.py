@@ -14,9 +14,9 @@ from hill_muscle_ros.model import MuscleParams, Protocol, simulate
 from hill_muscle_ros.recording import BagOutputError
 from hill_muscle_ros.recording.offline import write_simulation_bag
 from hill_muscle_ros.recording.reader import read_bag
+from hill_muscle_ros.timebase import NS_PER_S
 
 RATE_HZ = 1000.0
-NS_PER_S = 1_000_000_000
 #: The topics and types a live run with the simulator and the player records.
 LIVE_TOPICS = {
     '/pulse_width': 'std_msgs/msg/Float64',

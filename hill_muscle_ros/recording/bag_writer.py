@@ -19,7 +19,32 @@ and what this writer reproduces:
   is the bag metadata in YAML.
 
 Message definitions are read from the ``.msg`` files that the installed ROS
-packages ship in their ``share`` directories; nothing is pasted here.
+packages ship in their ``share`` directories; nothing is pasted here. The MCAP
+records themselves (header, schemas, channels, chunks, indexes, summary) are
+written by the ``mcap`` library's :class:`mcap.writer.Writer`; this module
+adds only the rosbag2 layer around it.
+
+Why not ``rosbags.rosbag2.Writer`` (rosbags 0.11.9, with its MCAP storage)?
+It was read and tried (the same 2.5 s of one 1 kHz topic as
+``test_recording_bag.py``); for a live recorder it lacks:
+
+- crash safety: its MCAP writer keeps the open chunk in memory until 1 MiB
+  and has no public call to close one, so a recording killed (SIGKILL, power
+  loss) after 2.5 s left a 0-byte file, nothing readable; here chunks close
+  after :data:`CHUNK_DURATION_S` of log *or wall* time (a quiet topic still
+  reaches the disk), 2000 of those 2500 messages survive
+  (``test_closed_chunks_survive_a_crash``), and a failed write or close
+  still leaves a ``metadata.yaml`` of what is on disk;
+- a publish time apart from the log time (it writes one timestamp to both)
+  and the publisher's sequence numbers (always 0): the recorder stores the
+  header stamp and the sequence, from which lost messages are counted;
+- the channel metadata ``topic_type_hash`` (only ``offered_qos_profiles``)
+  and ``ros_distro: jazzy`` (it writes ``rosbags``);
+- rosbag2's file name ``<name>_0.mcap`` (it writes ``<name>.mcap``), and
+  an existing empty output directory (it refuses any existing path).
+
+Reading is left to libraries: tests read every bag back with rosbags
+(``Reader``, ``AnyReader``) and with ``mcap_ros2``, independent of this code.
 """
 from __future__ import annotations
 
