@@ -31,12 +31,12 @@ from std_msgs.msg import Float64
 from ..control import ControllerInputs, ControllerParams, ForceController, ImposedLength
 from ..model import MuscleParams
 from ..model.muscle import check_dl_mt
+from ..timebase import NS_PER_S
 from ._common import (OUTPUT_QOS, RELIABLE_QOS, BadInputWarner, StartupError,
                       declare_checked, field_descriptor, number_descriptor,
                       reject_unknown_overrides, run_node)
 
 NODE_NAME = 'force_controller'
-_NS_PER_S = 1e9
 #: Longest time step, in control periods, that one update integrates over.
 MAX_DT_PERIODS = 2.0
 
@@ -105,7 +105,7 @@ class ForceControllerNode(Node):
     # -- inputs ---------------------------------------------------------------
 
     def _now_s(self) -> float:
-        return self.get_clock().now().nanoseconds / _NS_PER_S
+        return self.get_clock().now().nanoseconds / NS_PER_S
 
     def _on_target(self, msg: Float64) -> None:
         try:
@@ -135,13 +135,13 @@ class ForceControllerNode(Node):
                               f'ignoring {self._sub_length.topic_name} = {msg.data!r}: {err}; '
                               f'keeping {self._length.plain.dl_mt_m!r} m')
             return
-        self._length.add_sample(self.get_clock().now().nanoseconds / _NS_PER_S, dl_mt_m)
+        self._length.add_sample(self.get_clock().now().nanoseconds / NS_PER_S, dl_mt_m)
 
     def _on_length_stamped(self, msg: PointStamped) -> None:
-        stamp_s = msg.header.stamp.sec + msg.header.stamp.nanosec / _NS_PER_S
+        stamp_s = msg.header.stamp.sec + msg.header.stamp.nanosec / NS_PER_S
         try:
             self._length.add_knot(stamp_s, msg.point.x,
-                                  self.get_clock().now().nanoseconds / _NS_PER_S)
+                                  self.get_clock().now().nanoseconds / NS_PER_S)
         except ValueError as err:
             topic = self._sub_length_stamped.topic_name
             self._warner.warn(topic, f'ignoring {topic} = {msg.point.x!r} at {stamp_s!r} s: '
@@ -175,10 +175,10 @@ class ForceControllerNode(Node):
         # After a stall of this process the force read now says nothing about
         # the gap: integrate over at most a couple of periods, not the whole gap.
         dt_s = (1.0 / p.rate_hz if self._last_tick_ns is None
-                else min((now_ns - self._last_tick_ns) / _NS_PER_S,
+                else min((now_ns - self._last_tick_ns) / NS_PER_S,
                          MAX_DT_PERIODS / p.rate_hz))
         self._last_tick_ns = now_ns
-        now_s = now_ns / _NS_PER_S
+        now_s = now_ns / NS_PER_S
         state = self.inputs.state(now_s)
         self._log_transition(state, p)
         self.input_state = state

@@ -42,6 +42,7 @@ from std_msgs.msg import Float64
 from ..model import MuscleParams, Protocol, ProtocolError
 from ..model.protocol import STIMULATION_OUTPUTS
 from ..resources import BUILTIN_PROTOCOLS, protocol_path
+from ..timebase import NS_PER_S
 from ._common import (EXIT_FAILURE, EXIT_SUCCESS, OUTPUT_QOS,
                       StartupError, declare_checked, field_descriptor,
                       number_descriptor, reject_unknown_overrides, run_node)
@@ -75,7 +76,6 @@ MIN_SUBSCRIBERS_RANGE = (1, 100)
 #: interpolated length is the same.
 MAX_INITIAL_KNOTS = 100
 
-_NS_PER_S = 1_000_000_000
 
 
 class ProtocolPlayer(Node):
@@ -142,7 +142,7 @@ class ProtocolPlayer(Node):
         # Waiting is in wall time: the sim clock may not run yet.
         self._steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._wait_deadline_ns = (self._steady.now().nanoseconds
-                                  + round(self._wait_s * _NS_PER_S))
+                                  + round(self._wait_s * NS_PER_S))
         self._poll = self.create_timer(POLL_PERIOD_S, self._on_poll, clock=self._steady)
         self._timer = None
         ahead = (f', length {self._lookahead_s:g} s ahead' if self._stamped else '')
@@ -184,7 +184,7 @@ class ProtocolPlayer(Node):
             return
         # Time 0 is one look-ahead from now, so that the first window's knots
         # are all sent before their time.
-        self._t0 = now + Duration(nanoseconds=round(self._lookahead_s * _NS_PER_S))
+        self._t0 = now + Duration(nanoseconds=round(self._lookahead_s * NS_PER_S))
         n = min(MAX_INITIAL_KNOTS, math.floor(self._lookahead_s / self._period_s) + 1)
         self._send_knots(np.linspace(0.0, self._lookahead_s, max(n, 2)))
 
@@ -200,7 +200,7 @@ class ProtocolPlayer(Node):
         t0_ns = self._t0.nanoseconds
         for t, dl in zip(times.tolist(), np.atleast_1d(p.dl_mt(times)).tolist()):
             msg = PointStamped()
-            msg.header.stamp = Time(nanoseconds=t0_ns + round(t * _NS_PER_S)).to_msg()
+            msg.header.stamp = Time(nanoseconds=t0_ns + round(t * NS_PER_S)).to_msg()
             msg.point.x = dl
             self._pub_dl.publish(msg)
         if len(times):
@@ -214,7 +214,7 @@ class ProtocolPlayer(Node):
                                                                   self._pw_max_s)))
 
     def _on_tick(self) -> None:
-        t_s = (self.get_clock().now() - self._t0).nanoseconds / _NS_PER_S
+        t_s = (self.get_clock().now() - self._t0).nanoseconds / NS_PER_S
         if self._stamped:
             self._send_knots([t_s + self._lookahead_s])
         if t_s < 0.0:

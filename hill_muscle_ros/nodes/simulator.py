@@ -46,6 +46,7 @@ from std_srvs.srv import Trigger
 
 from ..model import CommandTrack, Muscle, MuscleParams
 from ..model.muscle import check_dl_mt, check_recruitment, recruitment_from_pulse_width
+from ..timebase import NS_PER_S
 from ._common import (LIVE_RESETS, OUTPUT_HISTORY_DEPTH, OUTPUT_QOS, RELIABLE_QOS,
                       BadInputWarner,
                       StartupError, StepSchedule, declare_checked,
@@ -94,8 +95,6 @@ STAMPED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=STAMPED_QUEUE_DE
 #: any look-ahead, so a stamp further out is a clock mix-up (wall-clock stamps
 #: sent to a simulator on sim time), not a command.
 MAX_STAMP_LEAD_S = 3600.0
-#: [ns] per s; a header stamp's nanosec field is below this.
-_NS_PER_S = 1_000_000_000
 
 
 def check_frame_id(frame_id: str) -> str:
@@ -292,8 +291,8 @@ class Simulator(Node):
 
     def _publish(self, force_n: float, l_ce_m: float) -> None:
         """Publish the outputs of the step just run, stamped with its end time."""
-        sim_ns = round(self._schedule.steps_done * _NS_PER_S / self._rate_hz)
-        sec, nanosec = divmod(self._stamp_origin_ns + sim_ns, _NS_PER_S)
+        sim_ns = round(self._schedule.steps_done * NS_PER_S / self._rate_hz)
+        sec, nanosec = divmod(self._stamp_origin_ns + sim_ns, NS_PER_S)
         wrench = self._wrench_msg
         stamp = wrench.header.stamp
         stamp.sec = sec
@@ -430,12 +429,12 @@ class Simulator(Node):
         :raises ValueError: on an unset (zero) stamp, a nanosec field out of
             range, or a stamp more than :data:`MAX_STAMP_LEAD_S` ahead
         """
-        if not 0 <= nanosec < _NS_PER_S:
+        if not 0 <= nanosec < NS_PER_S:
             raise ValueError(f'`header.stamp.nanosec` must be in [0, 1e9), got {nanosec!r}')
         if sec == 0 and nanosec == 0:
             raise ValueError('`header.stamp` is 0 (unset): stamp the time dl_MT is to be '
                              'reached')
-        sim_s = (sec * _NS_PER_S + nanosec - self._stamp_origin_ns) / _NS_PER_S
+        sim_s = (sec * NS_PER_S + nanosec - self._stamp_origin_ns) / NS_PER_S
         if sim_s - self.sim_time_s > MAX_STAMP_LEAD_S:
             clock = ('sim time from 0 (publish_clock)' if self._publish_clock
                      else 'the node clock at start-up + sim time')
@@ -513,7 +512,7 @@ class Simulator(Node):
     def on_exit(self) -> None:
         """Log the run's timing statistics (achieved rate, drift, late ticks)."""
         s = self._schedule
-        elapsed_s = (self._steady.now().nanoseconds - s.start_ns) / _NS_PER_S
+        elapsed_s = (self._steady.now().nanoseconds - s.start_ns) / NS_PER_S
         behind = s.target(self._steady.now().nanoseconds) - s.steps_done
         # Not the node logger: after Ctrl-C its /rosout publisher is gone. Its
         # name is the node logger's (rcl's form of the fully qualified name,
