@@ -45,13 +45,13 @@ from rclpy.time import Time
 from std_msgs.msg import Float64
 
 from ros_helpers import Probe, ProcessGroup, node_command
+from hill_muscle_ros.timebase import NS_PER_S
 from stall_watch import repeat_only_on_external_stall
 
 pytestmark = pytest.mark.ros
 
 VARIANTS = ('initial', 'instantaneous')
 _RUNS = itertools.count()
-_NS_PER_S = 1e9
 
 STEP_TARGET_N = 20.0
 #: Settling band of the step: +-2 % of the target.
@@ -90,7 +90,7 @@ def unique_namespace() -> str:
 
 def stamp_s(msg: WrenchStamped) -> float:
     """[s] header stamp of a wrench."""
-    return msg.header.stamp.sec + msg.header.stamp.nanosec / _NS_PER_S
+    return msg.header.stamp.sec + msg.header.stamp.nanosec / NS_PER_S
 
 
 class Loop:
@@ -213,7 +213,7 @@ def run_stretch(procs, probe, length: str) -> dict:
     def rig(msg: WrenchStamped) -> None:
         t_s = stamp_s(msg) + RIG_LOOKAHEAD_S
         point = PointStamped()
-        point.header.stamp = Time(nanoseconds=round(t_s * _NS_PER_S)).to_msg()
+        point.header.stamp = Time(nanoseconds=round(t_s * NS_PER_S)).to_msg()
         point.header.frame_id = msg.header.frame_id
         point.point.x = ramp_dl_m(t_s, t_ramp)
         loop.length_pub.publish(point)

@@ -26,13 +26,13 @@ from std_msgs.msg import Float64
 
 from hill_muscle_ros.control import ControllerParams
 from hill_muscle_ros.model import Muscle, MuscleParams
+from hill_muscle_ros.timebase import NS_PER_S
 from ros_helpers import Probe, ProcessGroup, node_command
 from stall_watch import repeat_only_on_external_stall
 
 pytestmark = [pytest.mark.faults, pytest.mark.ros]
 
 _RUNS = itertools.count()
-_NS_PER_S = 1e9
 RATE_HZ = 1000.0
 DT_S = 1.0 / RATE_HZ
 INPUT_TIMEOUT_S = 0.5
@@ -49,7 +49,7 @@ OFFLINE_SETTLE_S = 2.0
 
 
 def stamp_s(msg: WrenchStamped) -> float:
-    return msg.header.stamp.sec + msg.header.stamp.nanosec / _NS_PER_S
+    return msg.header.stamp.sec + msg.header.stamp.nanosec / NS_PER_S
 
 
 def offline_transition(pulse_width_s: float, n_before: int, n_after: int) -> tuple[float, np.ndarray]:

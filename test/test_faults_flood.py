@@ -23,11 +23,11 @@ import pytest
 from geometry_msgs.msg import WrenchStamped
 
 from ros_helpers import Probe, ProcessGroup, node_command
+from hill_muscle_ros.timebase import NS_PER_S
 
 pytestmark = [pytest.mark.faults, pytest.mark.ros]
 
 _RUNS = itertools.count()
-_NS_PER_S = 1e9
 FLOOD_RATE_HZ = 20_000.0
 FLOOD_S = 10.0
 MAX_RATE_ERROR = 0.05
@@ -83,7 +83,7 @@ def rss_kb(pid: int) -> int:
 
 
 def stamp_s(msg: WrenchStamped) -> float:
-    return msg.header.stamp.sec + msg.header.stamp.nanosec / _NS_PER_S
+    return msg.header.stamp.sec + msg.header.stamp.nanosec / NS_PER_S
 
 
 def test_pulse_width_flood_keeps_step_rate_memory_and_outputs(tmp_path):

@@ -39,12 +39,12 @@ from rosbags.rosbag2 import Reader
 
 from hill_muscle_ros.recording.bag_writer import CHUNK_DURATION_S
 from hill_muscle_ros.recording.reader import read_bag
+from hill_muscle_ros.timebase import NS_PER_S
 from ros_helpers import Probe, ProcessGroup, node_command
 
 pytestmark = [pytest.mark.faults, pytest.mark.ros]
 
 _RUNS = itertools.count()
-_NS_PER_S = 1_000_000_000
 REPEATS = 20
 #: Recorders run side by side; 2 cores, so a few at a time.
 BATCH = 5
@@ -61,7 +61,7 @@ SEED = 20240606
 
 
 def stamp_ns(msg: WrenchStamped) -> int:
-    return msg.header.stamp.sec * _NS_PER_S + msg.header.stamp.nanosec
+    return msg.header.stamp.sec * NS_PER_S + msg.header.stamp.nanosec
 
 
 @pytest.fixture(scope='module')
@@ -141,10 +141,10 @@ def test_sigint_or_sigterm_at_a_random_moment_loses_nothing_received(sim):
                 stamp_ns(reader.deserialize(raw, c.msgtype))
                 for c, _, raw in reader.messages(connections=conn)))
         seen = witness_between(sim, bag_stamps[0],
-                               run['signal_stamp_ns'] - round(WITNESS_LEAD_S * _NS_PER_S))
+                               run['signal_stamp_ns'] - round(WITNESS_LEAD_S * NS_PER_S))
         missing = np.setdiff1d(seen, bag_stamps)
         lost = reported_lost(run['proc'].output(), f'{sim["ns"]}/wrench')
-        end_window = seen[seen >= seen[-1] - round(STOP_WINDOW_S * _NS_PER_S)]
+        end_window = seen[seen >= seen[-1] - round(STOP_WINDOW_S * NS_PER_S)]
         lost_total += missing.size
         dds_lost.append(lost)
         beyond.append(int((bag_stamps > run['signal_stamp_ns']).sum()))
@@ -165,7 +165,7 @@ def test_sigkill_keeps_everything_before_the_last_chunk_readable(sim):
     probe.spin_until(lambda: '/wrench (' in proc.output(), 'the recorder to subscribe',
                      procs=[sim['sim'], proc])
     t_sub = stamp_ns(wrench.messages[-1])
-    probe.spin_until(lambda: stamp_ns(wrench.messages[-1]) >= t_sub + KILL_AFTER_S * _NS_PER_S,
+    probe.spin_until(lambda: stamp_ns(wrench.messages[-1]) >= t_sub + KILL_AFTER_S * NS_PER_S,
                      'the recording to run', procs=[sim['sim'], proc])
     kill_stamp = stamp_ns(wrench.messages[-1])
     proc.popen.send_signal(signal.SIGKILL)
@@ -173,7 +173,7 @@ def test_sigkill_keeps_everything_before_the_last_chunk_readable(sim):
     data = read_bag(bag)
     assert not data.complete
     bag_stamps = data.topic('wrench').stamps_ns()
-    cutoff = kill_stamp - round((CHUNK_DURATION_S + WITNESS_LEAD_S) * _NS_PER_S)
+    cutoff = kill_stamp - round((CHUNK_DURATION_S + WITNESS_LEAD_S) * NS_PER_S)
     seen = witness_between(sim, bag_stamps[0], cutoff)
     missing = np.setdiff1d(seen, bag_stamps)
     print(f'\nMEASURED recorder SIGKILL after {KILL_AFTER_S} s: {bag_stamps.size} wrenches '

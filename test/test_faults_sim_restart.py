@@ -26,6 +26,7 @@ from rosbags.highlevel import AnyReader
 from std_msgs.msg import Float64
 
 from hill_muscle_ros.recording.reader import read_bag
+from hill_muscle_ros.timebase import NS_PER_S
 from ros_helpers import Probe, ProcessGroup, Recording, node_command
 
 pytestmark = [pytest.mark.faults, pytest.mark.ros]
@@ -34,7 +35,6 @@ pytestmark = [pytest.mark.faults, pytest.mark.ros]
 FIRST_LIFE_AFTER_MATCH_MSGS = 200
 
 _RUNS = itertools.count()
-_NS_PER_S = 1e9
 TARGET_N = 10.0
 #: [N] the loop holds the target this closely once settled.
 HOLD_TOL_N = 0.2
@@ -47,7 +47,7 @@ RECORDED = ['force', 'wrench', 'pulse_width', 'length_command', 'force_target']
 
 
 def stamp_s(msg) -> float:
-    return msg.header.stamp.sec + msg.header.stamp.nanosec / _NS_PER_S
+    return msg.header.stamp.sec + msg.header.stamp.nanosec / NS_PER_S
 
 
 def write_protocol(path) -> None:
@@ -112,7 +112,7 @@ def test_simulator_restart_is_survived_and_both_lives_are_recorded(tmp_path):
         assert rec.returncode == 0, rec.output()
 
     data = read_bag(bag)
-    stamps = data.topic(f'{ns}/wrench').stamps_ns() / _NS_PER_S
+    stamps = data.topic(f'{ns}/wrench').stamps_ns() / NS_PER_S
     forces = data.topic(f'{ns}/wrench').values()
     first_life = stamps <= t_kill
     second_life = stamps >= t_back

@@ -9,8 +9,7 @@ from rcl_interfaces.msg import ParameterDescriptor
 from hill_muscle_ros.model import MuscleParams
 from hill_muscle_ros.nodes._common import (LIVE_KEEPS_STATE, LIVE_RESETS, BadInputWarner,
                                            StepSchedule, field_descriptor)
-
-NS = 1_000_000_000
+from hill_muscle_ros.timebase import NS_PER_S as NS
 
 
 def test_schedule_runs_floor_of_elapsed_times_rate():
