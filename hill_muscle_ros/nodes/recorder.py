@@ -380,6 +380,8 @@ class Recorder(Node):
         written = 0
         for topic, sub in list(self._subs.items()):
             while not self.failure:
+                # rclpy 7.1.6 has no public take on a Subscription; this is the
+                # call its own executors and wait_for_message make on the handle.
                 with sub.handle:
                     taken = sub.handle.take_message(sub.msg_type, True)
                 if taken is None:
