@@ -65,8 +65,11 @@ class _Sim:
     def __init__(self, procs, probe, ns, rtf=1.0):
         self.ns, self.probe = ns, probe
         self.wrench = probe.record(f'{ns}/wrench', WrenchStamped, qos=DEEP_QOS)
+        # Every step published, at RTF 10 too (the default there is every
+        # 10th): the exact test below finds the step the recruitment acted at.
         self.proc = procs.start(ns.strip('/'), node_command('simulator', ns=ns, params={
-            'rate_hz': RATE_HZ, 'real_time_factor': rtf, 'input_timeout_s': 0.0}))
+            'rate_hz': RATE_HZ, 'real_time_factor': rtf, 'input_timeout_s': 0.0,
+            'publish_every_n_steps': 1}))
         self.knots = probe.node.create_publisher(PointStamped, f'{ns}/length_command_stamped',
                                                  DEEP_QOS)
 

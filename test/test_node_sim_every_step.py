@@ -1,8 +1,9 @@
 """The simulator publishes every step, each with its own stamp, over real DDS.
 
-A tick that runs several steps (the node was late and catches up, or by design
-at a real-time factor > 1) publishes all of them, so a recording has no holes:
-the ``wrench`` stamps of consecutive messages differ by exactly one step. Each
+A tick that catches up after a stall publishes every step it runs, so a
+recording has no holes: the ``wrench`` stamps of consecutive messages differ by
+exactly one step. Faster than 1 kHz of the steady clock (a real-time factor
+> 1) the default is every n-th step on a fixed grid, and every step on request. Each
 test runs its own simulator at 1 kHz, in its own namespace, stamping with the
 node clock at start-up plus simulated time (no ``/clock``).
 
@@ -79,6 +80,7 @@ class _Wrenches:
 
 
 def _start(procs, probe, **params) -> tuple:
+    """A simulator at 1 kHz in a namespace of its own; (process, wrenches, knot publisher, ns)."""
     ns = f'/every_{os.getpid()}_{next(_RUNS)}'
     proc = procs.start(ns.strip('/'), node_command('simulator', ns=ns, params={
         'rate_hz': RATE_HZ, 'input_timeout_s': 0.0, **params}))
@@ -88,7 +90,7 @@ def _start(procs, probe, **params) -> tuple:
     # has subscribed the probe's knots.
     probe.spin_until(lambda: wrenches.stamps_ns and knots.get_subscription_count() > 0,
                      'a wrench and the knot subscription', procs=[proc])
-    return proc, wrenches, knots
+    return proc, wrenches, knots, ns
 
 
 def _holes(stamps: np.ndarray, spacing_ns: int) -> str:
@@ -114,7 +116,7 @@ def _knot(stamp_ns: int, value: float) -> PointStamped:
 
 def test_stalled_simulator_publishes_every_step_once_with_its_own_stamp(tmp_path):
     with ProcessGroup(tmp_path) as procs, Probe('every_step_probe') as probe:
-        proc, wrenches, knots = _start(procs, probe)
+        proc, wrenches, knots, _ = _start(procs, probe)
         ramp_start_ns = wrenches.latest_ns() + round(RAMP_LEAD_S * 1e9)
         ramp_end_ns = ramp_start_ns + round(RAMP_S * 1e9)
         knots.publish(_knot(ramp_start_ns, 0.0))
@@ -141,9 +143,10 @@ def test_stalled_simulator_publishes_every_step_once_with_its_own_stamp(tmp_path
     assert np.max(np.abs(forces[on_ramp] - expected)) < FORCE_TOL_N
 
 
-def test_several_steps_per_tick_at_real_time_factor_5_are_all_published(tmp_path):
+def test_every_step_at_real_time_factor_5_when_asked(tmp_path):
     with ProcessGroup(tmp_path) as procs, Probe('every_step_rtf_probe') as probe:
-        proc, wrenches, _ = _start(procs, probe, real_time_factor=5.0)
+        proc, wrenches, _, _ = _start(procs, probe, real_time_factor=5.0,
+                                      publish_every_n_steps=1)
         first_ns = wrenches.latest_ns()
         # 1 s of simulated time: 200 ticks of 5 steps each.
         _wait_stamp(probe, wrenches, first_ns + 1_000_000_000, proc)
@@ -155,16 +158,28 @@ def test_several_steps_per_tick_at_real_time_factor_5_are_all_published(tmp_path
     assert set(np.diff(stamps).tolist()) == {STEP_NS}, _holes(stamps, STEP_NS)
 
 
-def test_publish_every_n_steps_publishes_a_fixed_grid_of_steps(tmp_path):
+def test_default_at_real_time_factor_10_is_every_10th_step_on_a_fixed_grid(tmp_path):
+    # 10 kHz of steps: by default the outputs stay at 1 kHz of the steady clock.
     every = 10
     with ProcessGroup(tmp_path) as procs, Probe('every_n_probe') as probe:
-        proc, wrenches, _ = _start(procs, probe, real_time_factor=10.0,
-                                   publish_every_n_steps=every)
+        proc, wrenches, _, ns = _start(procs, probe, real_time_factor=10.0)
+        got = probe.get_parameters(f'{ns}/simulator', ['publish_every_n_steps'],
+                                   procs=[proc])
         _wait_stamp(probe, wrenches, wrenches.latest_ns() + 1_000_000_000, proc)
         log = proc.output()
+    assert got == {'publish_every_n_steps': every}
     stamps = np.array(wrenches.stamps_ns, dtype=np.int64)
     assert set(np.diff(stamps).tolist()) == {every * STEP_NS}, _holes(stamps, every * STEP_NS)
     # On multiples of n steps of simulated time, whatever the tick phase: the
     # start-up stamp origin is unknown, but all stamps share one phase.
     assert len(set((stamps % (every * STEP_NS)).tolist())) == 1
     assert 'outputs of every 10th step' in log
+
+
+def test_explicit_publish_every_n_steps_at_real_time(tmp_path):
+    every = 3
+    with ProcessGroup(tmp_path) as procs, Probe('every_3_probe') as probe:
+        proc, wrenches, _, _ = _start(procs, probe, publish_every_n_steps=every)
+        _wait_stamp(probe, wrenches, wrenches.latest_ns() + 300_000_000, proc)
+    stamps = np.array(wrenches.stamps_ns, dtype=np.int64)
+    assert set(np.diff(stamps).tolist()) == {every * STEP_NS}, _holes(stamps, every * STEP_NS)

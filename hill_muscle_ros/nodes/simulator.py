@@ -5,10 +5,13 @@ Subscribes ``pulse_width`` [s], ``recruitment`` [-] and ``length_command``
 dt = 1 / ``rate_hz`` against the steady clock, and publishes ``force`` [N],
 ``ce_length`` [m] and ``wrench`` (geometry_msgs/WrenchStamped, force along +x)
 for every step, stamped with the step's simulated time; optionally ``/clock``.
-A tick that runs several steps (a late tick catching up, ``real_time_factor``
-> 1, ``rate_hz`` > 1 kHz) publishes them all, in order, as a burst, so a
-recording has every step. A ``reset`` service (std_srvs/Trigger) returns the
-muscle to rest. See README "ROS 2 nodes" for the tables.
+A late tick catching up publishes every step it runs, in order, as a burst, so
+a recording has no holes. When the steps run faster than 1 kHz of the steady
+clock (``real_time_factor`` > 1, ``rate_hz`` > 1 kHz) the outputs of every
+n-th step are published by default, on a fixed grid of simulated time, so that
+they stay at 1 kHz; ``publish_every_n_steps:=1`` publishes every step there
+too. A ``reset`` service (std_srvs/Trigger) returns the muscle to rest. See
+README "ROS 2 nodes" for the tables.
 
 Length commands sent ahead: ``length_command_stamped``
 (geometry_msgs/PointStamped) carries dl_MT [m] in ``point.x`` (along +x of the
@@ -66,13 +69,24 @@ DEFAULT_INPUT_TIMEOUT_S = 0.5
 #: [s] 0 disables the watchdog; an hour is longer than any FES session gap.
 INPUT_TIMEOUT_RANGE_S = (0.0, 3600.0)
 DEFAULT_FRAME_ID = 'muscle'
-#: Publish every step's outputs by default: a recording at rate_hz has them all.
-DEFAULT_PUBLISH_EVERY_N_STEPS = 1
+#: [Hz] of the steady clock: by default the outputs of every n-th step are
+#: published, with the smallest n that keeps them at or below this rate, i.e.
+#: every step at 1 kHz and real time (and in every catch-up burst). Publishing
+#: costs far more than a step (measured here: about 45 us of CPU per step with
+#: one subscriber, 2 us for the model), and every subscriber pays per message
+#: too: at real_time_factor 10, every step (10 kHz of /clock, force, ce_length
+#: and wrench) overloaded the simulator (5.3 of 10 ksteps/s) and the recorder
+#: lost half of them. ``publish_every_n_steps:=1`` asks for every step anyway.
+DEFAULT_MAX_OUTPUT_RATE_HZ = 1000.0
 #: [-] every step up to one output per million steps.
 PUBLISH_EVERY_N_STEPS_RANGE = (1, 1_000_000)
+#: Slack for the rounding of rate_hz x real_time_factor / 1 kHz to whole steps
+#: (3 x 1000.0 / 1000.0 may not be exactly 3).
+_STEP_RATIO_ROUNDING = 1e-9
 
 #: [s] the timer never ticks faster than this: at a higher step rate or a real
-#: time factor > 1 each tick runs several steps (and publishes each of them).
+#: time factor > 1 each tick runs several steps (publishing every n-th, see
+#: DEFAULT_MAX_OUTPUT_RATE_HZ).
 MIN_TICK_PERIOD_S = 0.001
 #: [s] of clock time one tick may catch up at most, so that a long stall (a
 #: suspended process) cannot freeze the node while it runs a huge backlog. It
@@ -95,6 +109,17 @@ STAMPED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=STAMPED_QUEUE_DE
 #: any look-ahead, so a stamp further out is a clock mix-up (wall-clock stamps
 #: sent to a simulator on sim time), not a command.
 MAX_STAMP_LEAD_S = 3600.0
+
+
+def default_publish_every_n_steps(rate_hz: float, real_time_factor: float) -> int:
+    """The default of ``publish_every_n_steps``: see :data:`DEFAULT_MAX_OUTPUT_RATE_HZ`.
+
+    :param rate_hz: [Hz] step rate, 1 / dt
+    :param real_time_factor: [-] simulated seconds per clock second
+    :return: [-] the smallest n >= 1 with rate_hz x real_time_factor / n <= 1 kHz
+    """
+    steps_per_output = rate_hz * real_time_factor / DEFAULT_MAX_OUTPUT_RATE_HZ
+    return max(1, math.ceil(steps_per_output - _STEP_RATIO_ROUNDING))
 
 
 def check_frame_id(frame_id: str) -> str:
@@ -135,18 +160,17 @@ class Simulator(Node):
         self._publish_clock = declare_checked(self, 'publish_clock', False, ParameterDescriptor(
             description='publish /clock (sim time from 0) and stamp outputs with it',
             read_only=True))
-        # Publishing costs far more CPU than a step (about 45 us per step with
-        # a subscriber against 2 us for the model): every step is right at
-        # 1 kHz and real time, but at real_time_factor 100 it would take
-        # several cores, so fast runs may publish every n-th step instead.
-        self._publish_every = declare_checked(
-            self, 'publish_every_n_steps', DEFAULT_PUBLISH_EVERY_N_STEPS, number_descriptor(
-                'publish the outputs (and /clock) of every n-th step, stamped with its '
-                'simulated time; 1 publishes every step', '-', *PUBLISH_EVERY_N_STEPS_RANGE,
-                integer=True, read_only=True))
         for name, value in (('rate_hz', rate_hz), ('real_time_factor', rtf)):
             if not math.isfinite(value):
                 raise StartupError(f'parameter `{name}` must be finite, got {value!r}')
+        self._publish_every = declare_checked(
+            self, 'publish_every_n_steps', default_publish_every_n_steps(rate_hz, rtf),
+            number_descriptor(
+                'publish the outputs (and /clock) of every n-th step, stamped with its '
+                'simulated time: 1 publishes every step; default: the smallest n that '
+                f'keeps them at or below {DEFAULT_MAX_OUTPUT_RATE_HZ:g} Hz of the steady '
+                'clock (rate_hz x real_time_factor / 1000, rounded up)', '-',
+                *PUBLISH_EVERY_N_STEPS_RANGE, integer=True, read_only=True))
         try:
             check_frame_id(self._frame_id)
         except ValueError as err:
@@ -252,11 +276,10 @@ class Simulator(Node):
     def _run_steps(self, dls: list[float]) -> bool:
         """Run one step per dl_MT value and publish each step's outputs.
 
-        Every step is published, stamped with its own simulated time, so a
+        Each step is published, stamped with its own simulated time, so a
         tick that runs several (catching up, or by design at a real-time
-        factor > 1) sends them as a burst and a recording has no holes.
-
-        With ``publish_every_n_steps`` n > 1, only steps whose count is a
+        factor > 1) sends them as a burst and a recording has no holes. With
+        ``publish_every_n_steps`` n > 1, only the steps whose count is a
         multiple of n are published.
 
         :param dls: [m] dl_MT at the end of each step, in order
