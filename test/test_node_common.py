@@ -41,6 +41,15 @@ def test_schedule_real_time_factor_scales_steps():
     assert s.due(NS) == 600
 
 
+def test_schedule_reports_the_longest_interval_between_ticks_and_its_end():
+    s = StepSchedule(rate_hz=1000.0, real_time_factor=1.0, start_ns=0)
+    assert (s.max_tick_gap_s, s.max_tick_gap_end_ns) == (0.0, None)
+    # Start-up (0 to 100 ms) is no gap between ticks; then 1, 34, 1 and 9 ms.
+    for now_ns in (100_000_000, 101_000_000, 135_000_000, 136_000_000, 145_000_000):
+        s.steps_done += s.due(now_ns)
+    assert (s.max_tick_gap_s, s.max_tick_gap_end_ns) == (0.034, 135_000_000)
+
+
 @pytest.mark.parametrize('field', dataclasses.fields(MuscleParams), ids=lambda f: f.name)
 def test_descriptor_comes_from_the_field_metadata(field):
     desc = field_descriptor(field)

@@ -33,6 +33,7 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange,
 from rcl_interfaces.srv import ListParameters
 from rclpy.parameter import Parameter
 
+from ..dds_transport import use_udp_transport
 from ..model import MuscleParams
 from ..params_file import SIMULATOR_NODE_KEYS
 # The QoS profiles live below the nodes and the recording code; re-exported here.
@@ -159,8 +160,19 @@ def run_node(node_factory: Callable[[], Node], args: list[str] | None = None) ->
     stimulation there) could no longer publish. The first one ends the spin;
     the handlers are restored before the context shuts down.
 
-    The executor is :func:`make_executor`'s (``HILL_MUSCLE_EXECUTOR``).
+    The executor is :func:`make_executor`'s (``HILL_MUSCLE_EXECUTOR``). On
+    Fast DDS the node's participant uses UDP only
+    (:func:`~hill_muscle_ros.dds_transport.use_udp_transport`,
+    ``HILL_MUSCLE_DDS_TRANSPORT``): shared memory stalled the simulator for
+    333 ms whenever a process such as ``ros2 param get`` joined the graph.
     """
+    logger_name = getattr(node_factory, 'NODE_NAME', 'node')
+    try:
+        # Before rclpy.init: the RMW reads it when it creates the participant.
+        transport_note = use_udp_transport()
+    except ValueError as err:
+        rclpy.logging.get_logger(logger_name).error(str(err))
+        return EXIT_FAILURE
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     node = None
     executor = None
@@ -168,6 +180,8 @@ def run_node(node_factory: Callable[[], Node], args: list[str] | None = None) ->
     with StopSignals() as stop:
         try:
             node = node_factory()
+            if transport_note is not None:
+                node.get_logger().info(transport_note)
             executor = make_executor()
             executor.add_node(node)
             done = getattr(node, 'done', None)
@@ -412,14 +426,28 @@ class StepSchedule:
         self.steps_done = 0
         self.late_ticks = 0
         self.ticks = 0
+        #: [s] longest clock interval between two consecutive :meth:`due`
+        #: calls: the longest time the node's tick did not run (0 before the
+        #: second tick). Start-up before the first tick is not counted.
+        self.max_tick_gap_s = 0.0
+        #: [ns] clock reading at the end of that longest gap (``None`` before
+        #: the second tick): to tell, afterwards, what else happened then.
+        self.max_tick_gap_end_ns: int | None = None
+        self._last_due_ns: int | None = None
 
     def target(self, now_ns: int) -> int:
         """Steps that should have been run by ``now_ns``."""
         return math.floor((now_ns - self.start_ns) * self.steps_per_ns)
 
     def due(self, now_ns: int) -> int:
-        """Steps to run now; counts the tick, and a late tick if more than one."""
+        """Steps to run now; counts the tick, a late tick if more than one, and the gap."""
         n = max(0, self.target(now_ns) - self.steps_done)
+        if self._last_due_ns is not None:
+            gap_s = (now_ns - self._last_due_ns) / NS_PER_S
+            if self.max_tick_gap_end_ns is None or gap_s > self.max_tick_gap_s:
+                self.max_tick_gap_s = gap_s
+                self.max_tick_gap_end_ns = now_ns
+        self._last_due_ns = now_ns
         self.ticks += 1
         if n > 1:
             self.late_ticks += 1

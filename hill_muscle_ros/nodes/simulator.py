@@ -533,7 +533,7 @@ class Simulator(Node):
             self.get_logger().info(f'{", ".join(changed)} changed, state kept')
 
     def on_exit(self) -> None:
-        """Log the run's timing statistics (achieved rate, drift, late ticks)."""
+        """Log the run's timing statistics (achieved rate, drift, late ticks, longest tick gap)."""
         s = self._schedule
         elapsed_s = (self._steady.now().nanoseconds - s.start_ns) / NS_PER_S
         behind = s.target(self._steady.now().nanoseconds) - s.steps_done
@@ -546,6 +546,8 @@ class Simulator(Node):
             f'ran {s.steps_done} steps in {elapsed_s:.3f} s of steady time '
             f'({s.steps_done / elapsed_s if elapsed_s > 0 else 0.0:.1f} steps/s), '
             f'{s.ticks} ticks, {s.late_ticks} late, {behind} steps behind at exit, '
+            f'longest gap between ticks {s.max_tick_gap_s * 1e3:.1f} ms (ended at steady '
+            f'time {(s.max_tick_gap_end_ns or 0) / NS_PER_S:.6f} s), '
             f'longest gap between ticks {s.max_tick_gap_s * 1e3:.1f} ms, '
             f'{self._late_knots} late length_command_stamped knots '
             f'(worst {self._worst_late_s * 1e3:.1f} ms of simulated time)')

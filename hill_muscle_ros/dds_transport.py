@@ -1,0 +1,224 @@
+"""Keep the package's nodes off Fast DDS's shared-memory transport (UDP only).
+
+Why. Fast DDS 2.14 (the DDS of the Jazzy wheels) checks the listeners of a
+shared-memory port the first time a participant sends to it, and when the
+check cannot tell yet it sleeps a third of the port's health-check timeout:
+1000 ms / 3 = 333 ms. That happens on the thread that has just received the
+discovery data of a process joining the graph (a new reader to match), while
+it holds its participant's send lock, which Fast DDS takes without a time limit
+(it bounds it by a writer's ``max_blocking_time`` only in its strict real-time
+build). Every publish of the process waits for that lock, so a 1 kHz
+simulator stopped for 333 ms, now and then, whenever a tool such as
+``ros2 topic pub`` or ``ros2 param get`` started: measured with a native
+stack of the sleeping thread (``StatefulWriter::matched_reader_add`` ->
+``SharedMemTransport::find_port`` -> ``open_port_internal`` -> ``nanosleep``)
+while the simulator's ``publish('force')`` waited 332.6 ms (upstream issue
+eProsima/Fast-DDS#6535). UDP loopback has no such check.
+
+What. :func:`use_udp_transport` sets, in the environment of the calling
+process and before ``rclpy.init``, what makes rmw_fastrtps create a UDPv4-only
+participant with the discovery scope the user asked for:
+
+- ``ROS_AUTOMATIC_DISCOVERY_RANGE`` unset or ``SUBNET``: Fast DDS's own
+  ``FASTDDS_BUILTIN_TRANSPORTS=UDPv4``.
+- ``LOCALHOST`` (also the deprecated ``ROS_LOCALHOST_ONLY=1``, and a value rcl
+  does not know, which rcl reads as localhost): rmw_fastrtps replaces the
+  transports with shared memory plus UDP in this mode, so the node asks rmw
+  for ``SYSTEM_DEFAULT`` (Fast DDS as configured) and hands Fast DDS a profile
+  (:func:`localhost_profile`) with what rmw_fastrtps's localhost mode sets:
+  no multicast, the unicast discovery port, 127.0.0.1 and the
+  ``ROS_STATIC_PEERS`` as initial peers over 32 participant ports, on UDPv4.
+- ``OFF`` and ``SYSTEM_DEFAULT``: nothing (no other process to wait for, or
+  Fast DDS exactly as the user configured it).
+
+Nothing changes either if the user configures Fast DDS transports already
+(:data:`USER_FASTDDS_SETTINGS`, or a ``DEFAULT_FASTRTPS_PROFILES.xml`` in the
+working directory), under another RMW, or with
+``HILL_MUSCLE_DDS_TRANSPORT=rmw``. Other processes (ros2cli, rviz) keep
+their transports and reach the nodes over UDP.
+
+What it costs: shared memory saves copies of large messages; the package's
+messages are a few hundred bytes. Reliability, history and every other QoS are
+unchanged, so a reliable subscriber (the recorder) still receives every
+message.
+
+No rclpy here: the environment must be set before rclpy loads the RMW.
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+import socket
+import tempfile
+from pathlib import Path
+from typing import MutableMapping
+from xml.sax.saxutils import escape
+
+#: Environment variable that chooses the nodes' DDS transport: one of :data:`TRANSPORTS`.
+TRANSPORT_ENV = 'HILL_MUSCLE_DDS_TRANSPORT'
+#: ``udp``: UDPv4 only (this module); ``rmw``: whatever rmw and Fast DDS choose
+#: (shared memory and UDP on one host).
+TRANSPORTS = ('udp', 'rmw')
+DEFAULT_TRANSPORT = 'udp'
+
+#: RMW implementations built on Fast DDS (the Jazzy default when none is set).
+FASTDDS_RMWS = ('rmw_fastrtps_cpp', 'rmw_fastrtps_dynamic_cpp')
+DEFAULT_RMW = 'rmw_fastrtps_cpp'
+#: Variables with which a user configures Fast DDS's transports: left alone.
+USER_FASTDDS_SETTINGS = ('FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_PROFILES_FILE',
+                         'FASTDDS_BUILTIN_TRANSPORTS')
+#: Fast DDS loads this file from the working directory unless
+#: ``SKIP_DEFAULT_XML`` is ``1``: a user configuration too.
+CWD_PROFILES_FILE = 'DEFAULT_FASTRTPS_PROFILES.xml'
+SKIP_CWD_PROFILES_ENV = 'SKIP_DEFAULT_XML'
+
+RANGE_ENV = 'ROS_AUTOMATIC_DISCOVERY_RANGE'
+STATIC_PEERS_ENV = 'ROS_STATIC_PEERS'
+LOCALHOST_ONLY_ENV = 'ROS_LOCALHOST_ONLY'
+#: The values rcl reads; anything else is read as ``LOCALHOST``, and an empty
+#: or unset variable as ``SUBNET`` (rcl's default).
+RANGES = ('OFF', 'LOCALHOST', 'SUBNET', 'SYSTEM_DEFAULT')
+#: rmw_fastrtps's UDP ``maxInitialPeersRange`` in localhost mode: participants
+#: (roughly processes) per host that discovery reaches.
+LOCALHOST_MAX_INITIAL_PEERS = 32
+#: Where the localhost profile's file goes when no directory is given.
+PROFILE_FILE_PREFIX = 'hill_muscle_ros_fastdds_udp_'
+
+
+def discovery_range(environ: MutableMapping[str, str]) -> str:
+    """The discovery range rcl will use, from the environment as rcl reads it."""
+    if environ.get(LOCALHOST_ONLY_ENV) == '1':
+        return 'LOCALHOST'              # rcl: the deprecated variable still prevails
+    value = environ.get(RANGE_ENV, '')
+    if value == '':
+        return 'SUBNET'
+    return value if value in RANGES else 'LOCALHOST'
+
+
+def static_peer_addresses(environ: MutableMapping[str, str]) -> list[str]:
+    """IPv4 addresses of ``ROS_STATIC_PEERS`` (``;``-separated names or addresses).
+
+    The first IPv4 address of each name, as rmw_fastrtps resolves them.
+
+    :raises ValueError: naming the peer that does not resolve
+    """
+    addresses = []
+    for peer in environ.get(STATIC_PEERS_ENV, '').split(';'):
+        peer = peer.strip()
+        if not peer:
+            continue
+        try:
+            infos = socket.getaddrinfo(peer, None, family=socket.AF_INET)
+        except OSError as err:
+            raise ValueError(f'environment variable {STATIC_PEERS_ENV}: peer {peer!r} does not '
+                             f'resolve to an IPv4 address ({err})') from None
+        addresses.append(infos[0][4][0])
+    return addresses
+
+
+def localhost_profile(static_peers: list[str]) -> str:
+    """A Fast DDS XML profile: rmw_fastrtps's localhost discovery, on UDPv4 only.
+
+    The default participant profile: no multicast locator (a default unicast
+    metatraffic locator instead), initial peers 127.0.0.1 and ``static_peers``,
+    and one UDPv4 transport with :data:`LOCALHOST_MAX_INITIAL_PEERS` in place
+    of the built-in shared memory and UDP transports.
+
+    :param static_peers: IPv4 addresses of ``ROS_STATIC_PEERS``
+    """
+    peers = ''.join(f'\n          <locator><udpv4><address>{escape(address)}</address></udpv4>'
+                    '</locator>' for address in static_peers)
+    return f'''<?xml version="1.0" encoding="UTF-8" ?>
+<!-- Written by hill_muscle_ros (dds_transport.py): rmw_fastrtps's
+     ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST discovery, on UDPv4 only. -->
+<profiles xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
+  <transport_descriptors>
+    <transport_descriptor>
+      <transport_id>hill_muscle_ros_udpv4</transport_id>
+      <type>UDPv4</type>
+      <maxInitialPeersRange>{LOCALHOST_MAX_INITIAL_PEERS}</maxInitialPeersRange>
+    </transport_descriptor>
+  </transport_descriptors>
+  <participant profile_name="hill_muscle_ros_localhost_udpv4" is_default_profile="true">
+    <rtps>
+      <builtin>
+        <metatrafficUnicastLocatorList><locator/></metatrafficUnicastLocatorList>
+        <initialPeersList>{peers}
+          <locator><udpv4><address>127.0.0.1</address></udpv4></locator>
+        </initialPeersList>
+      </builtin>
+      <userTransports><transport_id>hill_muscle_ros_udpv4</transport_id></userTransports>
+      <useBuiltinTransports>false</useBuiltinTransports>
+    </rtps>
+  </participant>
+</profiles>
+'''
+
+
+def write_profile(text: str, directory: Path | None = None) -> Path:
+    """Write ``text`` to a file named by its hash (once) and return the path.
+
+    Nodes starting together write the same bytes: each writes a private
+    temporary file and renames it into place, so none reads a partial file.
+
+    :param directory: default: ``$XDG_RUNTIME_DIR``, else the temporary directory
+    """
+    if directory is None:
+        directory = Path(os.environ.get('XDG_RUNTIME_DIR') or tempfile.gettempdir())
+    digest = hashlib.sha256(text.encode()).hexdigest()[:16]
+    path = Path(directory) / f'{PROFILE_FILE_PREFIX}{os.getuid()}_{digest}.xml'
+    try:
+        if path.stat().st_uid == os.getuid() and path.read_text() == text:
+            return path
+    except OSError:
+        pass  # not there yet (or unreadable): write it
+    fd, tmp = tempfile.mkstemp(dir=directory, prefix=path.stem, suffix='.tmp')
+    try:
+        with os.fdopen(fd, 'w') as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def use_udp_transport(environ: MutableMapping[str, str] | None = None,
+                      profile_dir: Path | None = None) -> str | None:
+    """Set ``environ`` so that the next Fast DDS participant uses UDPv4 only.
+
+    Call before ``rclpy.init``. See the module docstring for when and how.
+
+    :param environ: the environment to change (default: ``os.environ``)
+    :param profile_dir: where the localhost profile is written (see :func:`write_profile`)
+    :return: one line saying what was set and why, or ``None`` if nothing was
+    :raises ValueError: on an unknown :data:`TRANSPORT_ENV` value or a
+        ``ROS_STATIC_PEERS`` entry that does not resolve
+    """
+    if environ is None:
+        environ = os.environ
+    choice = environ.get(TRANSPORT_ENV, DEFAULT_TRANSPORT)
+    if choice not in TRANSPORTS:
+        raise ValueError(f'environment variable {TRANSPORT_ENV}={choice!r}: expected one of '
+                         f'{", ".join(TRANSPORTS)}')
+    user_settings = [name for name in USER_FASTDDS_SETTINGS if environ.get(name)]
+    if environ.get(SKIP_CWD_PROFILES_ENV) != '1' and Path(CWD_PROFILES_FILE).is_file():
+        user_settings.append(f'./{CWD_PROFILES_FILE}')
+    scope = discovery_range(environ)
+    if (choice != 'udp' or environ.get('RMW_IMPLEMENTATION', DEFAULT_RMW) not in FASTDDS_RMWS
+            or user_settings or scope in ('OFF', 'SYSTEM_DEFAULT')):
+        return None
+    why = (f'DDS transport: UDPv4 only, as Fast DDS shared memory can hold every publish of '
+           f'this process for 333 ms when another process joins ({TRANSPORT_ENV}=rmw '
+           'keeps the shared memory)')
+    if scope == 'SUBNET':
+        environ['FASTDDS_BUILTIN_TRANSPORTS'] = 'UDPv4'
+        return f'{why}: FASTDDS_BUILTIN_TRANSPORTS=UDPv4'
+    # rcl ignores the static peers under the deprecated ROS_LOCALHOST_ONLY=1.
+    peers = [] if environ.get(LOCALHOST_ONLY_ENV) == '1' else static_peer_addresses(environ)
+    profile = write_profile(localhost_profile(peers), profile_dir)
+    environ.pop(LOCALHOST_ONLY_ENV, None)   # it would force rmw's localhost transports
+    environ[RANGE_ENV] = 'SYSTEM_DEFAULT'
+    environ['FASTRTPS_DEFAULT_PROFILES_FILE'] = str(profile)
+    return (f'{why}: localhost discovery from the Fast DDS profile {profile} '
+            f'({RANGE_ENV}=SYSTEM_DEFAULT)')

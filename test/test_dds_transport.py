@@ -1,0 +1,134 @@
+"""What the nodes set before ``rclpy.init`` to keep Fast DDS off shared memory.
+
+No DDS here: the environment the function leaves and the profile it writes.
+That a node set up so talks to the rest of the graph is what every node test
+checks (all nodes start through ``run_node``); that it keeps the simulator's
+steps going while tools join is ``test_sim_tool_churn.py``.
+"""
+from __future__ import annotations
+
+import socket
+import xml.etree.ElementTree as ET
+
+import pytest
+
+from hill_muscle_ros.dds_transport import (TRANSPORT_ENV, USER_FASTDDS_SETTINGS,
+                                           discovery_range, localhost_profile,
+                                           use_udp_transport, write_profile)
+
+NS = {'p': 'http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles'}
+
+
+@pytest.fixture(autouse=True)
+def _no_cwd_profile(tmp_path, monkeypatch):
+    """Run in an empty directory: Fast DDS would load a profile from the working one."""
+    monkeypatch.chdir(tmp_path)
+
+
+def _localhost(tmp_path, **extra):
+    env = {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST', **extra}
+    note = use_udp_transport(env, profile_dir=tmp_path)
+    return env, note
+
+
+def _initial_peers(profile_xml: str) -> list[str]:
+    root = ET.fromstring(profile_xml)
+    return [a.text for a in root.findall('.//p:initialPeersList/p:locator/p:udpv4/p:address', NS)]
+
+
+@pytest.mark.parametrize('scope', [None, '', 'SUBNET'])
+def test_subnet_discovery_gets_fast_dds_builtin_udpv4_only(tmp_path, scope):
+    env = {} if scope is None else {'ROS_AUTOMATIC_DISCOVERY_RANGE': scope}
+    before = dict(env)
+    note = use_udp_transport(env, profile_dir=tmp_path)
+    assert env == {**before, 'FASTDDS_BUILTIN_TRANSPORTS': 'UDPv4'}
+    assert 'UDPv4 only' in note
+
+
+def test_localhost_discovery_becomes_a_udpv4_profile_rmw_leaves_alone(tmp_path):
+    env, note = _localhost(tmp_path)
+    assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'SYSTEM_DEFAULT'
+    profile = env['FASTRTPS_DEFAULT_PROFILES_FILE']
+    assert profile in note
+    root = ET.parse(profile).getroot()
+    participant = root.find('p:participant', NS)
+    assert participant.get('is_default_profile') == 'true'
+    rtps = participant.find('p:rtps', NS)
+    assert rtps.findtext('p:useBuiltinTransports', namespaces=NS) == 'false'
+    [transport_id] = [t.text for t in rtps.findall('p:userTransports/p:transport_id', NS)]
+    [descriptor] = root.findall('p:transport_descriptors/p:transport_descriptor', NS)
+    assert descriptor.findtext('p:transport_id', namespaces=NS) == transport_id
+    assert descriptor.findtext('p:type', namespaces=NS) == 'UDPv4'
+    # rmw_fastrtps's value in localhost mode (Jazzy participant.cpp).
+    assert int(descriptor.findtext('p:maxInitialPeersRange', namespaces=NS)) == 32
+    # rmw_fastrtps's localhost mode: no multicast, one default unicast locator.
+    builtin = rtps.find('p:builtin', NS)
+    assert builtin.find('p:metatrafficMulticastLocatorList', NS) is None
+    assert len(builtin.findall('p:metatrafficUnicastLocatorList/p:locator', NS)) == 1
+    assert _initial_peers(ET.tostring(root, encoding='unicode')) == ['127.0.0.1']
+
+
+def test_localhost_profile_has_the_static_peers_as_initial_peers(tmp_path):
+    env, _ = _localhost(tmp_path, ROS_STATIC_PEERS='127.0.0.2; localhost;')
+    with open(env['FASTRTPS_DEFAULT_PROFILES_FILE']) as f:
+        assert sorted(_initial_peers(f.read())) == ['127.0.0.1', '127.0.0.1', '127.0.0.2']
+
+
+def test_unresolvable_static_peer_is_an_error_naming_it(tmp_path, monkeypatch):
+    def no_such_host(host, *args, **kwargs):
+        raise socket.gaierror(socket.EAI_NONAME, 'Name or service not known')
+    monkeypatch.setattr(socket, 'getaddrinfo', no_such_host)
+    with pytest.raises(ValueError, match="ROS_STATIC_PEERS: peer 'robot-7' does not resolve"):
+        _localhost(tmp_path, ROS_STATIC_PEERS='robot-7')
+
+
+def test_deprecated_localhost_only_is_localhost_and_is_removed(tmp_path):
+    # rcl lets ROS_LOCALHOST_ONLY=1 force its localhost mode and ignores the static peers.
+    env = {'ROS_LOCALHOST_ONLY': '1', 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SUBNET',
+           'ROS_STATIC_PEERS': '127.0.0.2'}
+    use_udp_transport(env, profile_dir=tmp_path)
+    assert 'ROS_LOCALHOST_ONLY' not in env
+    assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'SYSTEM_DEFAULT'
+    with open(env['FASTRTPS_DEFAULT_PROFILES_FILE']) as f:
+        assert _initial_peers(f.read()) == ['127.0.0.1']
+
+
+def test_a_range_rcl_does_not_know_is_localhost_as_rcl_reads_it():
+    assert discovery_range({'ROS_AUTOMATIC_DISCOVERY_RANGE': 'localhost'}) == 'LOCALHOST'
+
+
+@pytest.mark.parametrize('extra', [
+    {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'OFF'},
+    {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SYSTEM_DEFAULT'},
+    {'RMW_IMPLEMENTATION': 'rmw_cyclonedds_cpp'},
+    {TRANSPORT_ENV: 'rmw'},
+    *({name: '/etc/my_profile.xml'} for name in USER_FASTDDS_SETTINGS),
+], ids=lambda e: ','.join(f'{k}={v}' for k, v in e.items()))
+def test_environment_is_left_alone(tmp_path, extra):
+    env = {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST', **extra}
+    before = dict(env)
+    assert use_udp_transport(env, profile_dir=tmp_path) is None
+    assert env == before
+    assert not list(tmp_path.iterdir())
+
+
+def test_profile_in_the_working_directory_is_left_alone(tmp_path):
+    (tmp_path / 'DEFAULT_FASTRTPS_PROFILES.xml').write_text('<profiles/>')
+    env = {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
+    assert use_udp_transport(env, profile_dir=tmp_path) is None
+    assert env == {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
+
+
+def test_unknown_transport_choice_is_an_error_naming_the_variable(tmp_path):
+    with pytest.raises(ValueError, match=f"{TRANSPORT_ENV}='shm': expected one of udp, rmw"):
+        use_udp_transport({TRANSPORT_ENV: 'shm'}, profile_dir=tmp_path)
+
+
+def test_profile_file_is_written_once_per_content(tmp_path):
+    first = write_profile(localhost_profile([]), tmp_path)
+    again = write_profile(localhost_profile([]), tmp_path)
+    other = write_profile(localhost_profile(['127.0.0.2']), tmp_path)
+    assert first == again != other
+    assert first.read_text() == localhost_profile([])
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([first.name, other.name])
+
