@@ -548,7 +548,6 @@ class Simulator(Node):
             f'{s.ticks} ticks, {s.late_ticks} late, {behind} steps behind at exit, '
             f'longest gap between ticks {s.max_tick_gap_s * 1e3:.1f} ms (ended at steady '
             f'time {(s.max_tick_gap_end_ns or 0) / NS_PER_S:.6f} s), '
-            f'longest gap between ticks {s.max_tick_gap_s * 1e3:.1f} ms, '
             f'{self._late_knots} late length_command_stamped knots '
             f'(worst {self._worst_late_s * 1e3:.1f} ms of simulated time)')
 
