@@ -9,11 +9,15 @@
   names, units and ranges have a single source.
 - :class:`BadInputWarner`: a throttled warning per topic for rejected input.
 - :class:`StepSchedule`: how many fixed steps are due at a given clock reading.
+- :class:`NodeDiagnostics`, :func:`overridable_publisher` and
+  :func:`overridable_subscription` (last section): ``/diagnostics`` at 1 Hz and
+  the standard ``qos_overrides.*`` parameters on every publisher and subscription.
 - :data:`RELIABLE_QOS` and :data:`OUTPUT_QOS`: the QoS of every subscription
   and every publisher of the package.
 """
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 import os
@@ -28,6 +32,11 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.clock import Clock, ClockType
+from rclpy.duration import Duration
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos_overriding_options import InvalidQosOverridesError, QoSOverridingOptions
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange,
                                 ParameterDescriptor)
 from rcl_interfaces.srv import ListParameters
@@ -362,6 +371,10 @@ def reject_unknown_overrides(node: Node) -> None:
              | OTHER_NODE_PARAMETERS)
     overrides = parameter_overrides(node)
     unknown = sorted(set(overrides) - known)
+    # QoS overrides are declared with the publishers, after this check: their
+    # names and values are checked against the package's topics instead.
+    check_qos_overrides(node, unknown)
+    unknown = [n for n in unknown if not n.startswith(QOS_OVERRIDES_PREFIX)]
     if unknown:
         name = unknown[0]
         raise StartupError(
@@ -387,12 +400,21 @@ class BadInputWarner:
         self._period_s = period_s
         self._last: dict[str, float] = {}
         self._suppressed: dict[str, int] = {}
+        #: Rejected inputs per topic, logged or not (reported on /diagnostics).
+        self.counts: dict[str, int] = {}
+
+    @property
+    def total(self) -> int:
+        """Rejected inputs on every topic."""
+        return sum(self.counts.values())
 
     def warn(self, topic: str, message: str) -> bool:
-        """Log ``message`` for ``topic`` unless one was logged less than a period ago.
+        """Count a rejected input on ``topic``; log ``message`` unless one was
+        logged less than a period ago.
 
         :return: whether it was logged
         """
+        self.counts[topic] = self.counts.get(topic, 0) + 1
         now = time.monotonic()
         last = self._last.get(topic)
         if last is not None and now - last < self._period_s:
@@ -452,3 +474,289 @@ class StepSchedule:
         if n > 1:
             self.late_ticks += 1
         return n
+
+
+# == diagnostics and QoS overrides ===============================================
+# /diagnostics (the ROS convention diagnostic_aggregator and rqt_runtime_monitor
+# read) and the standard ``qos_overrides.<topic>.<publisher|subscription>.<policy>``
+# parameters on every publisher and subscription. diagnostic_updater is not on
+# PyPI; :class:`NodeDiagnostics` is the small part of it this package needs.
+
+#: Absolute by ROS convention: one diagnostics topic per graph.
+DIAGNOSTICS_TOPIC = '/diagnostics'
+#: [s] one DiagnosticArray per node per second, diagnostic_updater's default period.
+DIAGNOSTICS_PERIOD_S = 1.0
+#: Reliable, volatile, keep-last 10: 10 s of a node's reports at 1 Hz, so a
+#: recorder or aggregator that is descheduled for a moment still gets each one.
+DIAGNOSTICS_HISTORY_DEPTH = 10
+DIAGNOSTICS_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=DIAGNOSTICS_HISTORY_DEPTH,
+                             reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.VOLATILE)
+
+#: [s] how long a node's last status waits for its subscribers' acknowledgement.
+DIAGNOSTICS_ACK_TIMEOUT_S = 1.0
+
+#: Every parameter of a QoS override starts with this (rclpy's naming).
+QOS_OVERRIDES_PREFIX = 'qos_overrides.'
+#: The entity kinds of ``qos_overrides.<topic>.<kind>.<policy>``.
+QOS_OVERRIDE_KINDS = ('publisher', 'subscription')
+#: The policies a user may override on the package's publishers and
+#: subscriptions: rclpy's default set (history, depth, reliability). Durability
+#: stays volatile: a late joiner must not be sent old commands.
+QOS_OVERRIDE_POLICIES = tuple(p.name.lower() for p in
+                              QoSOverridingOptions.with_default_policies().policy_kinds)
+#: Accepted values of the enum policies (rclpy maps the names to its enums;
+#: ``unknown`` is not a profile anyone can ask for).
+QOS_POLICY_VALUES = {
+    'history': tuple(m.lower() for m in HistoryPolicy.__members__ if m != 'UNKNOWN'),
+    'reliability': tuple(m.lower() for m in ReliabilityPolicy.__members__ if m != 'UNKNOWN'),
+}
+#: Topics of the package's nodes, as they name them (relative names resolve in
+#: a node's namespace and through its remappings): a QoS override of any of
+#: them is valid in a shared ``/**`` section, as other nodes' parameters are.
+PACKAGE_TOPICS = ('pulse_width', 'recruitment', 'length_command', 'length_command_stamped',
+                  'force', 'ce_length', 'wrench', 'force_target', '/clock', DIAGNOSTICS_TOPIC)
+
+
+def _qos_override_parts(name: str) -> tuple[str, str, str] | None:
+    """``(topic, kind, policy)`` of ``qos_overrides.<topic>.<kind>.<policy>``, else ``None``.
+
+    ROS names have no dots, so the last two dots split the kind and the policy off.
+    """
+    parts = name[len(QOS_OVERRIDES_PREFIX):].rsplit('.', 2)
+    return tuple(parts) if len(parts) == 3 else None
+
+
+def check_qos_override(name: str, value: Any, topics: Any) -> None:
+    """Validate one ``qos_overrides.*`` override: its name, then its value.
+
+    :param name: the parameter name, ``qos_overrides.<topic>.<kind>.<policy>``
+    :param value: its value from the params file or ``-p``
+    :param topics: the resolved topic names an override may name
+    :raises StartupError: naming the parameter, the value and what is accepted
+    """
+    form = (f'a QoS override is `qos_overrides.<topic>.<{"|".join(QOS_OVERRIDE_KINDS)}>'
+            f'.<{"|".join(QOS_OVERRIDE_POLICIES)}>`')
+    parts = _qos_override_parts(name)
+    if parts is None:
+        raise StartupError(f'unknown parameter `{name}` (got {value!r}): {form}')
+    topic, kind, policy = parts
+    if kind not in QOS_OVERRIDE_KINDS or policy not in QOS_OVERRIDE_POLICIES:
+        raise StartupError(f'unknown parameter `{name}` (got {value!r}): {form}')
+    if topic not in topics:
+        raise StartupError(f'unknown parameter `{name}` (got {value!r}): `{topic}` is none of '
+                           f'the package\'s topics here ({", ".join(sorted(topics))}); a QoS '
+                           'override names the topic resolved (namespace included)')
+    if policy == 'depth':
+        # bool is an int in Python; a depth of true is a typo, not 1.
+        if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+            raise StartupError(f'parameter `{name}` = {value!r} rejected: the depth must be an '
+                               'integer of at least 1')
+    elif not isinstance(value, str) or value not in QOS_POLICY_VALUES[policy]:
+        raise StartupError(f'parameter `{name}` = {value!r} rejected: expected one of '
+                           f'{", ".join(QOS_POLICY_VALUES[policy])}')
+
+
+def check_qos_overrides(node: Node, names: Any, extra_topics: Any = ()) -> None:
+    """Validate the node's ``qos_overrides.*`` overrides among ``names``.
+
+    An override may name any of :data:`PACKAGE_TOPICS` as this node resolves
+    it (one ``/**`` section may configure every node), any of ``extra_topics``
+    (resolved names), or any topic of a QoS parameter the node has declared.
+
+    :raises StartupError: on the first invalid one (see :func:`check_qos_override`)
+    """
+    topics = {node.resolve_topic_name(t) for t in PACKAGE_TOPICS} | set(extra_topics)
+    for declared in declared_parameter_names(node):
+        if declared.startswith(QOS_OVERRIDES_PREFIX):
+            topics.add(_qos_override_parts(declared)[0])
+    overrides = parameter_overrides(node)
+    for name in sorted(names):
+        if name.startswith(QOS_OVERRIDES_PREFIX):
+            check_qos_override(name, overrides[name].value, topics)
+
+
+def qos_overrides_of(node: Node) -> list[Parameter]:
+    """The node's ``qos_overrides.*`` overrides, e.g. to hand to a helper node."""
+    return [p for n, p in parameter_overrides(node).items() if n.startswith(QOS_OVERRIDES_PREFIX)]
+
+
+def overridable_qos(qos: QoSProfile) -> tuple[QoSProfile, QoSOverridingOptions]:
+    """A copy of ``qos`` and the options that let rclpy override it.
+
+    rclpy writes the overrides into the profile it is given, so a shared
+    profile (:data:`OUTPUT_QOS`) must never be passed itself: one override
+    would change every later publisher of the process.
+    """
+    return copy.copy(qos), QoSOverridingOptions.with_default_policies()
+
+
+def _created_with_overrides(create: Callable[..., Any], node: Node, topic: str,
+                            *args: Any, **kwargs: Any) -> Any:
+    """Run ``create`` and turn rclpy's errors on a bad override into a :class:`StartupError`.
+
+    :func:`check_qos_overrides` has normally caught them at start-up already.
+    """
+    try:
+        return create(*args, **kwargs)
+    except (InvalidQosOverridesError, InvalidParameterTypeException,
+            InvalidParameterValueException, RuntimeError) as err:
+        raise StartupError(f'QoS override of `{node.resolve_topic_name(topic)}` rejected: '
+                           f'{err}') from None
+
+
+def overridable_publisher(node: Node, msg_type: Any, topic: str, qos: QoSProfile,
+                          **kwargs: Any) -> Any:
+    """``node.create_publisher`` with ``qos`` as the default and the standard overrides.
+
+    Declares ``qos_overrides.<topic>.publisher.{history,depth,reliability}``
+    (read-only) with ``qos``'s values; ``--params-file`` or ``-p`` may set them.
+
+    :raises StartupError: on an invalid override value
+    """
+    profile, options = overridable_qos(qos)
+    return _created_with_overrides(node.create_publisher, node, topic, msg_type, topic,
+                                   profile, qos_overriding_options=options, **kwargs)
+
+
+def overridable_subscription(node: Node, msg_type: Any, topic: str, callback: Callable,
+                             qos: QoSProfile, **kwargs: Any) -> Any:
+    """``node.create_subscription`` with ``qos`` as the default and the standard overrides.
+
+    Declares ``qos_overrides.<topic>.subscription.{history,depth,reliability}``.
+
+    :raises StartupError: on an invalid override value
+    """
+    profile, options = overridable_qos(qos)
+    return _created_with_overrides(node.create_subscription, node, topic, msg_type, topic,
+                                   callback, profile, qos_overriding_options=options, **kwargs)
+
+
+class DiagnosticReport:
+    """What one status says, filled in by a node's check each period.
+
+    Conditions raise the level (OK < WARN < ERROR); the status message lists
+    them worst first, so the first words say why the level is what it is.
+
+    :param period_s: [s] of steady time since the previous report
+    :param previous: the totals of the previous report, by key (see :meth:`delta`)
+    """
+
+    _LEVELS = (DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR)
+
+    def __init__(self, period_s: float, previous: dict[str, float]) -> None:
+        self.period_s = period_s
+        self.values: list[KeyValue] = []
+        self._rank = 0
+        self._messages: list[tuple[int, str]] = []
+        self._previous = previous
+
+    def add(self, key: str, value: Any) -> None:
+        """One value: floats to 6 significant digits, booleans as true/false, None as ''."""
+        if isinstance(value, bool):
+            text = 'true' if value else 'false'
+        elif isinstance(value, float):
+            text = f'{value:.6g}'
+        else:
+            text = '' if value is None else str(value)
+        self.values.append(KeyValue(key=key, value=text))
+
+    def delta(self, key: str, total: float) -> float:
+        """``total`` minus its value at the previous report (0 before the first)."""
+        change = total - self._previous.get(key, 0)
+        self._previous[key] = total
+        return change
+
+    def ok(self, message: str) -> None:
+        """A normal condition, said only when nothing is worse."""
+        self._messages.append((0, message))
+
+    def warn(self, message: str) -> None:
+        """A condition that degrades the node's output."""
+        self._raise(1, message)
+
+    def error(self, message: str) -> None:
+        """A condition under which the node does not do its job."""
+        self._raise(2, message)
+
+    def _raise(self, rank: int, message: str) -> None:
+        self._rank = max(self._rank, rank)
+        self._messages.append((rank, message))
+
+    @property
+    def level(self) -> bytes:
+        """``DiagnosticStatus.OK``, ``WARN`` or ``ERROR``."""
+        return self._LEVELS[self._rank]
+
+    @property
+    def message(self) -> str:
+        """The conditions of the worst level, then the others, joined by '; '."""
+        ordered = sorted(self._messages, key=lambda rm: -rm[0])
+        shown = [m for r, m in ordered if r > 0 or self._rank == 0]
+        return '; '.join(shown) or 'OK'
+
+
+class NodeDiagnostics:
+    """Publishes one DiagnosticStatus of a node on ``/diagnostics`` every period.
+
+    ``name`` is ``<fully qualified node name>: <function>`` (the node-prefixed
+    names diagnostic_updater gives), ``hardware_id`` the node's fully qualified
+    name. ``check(report)`` fills a :class:`DiagnosticReport` each period; an
+    exception in it is reported as an ERROR status and logged, never raised
+    into the executor. The timer runs on the steady clock, so a node on sim
+    time reports also while ``/clock`` stands still; the header stamp is the
+    node's clock.
+
+    :param node: the node reported on
+    :param function: what the node does, e.g. ``muscle simulation``
+    :param check: fills the report
+    :param period_s: [s] reporting period
+    """
+
+    def __init__(self, node: Node, function: str, check: Callable[[DiagnosticReport], None],
+                 period_s: float = DIAGNOSTICS_PERIOD_S) -> None:
+        self._node = node
+        self._check = check
+        fqn = node.get_fully_qualified_name()
+        self.name = f'{fqn}: {function}'
+        self.hardware_id = fqn
+        self._previous: dict[str, float] = {}
+        self._last_s = time.monotonic()
+        self._failed = False
+        self._pub = overridable_publisher(node, DiagnosticArray, DIAGNOSTICS_TOPIC,
+                                          DIAGNOSTICS_QOS)
+        self._timer = node.create_timer(period_s, self.publish,
+                                        clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    def report(self) -> DiagnosticReport:
+        """Run the check over the period since the previous report."""
+        now_s = time.monotonic()
+        report = DiagnosticReport(now_s - self._last_s, self._previous)
+        self._last_s = now_s
+        try:
+            self._check(report)
+        except Exception as err:  # noqa: BLE001 - a bad check must not stop the node
+            if not self._failed:
+                self._node.get_logger().error(f'diagnostics check failed: {err!r}')
+            self._failed = True
+            report.error(f'diagnostics check failed: {err!r}')
+        return report
+
+    def publish(self) -> None:
+        """Publish the status now (the timer calls this every period)."""
+        report = self.report()
+        msg = DiagnosticArray()
+        msg.header.stamp = self._node.get_clock().now().to_msg()
+        msg.status = [DiagnosticStatus(level=report.level, name=self.name,
+                                       message=report.message, hardware_id=self.hardware_id,
+                                       values=report.values)]
+        self._pub.publish(msg)
+
+    def publish_final(self, timeout_s: float = DIAGNOSTICS_ACK_TIMEOUT_S) -> bool:
+        """Publish the status now and wait (at most ``timeout_s``) until every
+        subscriber acknowledged it: the last status of a node about to exit.
+
+        :return: whether every subscriber acknowledged it in time
+        """
+        self.publish()
+        return self._pub.wait_for_all_acked(Duration(seconds=timeout_s))

@@ -32,8 +32,9 @@ from ..control import ControllerInputs, ControllerParams, ForceController, Impos
 from ..model import MuscleParams
 from ..model.muscle import check_dl_mt
 from ..timebase import NS_PER_S
-from ._common import (OUTPUT_QOS, RELIABLE_QOS, BadInputWarner, StartupError,
-                      declare_checked, field_descriptor, number_descriptor,
+from ._common import (OUTPUT_QOS, RELIABLE_QOS, BadInputWarner, DiagnosticReport,
+                      NodeDiagnostics, StartupError, declare_checked, field_descriptor,
+                      number_descriptor, overridable_publisher, overridable_subscription,
                       reject_unknown_overrides, run_node)
 
 NODE_NAME = 'force_controller'
@@ -83,17 +84,18 @@ class ForceControllerNode(Node):
         self._last_tick_ns: int | None = None
         #: [s] the pulse width last published
         self.pulse_width_s = 0.0
-        self._pub = self.create_publisher(Float64, 'pulse_width', OUTPUT_QOS)
-        self._sub_target = self.create_subscription(Float64, 'force_target', self._on_target,
-                                                    RELIABLE_QOS)
-        self._sub_force = self.create_subscription(Float64, 'force', self._on_force,
+        self._pub = overridable_publisher(self, Float64, 'pulse_width', OUTPUT_QOS)
+        self._sub_target = overridable_subscription(self, Float64, 'force_target',
+                                                    self._on_target, RELIABLE_QOS)
+        self._sub_force = overridable_subscription(self, Float64, 'force', self._on_force,
                                                    RELIABLE_QOS)
         self._length = ImposedLength(p.length_rate_window_s, p.length_preview_s)
-        self._sub_length = self.create_subscription(Float64, 'length_command',
+        self._sub_length = overridable_subscription(self, Float64, 'length_command',
                                                     self._on_length, RELIABLE_QOS)
-        self._sub_length_stamped = self.create_subscription(
-            PointStamped, 'length_command_stamped', self._on_length_stamped, RELIABLE_QOS)
+        self._sub_length_stamped = overridable_subscription(
+            self, PointStamped, 'length_command_stamped', self._on_length_stamped, RELIABLE_QOS)
         self.create_timer(1.0 / self.controller.params.rate_hz, self._on_tick)
+        self._diagnostics = NodeDiagnostics(self, 'force control', self._diagnose)
         p = self.controller.params
         self.get_logger().info(
             f'controlling {self._sub_force.topic_name} to {self._sub_target.topic_name} on '
@@ -196,6 +198,51 @@ class ForceControllerNode(Node):
         dl_mt_m, rate = self._length.at(now_s)
         self._publish(self.controller.update(self.inputs.target_n, self.inputs.force_n, dt_s,
                                              dl_mt_m, rate))
+
+    def _diagnose(self, report: DiagnosticReport) -> None:
+        """/diagnostics: the input state, the ages of target and feedback against
+        their timeouts, the pulse width sent and the inputs rejected. OK while
+        stimulating or idle without a target; WARN when a target is set but the
+        feedback is missing or stale, when the target went stale, or when inputs
+        were rejected in the last period."""
+        p = self.controller.params
+        inputs = self.inputs
+        now_s = self._now_s()
+        state = inputs.state(now_s)
+        target_age_s = None if inputs.target_t_s is None else now_s - inputs.target_t_s
+        feedback_age_s = None if inputs.force_t_s is None else now_s - inputs.force_t_s
+        report.add('state', state)
+        report.add('target_received', inputs.target_n is not None)
+        report.add('target_n', inputs.target_n)
+        report.add('target_age_s', target_age_s)
+        report.add('target_timeout_s', p.target_timeout_s)
+        report.add('feedback_received', inputs.force_t_s is not None)
+        report.add('force_n', inputs.force_n)
+        report.add('feedback_age_s', feedback_age_s)
+        report.add('feedback_timeout_s', p.feedback_timeout_s)
+        report.add('pulse_width_s', self.pulse_width_s)
+        report.add('stimulating', self.pulse_width_s > 0.0)
+        bad_period = report.delta('bad_inputs', self._warner.total)
+        report.add('bad_inputs_total', self._warner.total)
+        report.add('bad_inputs_last_period', bad_period)
+        for topic, n in sorted(self._warner.counts.items()):
+            report.add(f'bad_inputs[{topic}]', n)
+        if state == ControllerInputs.READY:
+            report.ok(f'controlling: target {inputs.target_n:g} N, force {inputs.force_n:g} N, '
+                      f'pulse_width {self.pulse_width_s:g} s')
+        elif state == ControllerInputs.NO_TARGET:
+            report.ok(f'idle: no {self._sub_target.topic_name} received yet, zero stimulation')
+        elif state == ControllerInputs.STALE_FEEDBACK:
+            report.warn(f'force feedback on {self._sub_force.topic_name} is {feedback_age_s:.3g} '
+                        f's old (feedback_timeout_s {p.feedback_timeout_s:g} s): zero stimulation')
+        elif state == ControllerInputs.STALE_TARGET:
+            report.warn(f'{self._sub_target.topic_name} is {target_age_s:.3g} s old '
+                        f'(target_timeout_s {p.target_timeout_s:g} s): zero stimulation')
+        else:
+            report.warn(f'{state} on {self._sub_force.topic_name}: zero stimulation')
+        if bad_period:
+            report.warn(f'{bad_period} input message(s) rejected in the last '
+                        f'{report.period_s:.1f} s')
 
     def _log_transition(self, state: str, p: ControllerParams) -> None:
         """One log line when the input state changes."""

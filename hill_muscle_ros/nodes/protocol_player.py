@@ -43,7 +43,8 @@ from ..model import MuscleParams, Protocol, ProtocolError
 from ..model.protocol import STIMULATION_OUTPUTS
 from ..resources import BUILTIN_PROTOCOLS, protocol_path
 from ..timebase import NS_PER_S
-from ._common import (EXIT_FAILURE, EXIT_SUCCESS, OUTPUT_QOS,
+from ._common import (EXIT_FAILURE, EXIT_SUCCESS, OUTPUT_QOS, DiagnosticReport,
+                      NodeDiagnostics, overridable_publisher,
                       StartupError, declare_checked, field_descriptor,
                       number_descriptor, reject_unknown_overrides, run_node)
 
@@ -128,12 +129,15 @@ class ProtocolPlayer(Node):
         except (ValueError, ProtocolError) as err:
             raise StartupError(str(err)) from None
 
-        self._pub_stim = self.create_publisher(Float64, self._output, OUTPUT_QOS)
+        self._pub_stim = overridable_publisher(self, Float64, self._output, OUTPUT_QOS)
         self._stamped = self._lookahead_s > 0.0
-        self._pub_dl = (self.create_publisher(PointStamped, 'length_command_stamped', OUTPUT_QOS)
+        self._pub_dl = (overridable_publisher(self, PointStamped, 'length_command_stamped',
+                                              OUTPUT_QOS)
                         if self._stamped
-                        else self.create_publisher(Float64, 'length_command', OUTPUT_QOS))
+                        else overridable_publisher(self, Float64, 'length_command', OUTPUT_QOS))
         self.done = Future()
+        self._finished = False   # the protocol ran to its end
+        self._failure = ''       # why the player gave up, if it did
         self._period_s = 1.0 / rate_hz
         self._t0 = None
         # [s] protocol time of the newest knot sent (stamped mode)
@@ -145,6 +149,7 @@ class ProtocolPlayer(Node):
                                   + round(self._wait_s * NS_PER_S))
         self._poll = self.create_timer(POLL_PERIOD_S, self._on_poll, clock=self._steady)
         self._timer = None
+        self._diagnostics = NodeDiagnostics(self, 'protocol playback', self._diagnose)
         ahead = (f', length {self._lookahead_s:g} s ahead' if self._stamped else '')
         self.get_logger().info(
             f'{self._protocol.name} ({self._protocol.duration_s:g} s) on '
@@ -172,7 +177,45 @@ class ProtocolPlayer(Node):
                                     '(wait_for_subscribers_s): is the simulator (and any '
                                     'recorder) running, in the same namespace and '
                                     'ROS_DOMAIN_ID?')
+            self._failure = f'{what} after {self._wait_s:g} s (wait_for_subscribers_s)'
+            self._diagnostics.publish_final()   # the last status: the node exits now
             self.done.set_result(EXIT_FAILURE)
+
+    def _diagnose(self, report: DiagnosticReport) -> None:
+        """/diagnostics: waiting for subscribers, playing (protocol time and
+        fraction done), done, or failed (ERROR)."""
+        p = self._protocol
+        report.add('protocol', p.name)
+        report.add('duration_s', float(p.duration_s))
+        report.add('output', self._pub_stim.topic_name)
+        report.add('lookahead_s', float(self._lookahead_s))
+        report.add('min_subscribers', self._min_subscribers)
+        for pub in (self._pub_stim, self._pub_dl):
+            report.add(f'subscribers[{pub.topic_name}]', pub.get_subscription_count())
+        if self._t0 is None:
+            t_s = 0.0
+        elif self._finished:
+            t_s = float(p.duration_s)
+        else:
+            t_s = (self.get_clock().now() - self._t0).nanoseconds / NS_PER_S
+        report.add('protocol_time_s', t_s)
+        report.add('progress', min(max(t_s / p.duration_s, 0.0), 1.0) if p.duration_s > 0 else 1.0)
+        if self._failure:
+            report.add('state', 'failed')
+            report.error(self._failure)
+        elif self._finished:
+            report.add('state', 'done')
+            report.ok(f'{p.name} done: zero stimulation sent')
+        elif self._t0 is None:
+            report.add('state', 'waiting for subscribers')
+            report.ok(f'waiting for {self._min_subscribers} subscriber(s) on each output '
+                      '(and a running clock)')
+        elif t_s < 0.0:
+            report.add('state', 'sending length ahead')
+            report.ok(f'{p.name} starts in {-t_s:.3f} s (lookahead_s)')
+        else:
+            report.add('state', 'playing')
+            report.ok(f'playing {p.name}: {t_s:.3f} of {p.duration_s:g} s')
 
     def _start(self) -> None:
         now = self.get_clock().now()
@@ -232,6 +275,8 @@ class ProtocolPlayer(Node):
         self.get_logger().info(
             f'{self._protocol.name} done at t = {t_s:.3f} s; zero stimulation sent'
             + ('' if acked else ' (not acknowledged by every subscriber)'))
+        self._finished = True
+        self._diagnostics.publish_final()   # the last status: the node exits now
         self.done.set_result(EXIT_SUCCESS)
 
 

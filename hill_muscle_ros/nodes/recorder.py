@@ -57,14 +57,18 @@ from rclpy.signals import SignalHandlerOptions
 
 from ..recording.bag_writer import BagOutputError, BagWriter, read_msg_file, split_type_name
 from ..timebase import NS_PER_S
-from ._common import EXIT_FAILURE, EXIT_SUCCESS, StartupError
+from ._common import (DIAGNOSTICS_TOPIC, EXIT_FAILURE, EXIT_SUCCESS, DiagnosticReport,
+                      NodeDiagnostics, StartupError, check_qos_overrides,
+                      overridable_subscription, parameter_overrides, qos_overrides_of)
 
 NODE_NAME = 'recorder'
 
 #: Every topic the simulator and the protocol player use (relative names are
-#: resolved in the recorder's namespace; /clock is global by ROS convention).
+#: resolved in the recorder's namespace; /clock is global by ROS convention),
+#: and /diagnostics, so that a bag says whether the run was healthy (steps
+#: behind, watchdog trips, losses) at the cost of a few messages a second.
 DEFAULT_TOPICS = ('pulse_width', 'recruitment', 'length_command', 'length_command_stamped',
-                  'force', 'ce_length', 'wrench', '/clock')
+                  'force', 'ce_length', 'wrench', '/clock', DIAGNOSTICS_TOPIC)
 #: Types of this package's own topics. These are subscribed at start-up,
 #: before any publisher exists, so that a player or simulator started after
 #: the recorder loses no message to discovery; other topics (and /clock, whose
@@ -77,6 +81,7 @@ KNOWN_TYPES = {
     'force': 'std_msgs/msg/Float64',
     'ce_length': 'std_msgs/msg/Float64',
     'wrench': 'geometry_msgs/msg/WrenchStamped',
+    DIAGNOSTICS_TOPIC: 'diagnostic_msgs/msg/DiagnosticArray',
 }
 #: Where bags go by default, one directory per run named by its UTC start time.
 DEFAULT_RUNS_DIR = 'runs'
@@ -273,6 +278,10 @@ class Recorder(Node):
                 type_name = type_name or KNOWN_TYPES.get(topic)
                 if type_name is not None:
                     known[resolved] = type_name
+        # QoS overrides of the subscriptions (and of /diagnostics): checked
+        # before the bag exists; applied on the reader node, which has no
+        # arguments of its own.
+        check_qos_overrides(self, list(parameter_overrides(self)), extra_topics=self._wanted)
         try:
             self._writer = BagWriter(self.output)
         except BagOutputError as err:
@@ -283,7 +292,8 @@ class Recorder(Node):
         # this node's name. Topic names given to it are already resolved.
         self._reader = rclpy.create_node(subscriptions_node_name(self.get_name()),
                                          use_global_arguments=False,
-                                         start_parameter_services=False)
+                                         start_parameter_services=False,
+                                         parameter_overrides=qos_overrides_of(self))
         self._subs: dict[str, Any] = {}
         self._types: dict[str, str] = {}
         self._stats: dict[str, _TopicStats] = {}
@@ -293,6 +303,7 @@ class Recorder(Node):
         self._discovery = self.create_timer(DISCOVERY_PERIOD_S, self._discover)
         self._flush_timer = self.create_timer(FLUSH_CHECK_PERIOD_S, self._flush_if_due)
         self._take_timer = self.create_timer(TAKE_PERIOD_S, self.take_all)
+        self._diagnostics = NodeDiagnostics(self, 'recording', self._diagnose)
         for name, type_name in known.items():
             self._subscribe(name, type_name, request_qos([]))
         self._discover()
@@ -335,10 +346,14 @@ class Recorder(Node):
                 self._warned_types.add(name)
                 self.get_logger().error(f'{name}: cannot record {type_name}: {err}')
             return
+        try:
+            sub = overridable_subscription(self._reader, cls, name, _never_called, qos, raw=True)
+        except StartupError as err:  # values were checked at start-up: not expected
+            self.get_logger().error(f'{name}: not recording it: {err}')
+            return
         self._types[name] = type_name
         self._stats[name] = _TopicStats(name, stamped)
-        self._subs[name] = self._reader.create_subscription(
-            cls, name, _never_called, qos, raw=True)
+        self._subs[name] = sub
 
     def _check_publishers_match(self, name: str, offered: list[QoSProfile]) -> None:
         """Say once, as an error, that a publisher cannot match the start-up subscription.
@@ -367,6 +382,10 @@ class Recorder(Node):
         self._writer.add_topic(name, self._types[name],
                                offered_qos_profiles=[i.qos_profile for i in infos])
         self._stats[name].publishers = len(infos) or 1  # graph may lag the data
+        if name == DIAGNOSTICS_TOPIC:
+            # Every node publishes there, this one too: the sequence numbers of
+            # several writers interleave and cannot tell a loss.
+            self._stats[name].publishers = 0
         self.get_logger().info(f'recording {name} ({self._types[name]}, '
                                f'{len(infos)} publisher(s))')
 
@@ -426,6 +445,32 @@ class Recorder(Node):
         self.failure = reason
         self.stop_requested = True
         self.get_logger().error(f'{reason}; stopping, the bag keeps what was written before')
+
+    def _diagnose(self, report: DiagnosticReport) -> None:
+        """/diagnostics: messages received, written, on disk and lost per topic;
+        WARN once any message was lost (the bag has a hole), ERROR after a write error."""
+        report.add('bag', str(self.output))
+        written, on_disk = self._writer.counts, self._writer.flushed_counts
+        lost = {}
+        for name in self._wanted:
+            stats = self._stats.get(name)
+            report.add(f'received[{name}]', stats.received if stats else 0)
+            report.add(f'written[{name}]', written.get(name, 0))
+            report.add(f'on_disk[{name}]', on_disk.get(name, 0))
+            report.add(f'lost[{name}]', stats.lost if stats else 0)
+            if stats is not None and stats.lost:
+                lost[name] = stats.lost
+        total_lost = sum(lost.values())
+        report.add('received_total', sum(s.received for s in self._stats.values()))
+        report.add('written_total', sum(written.values()))
+        report.add('lost_total', total_lost)
+        report.add('lost_last_period', report.delta('lost', total_lost))
+        if self.failure:
+            report.error(self.failure)
+        if total_lost:
+            report.warn(f'{total_lost} message(s) lost: '
+                        + ', '.join(f'{n} {k}' for n, k in lost.items()))
+        report.ok(f'recording {len(written)} of {len(self._wanted)} topics to {self.output}')
 
     # -- stopping -----------------------------------------------------------------
 

@@ -51,7 +51,8 @@ from ..model import CommandTrack, Muscle, MuscleParams
 from ..model.muscle import check_dl_mt, check_recruitment, recruitment_from_pulse_width
 from ..timebase import NS_PER_S
 from ._common import (LIVE_RESETS, OUTPUT_HISTORY_DEPTH, OUTPUT_QOS, RELIABLE_QOS,
-                      BadInputWarner,
+                      BadInputWarner, DiagnosticReport, NodeDiagnostics,
+                      overridable_publisher, overridable_subscription,
                       StartupError, StepSchedule, declare_checked,
                       declare_muscle_parameters, number_descriptor,
                       reject_unknown_overrides, run_node)
@@ -93,6 +94,21 @@ MIN_TICK_PERIOD_S = 0.001
 #: also bounds a tick's burst of messages per output: 100 at 1 kHz (a
 #: subscriber that must not lose any needs a queue at least that deep).
 MAX_CATCH_UP_S = 0.1
+#: /diagnostics: WARN when the steps run in the last period fall below this
+#: fraction of rate_hz x real_time_factor (beyond one tick's worth of steps,
+#: which the count may lag by when the report happens to fall between ticks).
+RATE_WARN_FRACTION = 0.99
+#: /diagnostics: WARN when more steps than this were caught up in the last
+#: period (steps run beyond a tick's nominal count, after a late tick): their
+#: outputs went out late, as a burst.
+CATCH_UP_WARN_STEPS = 0
+#: [s] /diagnostics: ERROR when more than this much clock time's worth of
+#: steps is behind: more than one tick may catch up, so the node is not
+#: keeping up (or has just come out of a stall that long).
+ERROR_BEHIND_S = MAX_CATCH_UP_S
+#: Slack, in steps, for the rounding of ``tick period x rate_hz x
+#: real_time_factor`` to whole steps per tick (3000 Hz x 1 ms is 3.0000000000000004).
+_STEPS_PER_TICK_ROUNDING = 1e-9
 #: A pulse width this many times PW_max is not an FES pulse: it is rejected
 #: with a hint, since it is most likely microseconds sent for seconds.
 PULSE_WIDTH_UNIT_HINT_FACTOR = 100.0
@@ -193,9 +209,9 @@ class Simulator(Node):
         self._late_knots = 0
         self._worst_late_s = 0.0
 
-        self._pub_force = self.create_publisher(Float64, 'force', OUTPUT_QOS)
-        self._pub_ce_length = self.create_publisher(Float64, 'ce_length', OUTPUT_QOS)
-        self._pub_wrench = self.create_publisher(WrenchStamped, 'wrench', OUTPUT_QOS)
+        self._pub_force = overridable_publisher(self, Float64, 'force', OUTPUT_QOS)
+        self._pub_ce_length = overridable_publisher(self, Float64, 'ce_length', OUTPUT_QOS)
+        self._pub_wrench = overridable_publisher(self, WrenchStamped, 'wrench', OUTPUT_QOS)
         # One message per output, refilled every tick: building them anew
         # each tick cost more CPU than the model step (profiled for the benchmarks).
         self._force_msg = Float64()
@@ -204,16 +220,16 @@ class Simulator(Node):
         self._wrench_msg.header.frame_id = self._frame_id
         self._clock_msg = ClockMsg()
         # /clock is absolute by ROS convention: one time source per graph.
-        self._pub_clock = (self.create_publisher(ClockMsg, '/clock', OUTPUT_QOS)
+        self._pub_clock = (overridable_publisher(self, ClockMsg, '/clock', OUTPUT_QOS)
                            if self._publish_clock else None)
-        self._sub_pw = self.create_subscription(Float64, 'pulse_width', self._on_pulse_width,
-                                                RELIABLE_QOS)
-        self._sub_r = self.create_subscription(Float64, 'recruitment', self._on_recruitment,
-                                               RELIABLE_QOS)
-        self._sub_dl = self.create_subscription(Float64, 'length_command',
+        self._sub_pw = overridable_subscription(self, Float64, 'pulse_width',
+                                                self._on_pulse_width, RELIABLE_QOS)
+        self._sub_r = overridable_subscription(self, Float64, 'recruitment',
+                                               self._on_recruitment, RELIABLE_QOS)
+        self._sub_dl = overridable_subscription(self, Float64, 'length_command',
                                                 self._on_length_command, RELIABLE_QOS)
-        self._sub_dl_stamped = self.create_subscription(
-            PointStamped, 'length_command_stamped', self._on_length_command_stamped,
+        self._sub_dl_stamped = overridable_subscription(
+            self, PointStamped, 'length_command_stamped', self._on_length_command_stamped,
             STAMPED_QOS)
         self._track = CommandTrack(name=self._sub_dl_stamped.topic_name)
         self.create_service(Trigger, 'reset', self._on_reset)
@@ -227,6 +243,15 @@ class Simulator(Node):
         self._max_steps_per_tick = max(1, math.ceil(MAX_CATCH_UP_S * rtf * rate_hz))
         tick_s = max(MIN_TICK_PERIOD_S, self._dt_s / rtf)
         self._timer = self.create_timer(tick_s, self._on_tick, clock=self._steady)
+        # Diagnostics: a tick nominally runs this many steps; more is catching up.
+        self._real_time_factor = rtf
+        self._steps_per_tick = max(1, math.ceil(tick_s * rate_hz * rtf
+                                                - _STEPS_PER_TICK_ROUNDING))
+        self._late_ticks = 0        # ticks that ran more steps than _steps_per_tick
+        self._catch_up_steps = 0    # the steps they ran beyond it
+        self._stim_messages = 0     # pulse_width and recruitment messages taken
+        self._error_behind_steps = max(1, math.ceil(ERROR_BEHIND_S * rtf * rate_hz))
+        self._diagnostics = NodeDiagnostics(self, 'muscle simulation', self._diagnose)
         self.get_logger().info(
             f'{params.units}/{params.length} muscle, {rate_hz:g} Hz, real_time_factor '
             f'{rtf:g}, publish_clock {self._publish_clock}, watchdog '
@@ -247,6 +272,9 @@ class Simulator(Node):
         # Knots that arrived since the last tick act in the steps run now.
         self._take_stamped()
         n = min(due, self._max_steps_per_tick)
+        if n > self._steps_per_tick:   # a late tick catching up (for /diagnostics)
+            self._late_ticks += 1
+            self._catch_up_steps += n - self._steps_per_tick
         if n < due:
             self.get_logger().warning(
                 f'{due} steps due after a stall or overload: running {n} now and the rest '
@@ -344,6 +372,7 @@ class Simulator(Node):
 
     def _set_stimulation(self, recruitment: float) -> None:
         self._recruitment = recruitment
+        self._stim_messages += 1
         self._last_stim_t_s = self.sim_time_s
         if self._watchdog_tripped:
             self._watchdog_tripped = False
@@ -531,6 +560,63 @@ class Simulator(Node):
             self.get_logger().info(f'{", ".join(changed)} changed: muscle rebuilt at rest')
         else:
             self.get_logger().info(f'{", ".join(changed)} changed, state kept')
+
+    def _diagnose(self, report: DiagnosticReport) -> None:
+        """/diagnostics: step rate, late ticks, catch-up, steps behind, longest
+        tick gap, watchdog and rejected inputs; levels in RATE_WARN_FRACTION,
+        CATCH_UP_WARN_STEPS and ERROR_BEHIND_S."""
+        s = self._schedule
+        behind = max(0, s.target(self._steady.now().nanoseconds) - s.steps_done)
+        steps = report.delta('steps', s.steps_done)
+        target_hz = self._rate_hz * self._real_time_factor
+        achieved_hz = steps / report.period_s if report.period_s > 0.0 else 0.0
+        late = report.delta('late_ticks', self._late_ticks)
+        catch_up = report.delta('catch_up_steps', self._catch_up_steps)
+        bad = report.delta('bad_inputs', self._bad_input.total)
+        gap_s = getattr(s, 'max_tick_gap_s', None)
+        stimulated = self._stim_messages > 0
+        report.add('rate_hz', self._rate_hz)
+        report.add('real_time_factor', self._real_time_factor)
+        report.add('target_step_rate_hz', target_hz)
+        report.add('achieved_step_rate_hz', achieved_hz)
+        report.add('period_s', report.period_s)
+        report.add('sim_time_s', self.sim_time_s)
+        report.add('steps_done', s.steps_done)
+        report.add('steps_behind', behind)
+        report.add('steps_behind_error_above', self._error_behind_steps)
+        report.add('late_ticks_total', self._late_ticks)
+        report.add('late_ticks_last_period', late)
+        report.add('catch_up_steps_total', self._catch_up_steps)
+        report.add('catch_up_steps_last_period', catch_up)
+        report.add('max_tick_gap_s', gap_s)
+        report.add('watchdog_tripped', self._watchdog_tripped)
+        report.add('input_timeout_s', self._input_timeout_s)
+        report.add('recruitment', self._recruitment)
+        report.add('stimulation_received', stimulated)
+        report.add('stimulation_age_s', self.sim_time_s - self._last_stim_t_s if stimulated
+                   else None)
+        report.add('late_length_knots_total', self._late_knots)
+        report.add('bad_inputs_total', self._bad_input.total)
+        report.add('bad_inputs_last_period', bad)
+        for topic, count in sorted(self._bad_input.counts.items()):
+            report.add(f'bad_inputs[{topic}]', count)
+        if behind > self._error_behind_steps:
+            report.error(f'{behind} steps behind the clock, more than {ERROR_BEHIND_S:g} s '
+                         f'worth: not keeping up with rate_hz x '
+                         f'real_time_factor = {target_hz:g} steps/s')
+        if steps < RATE_WARN_FRACTION * target_hz * report.period_s - self._steps_per_tick:
+            report.warn(f'{achieved_hz:.1f} steps/s in the last {report.period_s:.2f} s, below '
+                        f'{RATE_WARN_FRACTION:.0%} of {target_hz:g}')
+        if catch_up > CATCH_UP_WARN_STEPS:
+            report.warn(f'{catch_up} steps caught up in {late} late tick(s) in the last '
+                        f'{report.period_s:.2f} s')
+        if self._watchdog_tripped:
+            report.warn(f'stimulation watchdog tripped: no pulse_width or recruitment for '
+                        f'{self._input_timeout_s:g} s (input_timeout_s), recruitment 0')
+        if bad:
+            report.warn(f'{bad} input message(s) rejected in the last {report.period_s:.2f} s')
+        report.ok(f'stepping at {achieved_hz:.1f} steps/s of {target_hz:g}'
+                  + ('' if stimulated else '; no pulse_width or recruitment received yet'))
 
     def on_exit(self) -> None:
         """Log the run's timing statistics (achieved rate, drift, late ticks, longest tick gap)."""

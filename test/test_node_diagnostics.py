@@ -1,0 +1,334 @@
+"""/diagnostics of the package's nodes, over real DDS (and the report logic in-process).
+
+Every node publishes one DiagnosticStatus a second on the absolute topic
+``/diagnostics``, named ``<fully qualified node name>: <function>``. These
+tests start each node in its own namespace, read its status from a probe,
+and check the level, the message and the values against what the test made
+happen: no input, a tripped watchdog, rejected messages, a stall (SIGSTOP),
+a missing target or feedback, messages recorded, protocol progress.
+"""
+from __future__ import annotations
+
+import itertools
+import os
+import signal
+import time
+
+import pytest
+import rclpy
+import yaml
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from std_msgs.msg import Float64
+
+from hill_muscle_ros.model import Protocol
+from hill_muscle_ros.nodes import recorder as recorder_mod
+from hill_muscle_ros.nodes._common import DIAGNOSTICS_PERIOD_S, DiagnosticReport
+from hill_muscle_ros.qos import QUEUE_DEPTH
+from hill_muscle_ros.recording.reader import read_bag
+from ros_helpers import Probe, ProcessGroup, node_command
+
+pytestmark = pytest.mark.ros
+
+_RUNS = itertools.count()
+OK, WARN, ERROR = DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR
+#: Levels in order, to compare them (the message field is a byte).
+RANK = {OK: 0, WARN: 1, ERROR: 2}
+#: [Hz] a step rate whose 5 ms ticks a loaded 2-core machine rarely delays
+#: past the next one, so that an OK report (no catch-up) comes within the deadline.
+QUIET_RATE_HZ = 200.0
+#: [-] the achieved rate over a report period is the configured one to this
+#: fraction: the count may lag by one tick at either end of a ~1 s period.
+RATE_TOLERANCE = 0.02
+#: [s] how long the simulator is stopped (SIGSTOP) to make it fall behind:
+#: ten times the 0.1 s it may catch up in one tick.
+STALL_S = 1.0
+
+
+def unique_namespace() -> str:
+    """Unique even if another test run drew the same ROS_DOMAIN_ID."""
+    return f'/diag_{os.getpid()}_{next(_RUNS)}'
+
+
+def values(status: DiagnosticStatus) -> dict[str, str]:
+    return {kv.key: kv.value for kv in status.values}
+
+
+class Statuses:
+    """The statuses of one named status on /diagnostics, as they arrive."""
+
+    def __init__(self, probe: Probe, name: str) -> None:
+        self.name = name
+        self.list: list[DiagnosticStatus] = []
+        rec = probe.record('/diagnostics', DiagnosticArray)
+        for msg in rec.messages:
+            self._on_array(msg)
+        rec.add_listener(self._on_array)
+
+    def _on_array(self, msg: DiagnosticArray) -> None:
+        self.list.extend(s for s in msg.status if s.name == self.name)
+
+    def first(self, predicate, start: int = 0):
+        """The first status from index ``start`` with ``predicate(status)``, or None."""
+        return next((s for s in self.list[start:] if predicate(s)), None)
+
+
+def wait_status(probe, statuses, predicate, what, procs, start=0, timeout_s=30.0):
+    return probe.spin_until(lambda: statuses.first(predicate, start),
+                            f'{statuses.name}: {what}', timeout_s=timeout_s, procs=procs)
+
+
+# -- simulator -------------------------------------------------------------------
+
+
+def test_simulator_without_input_reports_ok_at_its_step_rate(tmp_path):
+    ns = unique_namespace()
+    with ProcessGroup(tmp_path) as procs, Probe('diag_probe') as probe:
+        sim = procs.start('sim', node_command('simulator', ns=ns,
+                                              params={'rate_hz': QUIET_RATE_HZ}))
+        st = Statuses(probe, f'{ns}/simulator: muscle simulation')
+        status = wait_status(probe, st, lambda s: s.level == OK, 'an OK status', [sim])
+    v = values(status)
+    assert status.hardware_id == f'{ns}/simulator'
+    assert float(v['achieved_step_rate_hz']) == pytest.approx(QUIET_RATE_HZ,
+                                                              rel=RATE_TOLERANCE)
+    assert float(v['target_step_rate_hz']) == QUIET_RATE_HZ
+    assert v['stimulation_received'] == 'false' and v['stimulation_age_s'] == ''
+    assert v['watchdog_tripped'] == 'false' and v['recruitment'] == '0'
+    assert v['catch_up_steps_last_period'] == '0' and v['bad_inputs_total'] == '0'
+    assert 'no pulse_width or recruitment received yet' in status.message
+
+
+def test_simulator_watchdog_trip_is_a_warning(tmp_path):
+    ns = unique_namespace()
+    with ProcessGroup(tmp_path) as procs, Probe('diag_probe') as probe:
+        sim = procs.start('sim', node_command('simulator', ns=ns, params={
+            'rate_hz': QUIET_RATE_HZ, 'input_timeout_s': 0.2}))
+        st = Statuses(probe, f'{ns}/simulator: muscle simulation')
+        probe.publish_when_matched(f'{ns}/recruitment', Float64(data=0.5), procs=[sim])
+        status = wait_status(probe, st, lambda s: values(s)['watchdog_tripped'] == 'true',
+                             'the watchdog tripped', [sim])
+    assert status.level in (WARN, ERROR)
+    assert 'watchdog tripped' in status.message
+    v = values(status)
+    assert v['stimulation_received'] == 'true' and v['recruitment'] == '0'
+    assert float(v['stimulation_age_s']) > 0.2
+
+
+def test_simulator_counts_rejected_input_per_topic_and_warns_in_that_period(tmp_path):
+    ns = unique_namespace()
+    n_bad = 3
+    with ProcessGroup(tmp_path) as procs, Probe('diag_probe') as probe:
+        sim = procs.start('sim', node_command('simulator', ns=ns,
+                                              params={'rate_hz': QUIET_RATE_HZ}))
+        st = Statuses(probe, f'{ns}/simulator: muscle simulation')
+        for _ in range(n_bad):
+            probe.publish_when_matched(f'{ns}/recruitment', Float64(data=float('nan')),
+                                       procs=[sim])
+        key = f'bad_inputs[{ns}/recruitment]'
+        wait_status(probe, st, lambda s: values(s).get(key) == str(n_bad),
+                    f'{n_bad} rejected', [sim])
+        statuses = list(st.list)
+    per_period = [int(values(s)['bad_inputs_last_period']) for s in statuses]
+    assert sum(per_period) == n_bad
+    for status, n in zip(statuses, per_period):
+        if n:
+            assert RANK[status.level] >= RANK[WARN], status
+            assert f'{n} input message(s) rejected' in status.message
+
+
+def test_simulator_stall_is_an_error_then_a_catch_up_warning(tmp_path):
+    ns = unique_namespace()
+    with ProcessGroup(tmp_path) as procs, Probe('diag_probe') as probe:
+        sim = procs.start('sim', node_command('simulator', ns=ns))   # 1 kHz
+        st = Statuses(probe, f'{ns}/simulator: muscle simulation')
+        wait_status(probe, st, lambda s: True, 'a first status', [sim])
+        start = len(st.list)
+        stopped_at = time.monotonic()
+        os.kill(sim.popen.pid, signal.SIGSTOP)
+        try:
+            time.sleep(STALL_S)   # the fault: the process gets no CPU this long
+        finally:
+            os.kill(sim.popen.pid, signal.SIGCONT)
+        stalled_s = time.monotonic() - stopped_at
+        error = wait_status(probe, st, lambda s: s.level == ERROR, 'an ERROR', [sim], start)
+        caught_up = wait_status(
+            probe, st, lambda s: int(values(s)['catch_up_steps_last_period']) > 0,
+            'catch-up steps', [sim], start)
+    v = values(error)
+    assert int(v['steps_behind']) > int(v['steps_behind_error_above']) == 100
+    assert 'steps behind the clock' in error.message
+    assert RANK[caught_up.level] >= RANK[WARN]
+    assert 'caught up' in caught_up.message
+    # The tick could not run while the process was stopped (SIGSTOP lands at
+    # once; the slack is for the signal delivery against the test's clock).
+    assert float(values(caught_up)['max_tick_gap_s']) >= 0.9 * stalled_s
+
+
+# -- force controller -------------------------------------------------------------
+
+
+def test_controller_without_target_reports_idle_ok(tmp_path):
+    ns = unique_namespace()
+    with ProcessGroup(tmp_path) as procs, Probe('diag_probe') as probe:
+        ctrl = procs.start('ctrl', node_command('force_controller', ns=ns))
+        st = Statuses(probe, f'{ns}/force_controller: force control')
+        status = wait_status(probe, st, lambda s: True, 'a status', [ctrl])
+    v = values(status)
+    assert status.level == OK and status.hardware_id == f'{ns}/force_controller'
+    assert v['state'] == 'no force_target received yet'
+    assert v['target_received'] == 'false' and v['target_n'] == ''
+    assert v['stimulating'] == 'false' and v['pulse_width_s'] == '0'
+    assert 'idle' in status.message
+
+
+def test_controller_with_a_target_but_no_feedback_warns(tmp_path):
+    ns = unique_namespace()
+    with ProcessGroup(tmp_path) as procs, Probe('diag_probe') as probe:
+        ctrl = procs.start('ctrl', node_command('force_controller', ns=ns))
+        st = Statuses(probe, f'{ns}/force_controller: force control')
+        probe.publish_when_matched(f'{ns}/force_target', Float64(data=10.0), procs=[ctrl])
+        status = wait_status(probe, st, lambda s: values(s)['target_received'] == 'true',
+                             'the target received', [ctrl])
+    v = values(status)
+    assert status.level == WARN
+    assert v['state'] == 'no force feedback received yet' and v['target_n'] == '10'
+    assert v['feedback_received'] == 'false' and v['stimulating'] == 'false'
+
+
+def test_controller_stale_feedback_warns_with_its_age(tmp_path):
+    ns = unique_namespace()
+    timeout_s = 0.2
+    with ProcessGroup(tmp_path) as procs, Probe('diag_probe') as probe:
+        ctrl = procs.start('ctrl', node_command('force_controller', ns=ns, params={
+            'feedback_timeout_s': timeout_s}))
+        st = Statuses(probe, f'{ns}/force_controller: force control')
+        probe.publish_when_matched(f'{ns}/force_target', Float64(data=10.0), procs=[ctrl])
+        probe.publish_when_matched(f'{ns}/force', Float64(data=1.0), procs=[ctrl])
+        status = wait_status(probe, st, lambda s: values(s)['state'] == 'force feedback stale',
+                             'stale feedback', [ctrl])
+    v = values(status)
+    assert status.level == WARN
+    assert float(v['feedback_age_s']) > timeout_s == float(v['feedback_timeout_s'])
+    assert v['force_n'] == '1' and v['stimulating'] == 'false'
+    assert 'feedback_timeout_s' in status.message
+
+
+def test_controller_in_the_loop_reports_ok_and_stimulating(tmp_path):
+    ns = unique_namespace()
+    with ProcessGroup(tmp_path) as procs, Probe('diag_probe') as probe:
+        sim = procs.start('sim', node_command('simulator', ns=ns,
+                                              params={'rate_hz': QUIET_RATE_HZ}))
+        ctrl = procs.start('ctrl', node_command('force_controller', ns=ns))
+        st = Statuses(probe, f'{ns}/force_controller: force control')
+        probe.publish_when_matched(f'{ns}/force_target', Float64(data=10.0),
+                                   procs=[sim, ctrl])
+        status = wait_status(probe, st, lambda s: values(s)['state'] == 'ready',
+                             'the loop closed', [sim, ctrl])
+    v = values(status)
+    assert status.level == OK and v['stimulating'] == 'true'
+    assert 0.0 < float(v['pulse_width_s']) and 'controlling' in status.message
+
+
+# -- recorder -----------------------------------------------------------------------
+
+
+def test_recorder_reports_counts_per_topic_and_records_diagnostics(tmp_path):
+    ns = unique_namespace()
+    bag = tmp_path / 'bag'
+    n = QUEUE_DEPTH   # the probe's keep-last queue: none is dropped before it is acknowledged
+    with ProcessGroup(tmp_path) as procs, Probe('diag_probe') as probe:
+        rec = procs.start('rec', node_command('recorder', ns=ns, params={'output': str(bag)}))
+        st = Statuses(probe, f'{ns}/recorder: recording')
+        for k in range(n):
+            probe.publish_when_matched(f'{ns}/force', Float64(data=float(k)), procs=[rec])
+        status = wait_status(probe, st, lambda s: values(s)[f'written[{ns}/force]'] == str(n),
+                             f'{n} written', [rec])
+        # The recorder records every node's /diagnostics by default, its own too.
+        wait_status(probe, st, lambda s: int(values(s)['received[/diagnostics]']) > 0,
+                    '/diagnostics recorded', [rec])
+        assert rec.stop() == 0
+    v = values(status)
+    assert status.level == OK and v['bag'] == str(bag)
+    assert v[f'received[{ns}/force]'] == str(n) and v[f'lost[{ns}/force]'] == '0'
+    assert v['lost_total'] == '0'
+    assert read_bag(bag).counts()['/diagnostics'] >= 1
+
+
+@pytest.fixture
+def recorder_in_process(tmp_path):
+    """A Recorder node in this process, on rclpy's default context (the probes
+    have contexts of their own)."""
+    rclpy.init(args=['--ros-args', '-p', f'output:={tmp_path / "bag"}',
+                     '-r', f'__ns:={unique_namespace()}'])
+    node = None
+    try:
+        node = recorder_mod.Recorder()
+        yield node
+    finally:
+        if node is not None:
+            node.close()
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+def test_recorder_loss_is_a_warning_naming_the_topic(recorder_in_process):
+    rec = recorder_in_process
+    force = rec.resolve_topic_name('force')
+    stats = rec._stats[force]
+    for seq in (1, 2, 6):            # 3, 4 and 5 never arrived
+        stats.add(seq)
+    report = rec._diagnostics.report()
+    v = values(DiagnosticStatus(values=report.values))
+    assert report.level == WARN
+    assert report.message.startswith(f'3 message(s) lost: {force} 3')
+    assert v[f'lost[{force}]'] == '3' and v['lost_total'] == '3'
+
+
+# -- protocol player ------------------------------------------------------------------
+
+#: A protocol of 1.5 s: long enough for a report while playing.
+SHORT = {'name': 'short', 'duration_s': 1.5,
+         'recruitment': [[0.0, 0.3], [1.5, 0.3]], 'dl_mt_m': [[0.0, 0.0], [1.5, 0.0]]}
+
+
+def test_player_reports_waiting_then_progress_then_done(tmp_path):
+    ns = unique_namespace()
+    path = tmp_path / 'short.yaml'
+    path.write_text(yaml.safe_dump(SHORT))
+    duration_s = Protocol.from_yaml(path).duration_s
+    with ProcessGroup(tmp_path) as procs, Probe('diag_probe') as probe:
+        player = procs.start('player', node_command('protocol_player', ns=ns, params={
+            'protocol': str(path), 'rate_hz': 100.0, 'wait_for_subscribers_s': 60.0}))
+        st = Statuses(probe, f'{ns}/protocol_player: protocol playback')
+        waiting = wait_status(probe, st, lambda s: True, 'a status', [player])
+        probe.record(f'{ns}/pulse_width', Float64)
+        probe.record(f'{ns}/length_command', Float64)
+        playing = wait_status(probe, st, lambda s: values(s)['state'] == 'playing',
+                              'playing', [player])
+        done = wait_status(probe, st, lambda s: values(s)['state'] == 'done', 'done', [player])
+        assert player.wait() == 0
+    assert waiting.level == OK and values(waiting)['state'] == 'waiting for subscribers'
+    assert values(waiting)[f'subscribers[{ns}/pulse_width]'] == '0'
+    v = values(playing)
+    t_s = float(v['protocol_time_s'])
+    assert playing.level == OK and 0.0 <= t_s < duration_s
+    assert float(v['progress']) == pytest.approx(t_s / duration_s, abs=1e-5)
+    assert done.level == OK and values(done)['progress'] == '1'
+
+
+# -- the report itself ------------------------------------------------------------------
+
+
+def test_report_message_puts_the_worst_condition_first():
+    report = DiagnosticReport(DIAGNOSTICS_PERIOD_S, {})
+    report.ok('fine')
+    report.warn('degraded')
+    report.error('broken')
+    assert report.level == ERROR
+    assert report.message == 'broken; degraded'
+
+
+def test_report_delta_is_the_change_since_the_previous_report():
+    previous = {}
+    assert DiagnosticReport(1.0, previous).delta('n', 5) == 5
+    assert DiagnosticReport(1.0, previous).delta('n', 7) == 2
