@@ -18,6 +18,10 @@ from .model.protocol import safe_load_yaml
 SIMULATOR_NODE_KEYS = ('rate_hz', 'real_time_factor', 'input_timeout_s', 'frame_id',
                        'publish_clock', 'publish_every_n_steps', 'use_sim_time')
 
+#: Parameters of ROS 2's standard QoS overrides start with this key (the node
+#: checks them; the offline CLI has no topics and passes over them).
+QOS_OVERRIDES_KEY = 'qos_overrides'
+
 #: Section names that apply to the simulator: every node, or the node by name.
 _WILDCARD = '/**'
 _NODE_NAME = 'simulator'
@@ -73,6 +77,10 @@ def load_muscle_params(path: str | Path) -> tuple[MuscleParams, dict[str, Any]]:
     :raises ValueError: on an unknown key or invalid value, naming the file
     """
     values = read_ros_parameters(path)
+    # QoS overrides configure the node's publishers and subscriptions, nothing
+    # offline: nested (``qos_overrides: {/force: ...}``) or flat dotted keys.
+    values = {k: v for k, v in values.items()
+              if k != QOS_OVERRIDES_KEY and not str(k).startswith(QOS_OVERRIDES_KEY + '.')}
     params = MuscleParams.from_mapping(values, source=str(path), ignore=SIMULATOR_NODE_KEYS)
     node = {k: v for k, v in values.items() if k in SIMULATOR_NODE_KEYS}
     return params, node

@@ -332,3 +332,39 @@ def test_report_delta_is_the_change_since_the_previous_report():
     previous = {}
     assert DiagnosticReport(1.0, previous).delta('n', 5) == 5
     assert DiagnosticReport(1.0, previous).delta('n', 7) == 2
+
+
+@pytest.mark.parametrize('recorder_override', [False, True],
+                         ids=['reliable-recorder', 'best-effort-recorder'])
+def test_recorder_of_a_best_effort_force_needs_the_matching_override(tmp_path,
+                                                                     recorder_override):
+    """A best-effort /force never matches the recorder's reliable start-up
+    subscription (an ERROR naming it); the subscription override makes it record."""
+    ns = unique_namespace()
+    force = f'{ns}/force'
+    overrides = {f'qos_overrides.{force}.publisher.reliability': 'best_effort'}
+    if recorder_override:
+        overrides[f'qos_overrides.{force}.subscription.reliability'] = 'best_effort'
+    params = tmp_path / 'qos.yaml'
+    params.write_text(yaml.safe_dump({'/**': {'ros__parameters': overrides}}))
+    with ProcessGroup(tmp_path) as procs, Probe('diag_probe') as probe:
+        rec = procs.start('rec', node_command('recorder', ns=ns, params_files=[params],
+                                              params={'output': str(tmp_path / 'bag')}))
+        st = Statuses(probe, f'{ns}/recorder: recording')
+        wait_status(probe, st, lambda s: True, 'a status', [rec])
+        sim = procs.start('sim', node_command('simulator', ns=ns, params_files=[params],
+                                              params={'rate_hz': QUIET_RATE_HZ}))
+        # The simulator's wrench is reliable either way: once it is recorded,
+        # so is a matched force.
+        status = wait_status(
+            probe, st, lambda s: int(values(s)[f'received[{ns}/wrench]']) > 0
+            and (s.level == ERROR or int(values(s)[f'received[{force}]']) > 0),
+            'wrench and force recorded, or an error', [rec, sim])
+    if recorder_override:
+        # Recorded; best effort may lose some (then a WARN), never an ERROR.
+        assert status.level != ERROR, status.message
+        assert int(values(status)[f'received[{force}]']) > 0
+    else:
+        assert status.level == ERROR
+        assert f'not recording (all or some publishers of) {force}' in status.message
+        assert values(status)[f'received[{force}]'] == '0'

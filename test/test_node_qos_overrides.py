@@ -25,6 +25,7 @@ from hill_muscle_ros.nodes._common import (DIAGNOSTICS_QOS, OUTPUT_QOS, PACKAGE_
 from hill_muscle_ros.nodes.force_controller import ForceControllerNode
 from hill_muscle_ros.nodes.protocol_player import ProtocolPlayer
 from hill_muscle_ros.nodes.simulator import STAMPED_QOS, Simulator
+from hill_muscle_ros.params_file import load_muscle_params
 from ros_helpers import Probe, ProcessGroup, node_command
 
 pytestmark = pytest.mark.ros
@@ -225,3 +226,38 @@ def test_startup_error_is_raised_in_process_for_a_bad_value(ros_args):
     with pytest.raises(StartupError, match='expected one of system_default, keep_last, '
                                            'keep_all'):
         Simulator()
+
+
+#: The example of the documentation: a shared section that makes the
+#: simulator's force best effort and deepens the recorder's queue for it.
+EXAMPLE_PARAMS = """
+/**:
+  ros__parameters:
+    qos_overrides:
+      /force:
+        publisher:
+          reliability: best_effort
+          depth: 10
+        subscription:
+          reliability: best_effort
+    k_se_n_per_m: 10000.0
+"""
+
+
+def test_offline_cli_reads_a_params_file_with_qos_overrides(tmp_path):
+    path = tmp_path / 'muscle.yaml'
+    path.write_text(EXAMPLE_PARAMS + "    qos_overrides./wrench.publisher.depth: 100\n")
+    params, node = load_muscle_params(path)
+    assert params.k_se_n_per_m == 10000.0 and node == {}
+
+
+def test_the_documented_example_is_accepted_by_the_simulator(ros_args, tmp_path):
+    path = tmp_path / 'muscle.yaml'
+    path.write_text(EXAMPLE_PARAMS)
+    ros_args('--params-file', str(path))
+    node = Simulator()
+    try:
+        qos = qos_of(node)[('/force', 'publisher')]
+        assert (qos.reliability, qos.depth) == (ReliabilityPolicy.BEST_EFFORT, 10)
+    finally:
+        node.destroy_node()

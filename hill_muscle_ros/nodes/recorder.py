@@ -448,7 +448,9 @@ class Recorder(Node):
 
     def _diagnose(self, report: DiagnosticReport) -> None:
         """/diagnostics: messages received, written, on disk and lost per topic;
-        WARN once any message was lost (the bag has a hole), ERROR after a write error."""
+        WARN once any message was lost (the bag has a hole); ERROR after a write
+        error, or while a wanted topic cannot be recorded (a publisher of another
+        type, or one the start-up subscription's QoS cannot match: logged once)."""
         report.add('bag', str(self.output))
         written, on_disk = self._writer.counts, self._writer.flushed_counts
         lost = {}
@@ -467,6 +469,9 @@ class Recorder(Node):
         report.add('lost_last_period', report.delta('lost', total_lost))
         if self.failure:
             report.error(self.failure)
+        if self._warned_types:
+            report.error(f'not recording (all or some publishers of) '
+                         f'{", ".join(sorted(self._warned_types))}: see the log')
         if total_lost:
             report.warn(f'{total_lost} message(s) lost: '
                         + ', '.join(f'{n} {k}' for n, k in lost.items()))
