@@ -53,10 +53,12 @@ def protocol_start_ns(bag: Bag, sim_time: bool = False) -> int:
     stimulation, the simulator's time instead: the stamp of its last
     ``wrench`` at rest before the first non-zero force. The recorder's sim
     time receive clock only advances with its polling and /clock (coarse at
-    a high real-time factor), and the first non-zero force may be stamped up
-    to a tick's worth of steps late (a tick runs real_time_factor steps and
-    publishes the last one); but the stimulation arrived between the two
-    ticks, so it acted from the step after the last rest stamp.
+    a high real-time factor). The simulator publishes every n-th step
+    (``publish_every_n_steps``; by default n = ceil(real_time_factor) at
+    1 kHz), on a fixed grid of simulated time that need not line up with its
+    ticks, so the stimulation acted at one of the steps after the last rest
+    stamp, up to the first non-zero one: this start may be up to n - 1 steps
+    early.
 
     The player's first message, if the bag has it (its sequence number is 1).
     If the recorder matched the player late (slow DDS discovery) and the
@@ -112,12 +114,12 @@ def live_samples_at(bag: Bag, times_s: Sequence[float],
     """([s], [N]) the recorded sample each time reads: its time and force.
 
     As :func:`live_force_at`, with the time of the sample since the protocol
-    started. The simulator publishes once per tick, the last of the tick's
-    steps, so at real_time_factor X the sample read at a time may be up to X
-    steps older: a force changing at 13 N/s (Protocol II's ramps) moves
-    0.13 N in 10 ms. Comparing it with the offline force at the sample's own
-    time measures the simulation, not the publishing rate. (NaN, NaN) before
-    the first wrench.
+    started. The simulator publishes every n-th step (``publish_every_n_steps``;
+    by default n = ceil(real_time_factor) at 1 kHz), so the sample read at a
+    time may be up to n - 1 steps older: at real_time_factor 10, a force
+    changing at 13 N/s (Protocol II's ramps) moves 0.12 N in those 9 ms.
+    Comparing it with the offline force at the sample's own time measures the
+    simulation, not the publishing rate. (NaN, NaN) before the first wrench.
     """
     wrench = bag.topic('wrench')
     t_force = (wrench.stamps_ns() - protocol_start_ns(bag, sim_time)) / NS_PER_S
