@@ -4,10 +4,11 @@ Runs the package's ``simulator`` node and a bare rclpy echo node as separate
 processes and observes them from this process through DDS:
 
 - the node at ``rate_hz`` 1000 for ``--seconds`` (30 by default): achieved
-  step rate, the period between its ``wrench`` messages (one per tick) as
-  seen by a subscriber (p50, p99, max), late ticks, CPU % of one core
-  (from /proc), and the drift between simulated time (the wrench stamps) and
-  the clock;
+  step rate, the period between its ``wrench`` messages (one per step: a
+  late tick's steps arrive as a burst) as seen by a subscriber (p50, p99,
+  max), late arrivals, messages received and gaps in their stamps, CPU % of
+  one core (from /proc), and the drift between simulated time (the wrench
+  stamps) and the clock;
 - latency from a ``pulse_width`` publish to the first ``force`` message that
   reflects it (R toggled between 0, where the force is exactly 0, and 0.5),
   against a bare rclpy echo node (``ping`` -> ``pong``) measured the same way.
@@ -59,7 +60,9 @@ LATENCY_EDGES = 200
 PROBE_PAUSE_S = (0.005, 0.02)
 #: A pulse width that gives R = 0.5 with the default PW_max of 0.5 ms.
 PULSE_WIDTH_S = 0.00025
-#: A tick is late if its message comes this many periods after the previous one.
+#: A message arrives late if it comes this many periods after the previous one:
+#: a late tick (its steps then follow as a burst), or a delay in DDS or in this
+#: observer.
 LATE_FACTOR = 2.0
 QUEUE_DEPTH = 1000
 #: [s] longest one spin of the observer waits while it pauses between probes.
@@ -119,9 +122,14 @@ class NodeResult:
     steps: int
     rate_hz: float
     period_ms: tuple[float, float, float]   # p50, p99, max between messages
-    late_ticks: int
-    multi_step_ticks: int
-    ticks: int
+    #: messages that arrived more than LATE_FACTOR periods after the previous one
+    late_arrivals: int
+    #: gaps in the received wrench stamps (more than one step between two
+    #: messages): each is one or more messages this observer missed, since
+    #: the simulator publishes every step at 1 kHz
+    stamp_gaps: int
+    #: wrench messages received (one per step)
+    messages: int
     cpu_percent: float
     drift_steps: float
     lag_ms: tuple[float, float, float]      # stamp -> receipt, p50, p99, max
@@ -237,12 +245,13 @@ def run(seconds: float, log_dir: Path, executor: str | None = None
         node_result = NodeResult(
             seconds=wall, steps=steps, rate_hz=steps / wall_span_s,
             period_ms=tuple(percentiles(periods_ms, 50, 99)) + (float(periods_ms.max()),),
-            late_ticks=int(np.sum(periods_ms > LATE_FACTOR * 1e3 / RATE_HZ)),
-            multi_step_ticks=int(np.sum(step_gaps > 1)), ticks=len(recv),
+            late_arrivals=int(np.sum(periods_ms > LATE_FACTOR * 1e3 / RATE_HZ)),
+            stamp_gaps=int(np.sum(step_gaps > 1)), messages=len(recv),
             cpu_percent=100.0 * (cpu1 - cpu0) / wall,
             drift_steps=drift_ms * RATE_HZ / 1e3,
             lag_ms=tuple(percentiles(lag, 50, 99)) + (float(lag.max()),),
-            pubs_subs=('simulator: 3 publishers (force, ce_length, wrench), 4 subscriptions '
+            pubs_subs=('simulator: 4 publishers (force, ce_length, wrench, /diagnostics), '
+                       '4 subscriptions '
                        '(pulse_width, recruitment, length_command, length_command_stamped), '
                        'the reset and parameter services; one observer subscribed to wrench '
                        'and publishing recruitment at 100 Hz'))

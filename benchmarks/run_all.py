@@ -319,9 +319,10 @@ def write_node_sections(add, node_runs: dict, seconds: float) -> None:
     add('`benchmarks/bench_node.py`: the `simulator` console script as its own process '
         '(`input_timeout_s:=0.0`), observed from the benchmark process through DDS '
         '(`ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`). One run per executor (each run is '
-        f'{seconds:g} s long; the percentiles are over its ticks): `events`, rclpy\'s C++ '
-        'EventsExecutor, is what the nodes use (`HILL_MUSCLE_EXECUTOR` unset); `single`, '
-        'rclpy\'s default SingleThreadedExecutor, is the fallback '
+        f'{seconds:g} s long; the percentiles are over its messages, one per step): '
+        '`events`, rclpy\'s C++ EventsExecutor, is what the simulator uses '
+        '(`HILL_MUSCLE_EXECUTOR` unset); `single`, rclpy\'s default SingleThreadedExecutor, '
+        'is the fallback '
         '(`HILL_MUSCLE_EXECUTOR=single`). The targets are judged on `events`.')
     add('')
     for executor, (_, error) in node_runs.items():
@@ -341,9 +342,11 @@ def write_node_sections(add, node_runs: dict, seconds: float) -> None:
             lambda n: f'{n.rate_hz:.1f} Hz ({n.steps} steps)')
         row('period between wrench messages at the subscriber, p50 / p99 / max',
             lambda n: '{:.3f} / {:.3f} / {:.1f} ms'.format(*n.period_ms))
-        row(f'late ticks (message more than {bench_node.LATE_FACTOR:g} periods after the '
-            'previous)', lambda n: f'{n.late_ticks} of {n.ticks}')
-        row('ticks that ran more than one step (catch-up)', lambda n: f'{n.multi_step_ticks}')
+        row(f'late arrivals (message more than {bench_node.LATE_FACTOR:g} periods after the '
+            'previous: a late tick, or DDS or observer delay)',
+            lambda n: f'{n.late_arrivals} of {n.messages} messages')
+        row('gaps in the received wrench stamps (messages this observer missed)',
+            lambda n: f'{n.stamp_gaps}')
         row('drift of simulated time against the clock over the run',
             lambda n: f'{n.drift_steps:.2f} steps',
             'every step computed, <= 2 steps: '
@@ -354,9 +357,10 @@ def write_node_sections(add, node_runs: dict, seconds: float) -> None:
         row('stamp to receipt lag, p50 / p99 / max',
             lambda n: '{:.2f} / {:.2f} / {:.1f} ms'.format(*n.lag_ms))
         add('')
-        add(f'Attached: {next(iter(measured.values()))[0].pubs_subs}. The tick period is seen '
-            'from a subscriber, so it includes DDS delivery and this Python observer\'s own '
-            'scheduling: it bounds the node\'s own tick jitter from above. Every step is '
+        add(f'Attached: {next(iter(measured.values()))[0].pubs_subs}. The simulator '
+            'publishes every step, a late tick\'s steps as a burst. The period between messages '
+            'is seen from a subscriber, so it includes DDS delivery and this Python observer\'s '
+            'own scheduling: it bounds the node\'s own tick jitter from above. Every step is '
             'computed: the node counts steps against the steady clock and runs the ones that '
             'are due (catch-up), so the step count follows the clock; that is what the drift '
             'row measures. The CPU difference between the executors is rclpy\'s Python '
