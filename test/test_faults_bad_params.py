@@ -57,6 +57,22 @@ def test_bad_params_file_exits_non_zero_naming_the_parameter(tmp_path, executabl
     assert 'Traceback' not in out
 
 
+@pytest.mark.parametrize('executable', ['simulator', 'recorder'])
+def test_a_command_line_rcl_cannot_parse_exits_non_zero_in_one_line(tmp_path, executable):
+    # Unquoted, the ':' of a typed topic breaks rcl's YAML parser before any node exists.
+    with ProcessGroup(tmp_path) as procs:
+        proc = procs.start(executable, node_command(
+            executable, extra_ros_args=['-p', 'topics:=[force, force_target:std_msgs/msg/Float64]']))
+        deadline = time.monotonic() + EXIT_TIMEOUT_S
+        while proc.returncode is None and time.monotonic() < deadline:
+            time.sleep(POLL_S)
+        status = proc.returncode
+        out = proc.output()
+    assert status is not None and status != 0, out
+    assert 'topics:=' in out
+    assert 'Traceback' not in out
+
+
 RUNTIME_CASES = [
     ('k_se_n_per_m', -1.0), ('k_pe_n_per_m', float('inf')), ('fv_b_m_per_s', 0.0),
     ('units', 'triple'), ('length', 'current'), ('n_units', 0), ('pw_max_s', -5e-4),

@@ -151,6 +151,33 @@ def spin(executor: Any, stop: StopSignals, until: Any = None) -> None:
 # -- main() -------------------------------------------------------------------
 
 
+def init_ros(args: list[str] | None, logger_name: str) -> tuple[bool, str | None]:
+    """``rclpy.init`` for a node process, with the transport set first.
+
+    A command line rcl cannot parse (``-p "topics:=[a, b:pkg/msg/T]"``
+    unquoted) is one logged line, not a traceback.
+
+    :param args: command-line arguments (``None``: ``sys.argv``)
+    :param logger_name: the logger of the error line
+    :return: whether rclpy is initialised, and what the transport set (or ``None``)
+    """
+    logger = rclpy.logging.get_logger(logger_name)
+    try:
+        # Before rclpy.init: the RMW reads it when it creates the participant.
+        transport_note = use_udp_transport()
+    except ValueError as err:
+        logger.error(str(err))
+        return False, None
+    try:
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    except RuntimeError as err:
+        # rclpy 7.1.x raises _rclpy.RCLError, a RuntimeError with no public alias.
+        logger.error(f'cannot start: {err} (quote values that contain ":" or ",", '
+                     "e.g. -p 'topics:=[force, \"force_target:std_msgs/msg/Float64\"]')")
+        return False, None
+    return True, transport_note
+
+
 def run_node(node_factory: Callable[[], Node], args: list[str] | None = None) -> int:
     """Create a node and spin it, following the Jazzy talker demo's ``main()``.
 
@@ -176,13 +203,9 @@ def run_node(node_factory: Callable[[], Node], args: list[str] | None = None) ->
     333 ms whenever a process such as ``ros2 param get`` joined the graph.
     """
     logger_name = getattr(node_factory, 'NODE_NAME', 'node')
-    try:
-        # Before rclpy.init: the RMW reads it when it creates the participant.
-        transport_note = use_udp_transport()
-    except ValueError as err:
-        rclpy.logging.get_logger(logger_name).error(str(err))
+    started, transport_note = init_ros(args, logger_name)
+    if not started:
         return EXIT_FAILURE
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     node = None
     executor = None
     status = EXIT_SUCCESS

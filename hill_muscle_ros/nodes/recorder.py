@@ -53,12 +53,11 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSCompatibility, QoSProfile,
                        ReliabilityPolicy, qos_check_compatible)
-from rclpy.signals import SignalHandlerOptions
 
 from ..recording.bag_writer import BagOutputError, BagWriter, read_msg_file, split_type_name
 from ..timebase import NS_PER_S
 from ._common import (DIAGNOSTICS_TOPIC, EXIT_FAILURE, EXIT_SUCCESS, DiagnosticReport,
-                      NodeDiagnostics, StartupError, check_qos_overrides,
+                      NodeDiagnostics, StartupError, check_qos_overrides, init_ros,
                       overridable_subscription, parameter_overrides, qos_overrides_of)
 
 NODE_NAME = 'recorder'
@@ -534,7 +533,9 @@ def main(args: list[str] | None = None) -> int:
     what DDS has delivered but the node has not yet written. This node takes
     SIGINT and SIGTERM itself, stops, drains, and closes the bag.
     """
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    started, transport_note = init_ros(args, NODE_NAME)
+    if not started:
+        return EXIT_FAILURE
     node = None
     status = EXIT_SUCCESS
     executor = SingleThreadedExecutor()
@@ -548,6 +549,8 @@ def main(args: list[str] | None = None) -> int:
     previous = {s: signal.signal(s, request_stop) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         node = Recorder()
+        if transport_note is not None:
+            node.get_logger().info(transport_note)
         executor.add_node(node)
         while not node.stop_requested and rclpy.ok():
             executor.spin_once(timeout_sec=SPIN_PERIOD_S)
