@@ -139,8 +139,10 @@ def test_live_bag_has_every_topic_of_both_nodes(live_run):
     ns = live_run['ns']
     with Reader(live_run['bag']) as reader:
         types = {c.topic: c.msgtype for c in reader.connections}
-    assert types == {f'{ns}/{t}': ('geometry_msgs/msg/WrenchStamped' if t == 'wrench'
-                                   else 'std_msgs/msg/Float64') for t in TOPICS}
+    # Every node also reports on /diagnostics, which the recorder records by default.
+    assert types == {**{f'{ns}/{t}': ('geometry_msgs/msg/WrenchStamped' if t == 'wrench'
+                                      else 'std_msgs/msg/Float64') for t in TOPICS},
+                     '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray'}
 
 
 def test_every_gap_in_sequence_numbers_is_reported(live_run):

@@ -244,6 +244,10 @@ class ForceControllerNode(Node):
             report.warn(f'{bad_period} input message(s) rejected in the last '
                         f'{report.period_s:.1f} s')
 
+    #: What returned, by the stale state it ends.
+    _BACK = {ControllerInputs.STALE_FEEDBACK: 'force feedback',
+             ControllerInputs.STALE_TARGET: 'force_target'}
+
     def _log_transition(self, state: str, p: ControllerParams) -> None:
         """One log line when the input state changes."""
         if state == self.input_state:
@@ -257,6 +261,8 @@ class ForceControllerNode(Node):
             log.warning(f'no {self._sub_target.topic_name} for more than '
                         f'{p.target_timeout_s:g} s (target_timeout_s): stimulation stopped '
                         'until the next target')
+        elif state == ControllerInputs.READY and self.input_state in self._BACK:
+            log.info(f'{self._BACK[self.input_state]} is back: stimulating again')
         elif state == ControllerInputs.READY:
             log.info(f'target {self.inputs.target_n:g} N and force feedback received: '
                      'stimulating')
