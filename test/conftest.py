@@ -49,10 +49,10 @@ def pytest_configure(config):
 
 
 @pytest.fixture(scope='session')
-def stall_watcher(tmp_path_factory):
+def stall_watcher():
     """One :class:`~stall_watch.StallWatcher` for the whole run: the only
     evidence on which a test may repeat a timing measurement."""
-    with StallWatcher(tmp_path_factory.mktemp('stall_watch') / 'stalls.log') as watcher:
+    with StallWatcher() as watcher:
         yield watcher
 
 
