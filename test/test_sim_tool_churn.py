@@ -92,7 +92,8 @@ _STATS_RE = re.compile(r'longest gap between ticks ([\d.]+) ms \(ended at steady
 #: ``<time.monotonic_ns()> <run-queue wait ns> <CPU ns> <state> [<tid>:<state>:<CPU ns> ...]``
 #: lines (the kernel's schedstat of the thread, and its state letter from stat:
 #: ``D`` in an uninterruptible wait such as a page-in from disk) until the
-#: thread is gone. While the thread sleeps without having run since the last
+#: thread is gone. The run-queue wait is kept for whoever reads the file after a
+#: failure; :func:`gap_breakdown` goes by the states, which also see the host. While the thread sleeps without having run since the last
 #: sample (possibly waiting for another of its process's threads), the other
 #: threads' states and CPU times follow.
 _THREAD_WATCHER = r'''
@@ -132,7 +133,9 @@ with open(path, 'w') as out:
         time.sleep(period_s)
 '''
 
-#: A ros2cli-like command as a new process: argv = namespace, index, target [N], rate [Hz].
+#: A ros2cli-like command as a new process: argv = namespace, index, force
+#: target [N], the simulator's rate_hz [Hz], deadline [s]. Exits non-zero if
+#: any step fails.
 _TOOL = r'''
 import sys, time
 import rclpy
@@ -181,7 +184,7 @@ rclpy.shutdown()
 
 #: A participant like ros2cli's daemon: it polls the graph until stopped.
 _DAEMON = r'''
-import sys, time
+import sys
 import rclpy
 from rclpy.executors import ExternalShutdownException
 rclpy.init()
