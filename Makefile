@@ -18,7 +18,7 @@ $(STAMP): setup.py setup.cfg package.xml requirements-dev.txt requirements-ros.t
 	touch $(STAMP)
 
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q --durations=15
 
 # The live demo: simulator, protocol player and recorder as three ROS 2
 # processes on a DDS domain of their own; the bag is read back, plotted
