@@ -40,18 +40,23 @@ STARTUP_CASES = [
 ]
 
 
+def run_until_exit(tmp_path, name: str, cmd: list[str]) -> tuple[int | None, str]:
+    """Start ``cmd`` and wait (at most EXIT_TIMEOUT_S) for it to exit: its status and output."""
+    with ProcessGroup(tmp_path) as procs:
+        proc = procs.start(name, cmd)
+        deadline = time.monotonic() + EXIT_TIMEOUT_S
+        while proc.returncode is None and time.monotonic() < deadline:
+            time.sleep(POLL_S)
+        return proc.returncode, proc.output()
+
+
 @pytest.mark.parametrize('executable, name, value', STARTUP_CASES)
 def test_bad_params_file_exits_non_zero_naming_the_parameter(tmp_path, executable, name,
                                                              value):
     params = tmp_path / 'params.yaml'
     params.write_text(yaml.safe_dump({'/**': {'ros__parameters': {name: value}}}))
-    with ProcessGroup(tmp_path) as procs:
-        proc = procs.start(executable, node_command(executable, params_files=[params]))
-        deadline = time.monotonic() + EXIT_TIMEOUT_S
-        while proc.returncode is None and time.monotonic() < deadline:
-            time.sleep(POLL_S)
-        status = proc.returncode
-        out = proc.output()
+    status, out = run_until_exit(tmp_path, executable,
+                                 node_command(executable, params_files=[params]))
     assert status is not None and status != 0, out
     assert name in out
     assert 'Traceback' not in out
@@ -60,14 +65,8 @@ def test_bad_params_file_exits_non_zero_naming_the_parameter(tmp_path, executabl
 @pytest.mark.parametrize('executable', ['simulator', 'recorder'])
 def test_a_command_line_rcl_cannot_parse_exits_non_zero_in_one_line(tmp_path, executable):
     # Unquoted, the ':' of a typed topic breaks rcl's YAML parser before any node exists.
-    with ProcessGroup(tmp_path) as procs:
-        proc = procs.start(executable, node_command(
-            executable, extra_ros_args=['-p', 'topics:=[force, force_target:std_msgs/msg/Float64]']))
-        deadline = time.monotonic() + EXIT_TIMEOUT_S
-        while proc.returncode is None and time.monotonic() < deadline:
-            time.sleep(POLL_S)
-        status = proc.returncode
-        out = proc.output()
+    status, out = run_until_exit(tmp_path, executable, node_command(
+        executable, extra_ros_args=['-p', 'topics:=[force, force_target:std_msgs/msg/Float64]']))
     assert status is not None and status != 0, out
     assert 'topics:=' in out
     assert 'Traceback' not in out
