@@ -28,9 +28,12 @@ so ``ros2 bag info``, Foxglove, PlotJuggler and rosbags open it as it is.
   ``use_sim_time``), ``publish_time`` the header stamp where there is one.
 - Each message's publisher sequence number is checked: a gap means DDS lost
   messages, and is reported with the count of messages sent vs. recorded.
-- SIGINT and SIGTERM stop it cleanly: messages already delivered are drained
-  and written, then the summary and ``metadata.yaml``. Chunks close at least
-  every second, so after a SIGKILL all but the last second can be read.
+- SIGINT and SIGTERM stop it cleanly: what each publisher sent before the
+  stop is taken and written (:meth:`Recorder.drain`: up to
+  :data:`DRAIN_TIMEOUT_S` for what DDS still has to deliver), then the
+  summary and ``metadata.yaml``; a second signal cuts that wait short.
+  Chunks close at least every second, so after a SIGKILL all but the last
+  second can be read.
 
 Run: ``ros2 run hill_muscle_ros recorder --ros-args -p output:=runs/my_run``
 or ``hill-muscle record --ros-args ...``.
@@ -98,8 +101,17 @@ QUEUE_DEPTH = 10_000
 #: timer drains every queue in one go. Receive times come from DDS, so the
 #: polling delay does not show in ``log_time`` (except with sim time).
 TAKE_PERIOD_S = 0.01
-#: [s] after a stop signal, how long messages already delivered are drained.
-DRAIN_TIMEOUT_S = 2.0
+#: [s] Fast DDS's default period of a reliable writer's heartbeats while a
+#: reader has not acknowledged everything (``WriterTimes::heartbeatPeriod``,
+#: 2.14). A reader asks for a lost sample again only when a heartbeat comes;
+#: a writer that keeps publishing also sends heartbeats along with its data.
+FASTDDS_HEARTBEAT_PERIOD_S = 3.0
+#: [s] after a stop signal, the longest the recorder waits for a publisher's
+#: stream to reach the stop (:meth:`Recorder.drain`): one heartbeat period, so
+#: that even a publisher that has gone quiet has repaired a sample lost just
+#: before the stop, and a margin for the request and the resend on a busy
+#: machine.
+DRAIN_TIMEOUT_S = FASTDDS_HEARTBEAT_PERIOD_S + 0.5
 #: [s] executor wake-up period (checks the stop flag).
 SPIN_PERIOD_S = 0.05
 #: Start of the log line that says the recorder is subscribed and writing.
@@ -213,6 +225,8 @@ class _TopicStats:
     first_seq: int | None = None
     last_seq: int | None = None
     lost: int = 0
+    #: [ns] newest DDS source timestamp taken (the publisher's send time, system clock)
+    newest_source_ns: int | None = None
     gap_events: list[tuple[int, int]] = field(default_factory=list)
 
     def add(self, seq: int | None) -> int:
@@ -299,6 +313,9 @@ class Recorder(Node):
         self._warned_types: set[str] = set()
         self.failure: str = ''
         self.stop_requested = False
+        #: [ns] system time of the stop request (DDS source timestamps use that clock)
+        self.stop_time_ns: int | None = None
+        self._drain_cut_short = False
         self._discovery = self.create_timer(DISCOVERY_PERIOD_S, self._discover)
         self._flush_timer = self.create_timer(FLUSH_CHECK_PERIOD_S, self._flush_if_due)
         self._take_timer = self.create_timer(TAKE_PERIOD_S, self.take_all)
@@ -352,6 +369,8 @@ class Recorder(Node):
             return
         self._types[name] = type_name
         self._stats[name] = _TopicStats(name, stamped)
+        if name == DIAGNOSTICS_TOPIC:
+            self._stats[name].publishers = 0   # several writers: see _register
         self._subs[name] = sub
 
     def _check_publishers_match(self, name: str, offered: list[QoSProfile]) -> None:
@@ -420,6 +439,9 @@ class Recorder(Node):
             log_ns = info.get('received_timestamp') or self.get_clock().now().nanoseconds
         publish_ns = header_stamp_ns(data) if stats.stamped else log_ns
         seq = info.get('publication_sequence_number')
+        source_ns = info.get('source_timestamp')
+        if source_ns and (stats.newest_source_ns is None or source_ns > stats.newest_source_ns):
+            stats.newest_source_ns = source_ns
         try:
             self._writer.write(topic, data, log_ns, publish_ns, sequence=seq or 0)
         except OSError as err:
@@ -478,16 +500,74 @@ class Recorder(Node):
 
     # -- stopping -----------------------------------------------------------------
 
-    def drain(self, timeout_s: float = DRAIN_TIMEOUT_S) -> None:
-        """Write what DDS already delivered, after a stop request.
+    def request_stop(self) -> None:
+        """Stop recording (a stop signal); a second request cuts :meth:`drain` short."""
+        if self.stop_requested:
+            self._drain_cut_short = True
+            return
+        self.stop_time_ns = time.time_ns()
+        self.stop_requested = True
 
-        Publishers may still be running, so this stops at the first empty
-        pass over the queues, or after ``timeout_s``.
+    def behind_the_stop(self, stop_ns: int) -> list[str]:
+        """Topics whose publisher may still have messages sent before ``stop_ns`` in flight.
+
+        A reliable writer's samples are delivered in order: after a lost
+        datagram, DDS holds everything later from that writer until the
+        writer has sent it again, which it does on its next heartbeat (a
+        hole of 0.1 to 0.8 s was measured at 1 kHz on a loaded machine). An
+        empty queue therefore does not mean that nothing sent before the
+        stop is still to come. Once a message sent at or after ``stop_ns``
+        (its DDS source timestamp) has been taken, everything its publisher
+        sent before has been taken or counted lost. That holds per
+        publisher, so a topic is waited for only while it has exactly one
+        (by the graph, and by its sequence numbers) that can match the
+        subscription; with none, nothing more can come.
+
+        :param stop_ns: [ns] system time of the stop
         """
+        behind = []
+        for name, stats in self._stats.items():
+            if name in self._warned_types or stats.publishers != 1:
+                continue
+            if stats.newest_source_ns is not None and stats.newest_source_ns >= stop_ns:
+                continue
+            if self.count_publishers(name) == 1:
+                behind.append(name)
+        return behind
+
+    def drain(self, timeout_s: float = DRAIN_TIMEOUT_S) -> None:
+        """After a stop request, take and write what was sent before the stop.
+
+        Takes until no topic is :meth:`behind_the_stop` and a pass over the
+        queues finds them empty (topics with several publishers are drained
+        up to that first empty pass), or until ``timeout_s``, or a second
+        stop request. Publishers may still be running: what they sent after
+        the stop and is taken meanwhile is written too. A topic still behind
+        at the end is logged with how much before the stop its newest
+        recorded message was sent: a quiet publisher, or messages that did
+        not arrive in time and are not in the bag.
+        """
+        stop_ns = self.stop_time_ns if self.stop_time_ns is not None else time.time_ns()
         deadline = time.monotonic() + timeout_s
-        while not self.failure and time.monotonic() < deadline:
-            if not self.take_all():
+        while not self.failure:
+            taken = self.take_all()
+            behind = self.behind_the_stop(stop_ns)
+            if not taken and not behind:
                 return
+            if time.monotonic() >= deadline or self._drain_cut_short:
+                why = ('stopped at a second signal' if self._drain_cut_short
+                       else f'waited {timeout_s:g} s')
+                for name in behind:
+                    newest = self._stats[name].newest_source_ns
+                    self.get_logger().info(
+                        f'{name}: nothing its publisher sent after the stop arrived ({why}); '
+                        + ('nothing was received from it' if newest is None else
+                           f'the newest message recorded was sent '
+                           f'{(stop_ns - newest) / NS_PER_S:.3f} s before the stop')
+                        + ': a quiet publisher, or what it sent since then is not in the bag')
+                return
+            if not taken:
+                time.sleep(TAKE_PERIOD_S)
 
     def report(self) -> str:
         """One line per topic: received, sent (from sequence numbers), lost."""
@@ -542,7 +622,7 @@ def main(args: list[str] | None = None) -> int:
 
     def request_stop(signum: int, _frame: Any) -> None:
         if node is not None:
-            node.stop_requested = True
+            node.request_stop()
         else:
             raise KeyboardInterrupt
 
