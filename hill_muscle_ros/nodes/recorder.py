@@ -435,7 +435,9 @@ class Recorder(Node):
             log_ns = self.get_clock().now().nanoseconds
         else:
             # DDS's receive instant on the system clock, i.e. this node's clock,
-            # and not delayed by how long the message waited for Python.
+            # and not delayed by how long the message waited for Python. Fast DDS
+            # 2.14 stamps it when the sample becomes available to the reader: a
+            # sample that waited behind a lost one gets the time of the repair.
             log_ns = info.get('received_timestamp') or self.get_clock().now().nanoseconds
         publish_ns = header_stamp_ns(data) if stats.stamped else log_ns
         seq = info.get('publication_sequence_number')
