@@ -122,9 +122,11 @@ def run(profile: TargetProfile, out: Path, namespace: str) -> tuple[Path, int]:
         profile started (its t = 0)
     :raises hill_muscle_ros.supervisor.SupervisorError: if a node exits or a wait times out
     """
+    from diagnostic_msgs.msg import DiagnosticArray
     from geometry_msgs.msg import WrenchStamped
     from std_msgs.msg import Float64
 
+    from .nodes._common import DIAGNOSTICS_TOPIC
     from .qos import RELIABLE_QOS
 
     bag = out / 'bag'
@@ -146,6 +148,23 @@ def run(profile: TargetProfile, out: Path, namespace: str) -> tuple[Path, int]:
                                        lambda m: latest.__setitem__('stamp', m.header.stamp),
                                        RELIABLE_QOS)
 
+        # What the recorder itself reports having received (its /diagnostics):
+        # a subscription in the graph is not yet one matched to the publisher.
+        recorder_fqn = f'{namespace.rstrip("/")}/recorder'
+        received: dict[str, float] = {}
+
+        def on_diagnostics(msg: DiagnosticArray) -> None:
+            for status in msg.status:
+                if status.hardware_id == recorder_fqn:
+                    received.update({kv.key: float(kv.value) for kv in status.values
+                                     if kv.key.startswith('received[')})
+
+        probe.node.create_subscription(DiagnosticArray, DIAGNOSTICS_TOPIC, on_diagnostics,
+                                       RELIABLE_QOS)
+
+        def recorder_has(topic: str) -> bool:
+            return received.get(f'received[{namespace.rstrip("/")}/{topic}]', 0.0) > 0.0
+
         def sim_now_s() -> float | None:
             stamp = latest.get('stamp')
             return None if stamp is None else stamp.sec + stamp.nanosec / NS_PER_S
@@ -156,7 +175,9 @@ def run(profile: TargetProfile, out: Path, namespace: str) -> tuple[Path, int]:
                                   and length_pub.get_subscription_count() >= 2
                                   and all(probe.node.count_subscribers(t) >= 2
                                           for t in ('force', 'pulse_width', 'wrench'))
-                                  and sim_now_s() is not None),
+                                  and sim_now_s() is not None
+                                  and all(recorder_has(t) for t in ('force', 'pulse_width',
+                                                                     'wrench'))),
                          'the nodes to start and connect', START_TIMEOUT_S, procs.processes)
         print(f'{profile.name}: {profile.duration_s:g} s through simulator, controller and '
               f'recorder in {namespace}', flush=True)
