@@ -31,11 +31,7 @@ FORBIDDEN = {
 }
 
 #: (path, pattern name) -> why that file may keep the reference.
-ALLOWED = {
-    ('.ci/run', 'sibling spec directory'):
-        'the CI harness entry point describes the CI checkout layout; it is run by the '
-        'CI machinery, which is maintained outside this project, and is left untouched',
-}
+ALLOWED: dict[tuple[str, str], str] = {}
 
 #: Directories never scanned when there is no git index to list the files.
 SKIP_DIRS = {'.git', '.venv', 'build', 'install', 'log', 'runs', '__pycache__',
