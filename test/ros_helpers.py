@@ -35,6 +35,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
+from rclpy.duration import Duration
 from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.parameter_client import AsyncParameterClient
 
@@ -215,14 +216,19 @@ class Probe(GraphProbe):
             self._publishers[topic] = self.node.create_publisher(msg_type, topic, RELIABLE_QOS)
         return self._publishers[topic]
 
-    def publish_when_matched(self, topic: str, msg: Any, *,
+    def publish_when_matched(self, topic: str, msg: Any, *, subscribers: int = 1,
                              timeout_s: float = DEFAULT_TIMEOUT_S,
                              procs: Iterable[NodeProcess] = ()) -> None:
-        """Publish once a subscriber is matched, so the message is not lost."""
+        """Publish once ``subscribers`` subscriptions are matched, and wait until
+        every one of them has acknowledged the message (discovery both ways: a
+        reader that has not matched this writer yet would drop it)."""
         pub = self.publisher(topic, type(msg))
-        self.spin_until(lambda: pub.get_subscription_count() > 0,
-                        f'a subscriber on {topic}', timeout_s, procs)
+        self.spin_until(lambda: pub.get_subscription_count() >= subscribers,
+                        f'{subscribers} subscriber(s) on {topic}', timeout_s, procs)
         pub.publish(msg)
+        no_wait = Duration(seconds=0)
+        self.spin_until(lambda: pub.wait_for_all_acked(no_wait),
+                        f'the subscribers of {topic} to acknowledge', timeout_s, procs)
 
     # -- services and parameters ------------------------------------------------
 

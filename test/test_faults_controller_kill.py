@@ -74,8 +74,9 @@ def one_kill(tmp_path) -> dict:
         ctrl = procs.start('controller', node_command('force_controller', ns=ns))
         wrench = probe.record(f'{ns}/wrench', WrenchStamped)
         pulse_width = probe.record(f'{ns}/pulse_width', Float64)
+        # Both listen to the length: the simulator and the controller's feedforward.
         probe.publish_when_matched(f'{ns}/length_command', Float64(data=STRETCH_M),
-                                   procs=[sim, ctrl])
+                                   subscribers=2, procs=[sim, ctrl])
         probe.publish_when_matched(f'{ns}/force_target', Float64(data=TARGET_N),
                                    procs=[sim, ctrl])
         probe.wait_for_messages(wrench, procs=[sim, ctrl])
