@@ -573,7 +573,7 @@ class Simulator(Node):
         late = report.delta('late_ticks', self._late_ticks)
         catch_up = report.delta('catch_up_steps', self._catch_up_steps)
         bad = report.delta('bad_inputs', self._bad_input.total)
-        gap_s = getattr(s, 'max_tick_gap_s', None)
+        gap_s = s.max_tick_gap_s
         stimulated = self._stim_messages > 0
         report.add('rate_hz', self._rate_hz)
         report.add('real_time_factor', self._real_time_factor)
