@@ -16,6 +16,10 @@ from .curves import FL_A, FL_B, FL_C
 
 UNITS_CHOICES = ('multi', 'single')
 LENGTH_CHOICES = ('initial', 'instantaneous')
+RECRUITMENT_CURVE_CHOICES = ('linear', 'threshold_linear', 'exponential')
+FV_SCALING_CHOICES = ('absolute', 'relative')
+FATIGUE_CHOICES = ('none', 'riener')
+RECRUITMENT_ORDER_CHOICES = ('size', 'reverse', 'random')
 
 #: Upper bound of every float parameter: far beyond any muscle, it only turns a
 #: typo or an overflow-prone value (1e300 N/m) into an error. The model and
@@ -36,6 +40,15 @@ MIN_FL_AT_REST = 0.01
 #: Most virtual units the memory accepts; far beyond any real motor pool, it
 #: only guards against a typo allocating absurd memory in the naive reference.
 N_UNITS_MAX = 1_000_000_000
+#: Most fibre types: far more than physiology distinguishes (I, IIa, IIx),
+#: it only bounds the per-type bookkeeping of the memory.
+N_FIBRE_TYPES_MAX = 16
+#: Largest ``unit_length_spread`` (exclusive): at 0.5 the shortest unit would
+#: see half the CE length, and the spread formula is defined for s < 0.5.
+UNIT_LENGTH_SPREAD_MAX = 0.5
+#: Largest random-order seed: NumPy's ``default_rng`` takes any non-negative
+#: integer; this keeps it a ROS ``integer`` (int64).
+SEED_MAX = 2**63 - 1
 
 
 def finite_float(value: Any) -> float | None:
@@ -51,6 +64,45 @@ def finite_float(value: Any) -> float | None:
     return f if math.isfinite(f) else None
 
 
+def _float(name: str, value: Any, spec: Mapping[str, Any]) -> float:
+    """One float parameter, validated against its field's range.
+
+    Integers from YAML (``45`` for ``45.0``) are accepted as floats.
+    """
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ValueError(f'`{name}` must be a number, got {value!r}')
+    number = finite_float(value)
+    high_ok = (number is not None
+               and (number <= spec['high'] if spec['high_inclusive'] else number < spec['high']))
+    if number is not None and not high_ok:
+        bound = 'at most' if spec['high_inclusive'] else 'below'
+        raise ValueError(f'`{name}` must be {bound} {spec["high"]:g}, got {value!r}')
+    if number is None or not _in_range(number, spec):
+        raise ValueError(f'`{name}` must be {range_text(spec)}, got {value!r}')
+    return number
+
+
+def _float_array(name: str, value: Any, spec: Mapping[str, Any]) -> tuple[float, ...]:
+    """A float-array parameter as a tuple, every entry validated.
+
+    Accepts any sequence (a YAML list, a ROS ``double_array``, a NumPy array).
+    """
+    if isinstance(value, (str, bytes, Mapping)) or not hasattr(value, '__len__'):
+        raise ValueError(f'`{name}` must be a list of numbers, got {value!r}')
+    values = list(value)
+    if not values:
+        raise ValueError(f'`{name}` must have at least one entry, got {value!r}')
+    out = []
+    for i, v in enumerate(values):
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise ValueError(f'`{name}[{i}]` must be a number, got {v!r}')
+        number = finite_float(v)
+        if number is None or not _in_range(number, spec):
+            raise ValueError(f'`{name}[{i}]` must be {range_text(spec)}, got {v!r}')
+        out.append(number)
+    return tuple(out)
+
+
 def rest_ratio_range() -> tuple[float, float]:
     """[-] the open range of l_rest / l_opt where FL >= :data:`MIN_FL_AT_REST`.
 
@@ -63,9 +115,34 @@ def rest_ratio_range() -> tuple[float, float]:
 
 
 def _spec(unit: str, description: str, *, low: float | None = None,
-          high: float | None = None, choices: tuple[str, ...] | None = None) -> dict:
+          high: float | None = None, choices: tuple[str, ...] | None = None,
+          low_inclusive: bool = False, high_inclusive: bool = True,
+          source: str = 'the paper') -> dict:
+    """Field metadata: unit, words, range and where the default comes from.
+
+    Floats (and every entry of a float array) must lie in the range ``low``
+    to ``high``; ``low_inclusive`` and ``high_inclusive`` say whether the ends
+    are accepted. Integers take the closed range.
+    """
     return {'unit': unit, 'description': description, 'low': low, 'high': high,
-            'choices': choices}
+            'choices': choices, 'low_inclusive': low_inclusive,
+            'high_inclusive': high_inclusive, 'source': source}
+
+
+def range_text(spec: Mapping[str, Any]) -> str:
+    """The accepted range in words, e.g. ``in [0, 1e+12]`` or ``positive``."""
+    if spec['low'] == 0.0 and not spec['low_inclusive'] and spec['high'] == _FLOAT_MAX:
+        return 'positive and finite'
+    left = '[' if spec['low_inclusive'] else '('
+    right = ']' if spec['high_inclusive'] else ')'
+    return f'in {left}{spec["low"]:g}, {spec["high"]:g}{right}'
+
+
+def _in_range(number: float, spec: Mapping[str, Any]) -> bool:
+    low, high = spec['low'], spec['high']
+    above = number >= low if spec['low_inclusive'] else number > low
+    below = number <= high if spec['high_inclusive'] else number < high
+    return above and below
 
 
 @dataclass(frozen=True)
@@ -118,6 +195,62 @@ class MuscleParams:
     pw_max_s: float = field(default=0.0005, metadata=_spec(
         's', 'pulse width that recruits every unit PW_max', low=0.0, high=_FLOAT_MAX))
 
+    # -- FES extensions (doc/model.md section 7). Every default switches its
+    # feature off, so that the defaults are exactly the paper's model.
+    recruitment_curve: str = field(default='linear', metadata=_spec(
+        '-', 'pulse width to recruitment command u: linear (PW / PW_max), '
+        'threshold_linear (Veltink 1992) or exponential (Ding et al. 2007)',
+        choices=RECRUITMENT_CURVE_CHOICES))
+    pw_threshold_s: float = field(default=0.0, metadata=_spec(
+        's', 'pulse width below which nothing is recruited PW_th', low=0.0,
+        high=_FLOAT_MAX, low_inclusive=True))
+    # 194.1 us: pdt of Ding et al. 2007 (J Electromyogr Kinesiol 17:
+    # 1-16, as in cocofest's ding2007 model); only the exponential curve uses it.
+    pw_scale_s: float = field(default=194.1e-6, metadata=_spec(
+        's', 'pulse-width scale of the exponential curve PW_scale', low=0.0,
+        high=_FLOAT_MAX, source='Ding et al. 2007 (pdt)'))
+    emd_s: float = field(default=0.0, metadata=_spec(
+        's', 'electromechanical delay of the command', low=0.0, high=_FLOAT_MAX,
+        low_inclusive=True))
+    tau_act_s: float = field(default=0.0, metadata=_spec(
+        's', 'activation time constant (0: instantaneous)', low=0.0, high=_FLOAT_MAX,
+        low_inclusive=True))
+    tau_deact_s: float = field(default=0.0, metadata=_spec(
+        's', 'deactivation time constant (0: instantaneous)', low=0.0, high=_FLOAT_MAX,
+        low_inclusive=True))
+    fv_scaling: str = field(default='absolute', metadata=_spec(
+        '-', "force-velocity constants a, a': absolute (newtons, the paper) or relative "
+        '(scaled by Eff.f_iso / f_iso_max)', choices=FV_SCALING_CHOICES))
+    fatigue: str = field(default='none', metadata=_spec(
+        '-', 'fatigue law: none or riener (per unit in multi, whole muscle in single)',
+        choices=FATIGUE_CHOICES))
+    # Riener's law as written in cocofest (veltink1992_and_riener1998.py):
+    # mu_min 0.2, T_fat 30 s, T_rec 50 s. One entry per fibre type; one entry
+    # applies to every type.
+    fatigue_min: tuple[float, ...] = field(default=(0.2,), metadata=_spec(
+        '-', 'fitness of a fully fatigued unit mu_min, per fibre type', low=0.0, high=1.0,
+        low_inclusive=True, source='Riener et al. 1996, via cocofest'))
+    tau_fatigue_s: tuple[float, ...] = field(default=(30.0,), metadata=_spec(
+        's', 'fatigue time constant of a recruited unit T_fat, per fibre type', low=0.0,
+        high=_FLOAT_MAX, source='Riener et al. 1996, via cocofest'))
+    tau_recovery_s: tuple[float, ...] = field(default=(50.0,), metadata=_spec(
+        's', 'recovery time constant of a resting unit T_rec, per fibre type', low=0.0,
+        high=_FLOAT_MAX, source='Riener et al. 1996, via cocofest'))
+    fibre_fractions: tuple[float, ...] = field(default=(1.0,), metadata=_spec(
+        '-', 'share of the units of each fibre type (normalised by their sum)', low=0.0,
+        high=_FLOAT_MAX, low_inclusive=True))
+    fibre_force_weights: tuple[float, ...] = field(default=(1.0,), metadata=_spec(
+        '-', 'relative maximal force of one unit of each fibre type', low=0.0,
+        high=_FLOAT_MAX))
+    recruitment_order: str = field(default='size', metadata=_spec(
+        '-', 'order in which units are recruited: size (unit 1 first), reverse (types '
+        'reversed) or random (seeded permutation)', choices=RECRUITMENT_ORDER_CHOICES))
+    recruitment_seed: int = field(default=0, metadata=_spec(
+        '-', 'seed of the random recruitment order', low=0, high=SEED_MAX))
+    unit_length_spread: float = field(default=0.0, metadata=_spec(
+        '-', 'half-width s of the per-unit CE length scale 1 - s .. 1 + s', low=0.0,
+        high=UNIT_LENGTH_SPREAD_MAX, low_inclusive=True, high_inclusive=False))
+
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
@@ -134,19 +267,72 @@ class MuscleParams:
                     raise ValueError(
                         f'`{f.name}` must be in [{spec["low"]}, {spec["high"]}], '
                         f'got {value!r}')
+            elif f.type.startswith('tuple'):
+                object.__setattr__(self, f.name, _float_array(f.name, value, spec))
             else:
-                if isinstance(value, bool) or not isinstance(value, (int, float)):
-                    raise ValueError(f'`{f.name}` must be a number, got {value!r}')
-                number = finite_float(value)
-                if number is None or number <= 0.0:
-                    raise ValueError(f'`{f.name}` must be positive and finite, '
-                                     f'got {value!r}')
-                if number > spec['high']:
-                    raise ValueError(f'`{f.name}` must be at most {spec["high"]:g}, '
-                                     f'got {value!r}')
-                # Integers from YAML (``45`` for ``45.0``) are accepted as floats.
-                object.__setattr__(self, f.name, number)
+                object.__setattr__(self, f.name, _float(f.name, value, spec))
         self._check_rest_length_makes_force()
+        self._check_fes_combinations()
+
+    @property
+    def n_fibre_types(self) -> int:
+        """[-] number of fibre types K (entries of ``fibre_fractions``)."""
+        return len(self.fibre_fractions)
+
+    def per_type(self, name: str) -> tuple[float, ...]:
+        """A per-fibre-type array with a single entry repeated for every type.
+
+        :param name: ``fatigue_min``, ``tau_fatigue_s``, ``tau_recovery_s`` or
+            ``fibre_force_weights``
+        :return: K values, one per fibre type
+        """
+        values = getattr(self, name)
+        return values * self.n_fibre_types if len(values) == 1 else values
+
+    @property
+    def fes_defaults(self) -> bool:
+        """True if every FES extension is off: the paper's model exactly."""
+        return all(getattr(self, n) == f.default for n, f in _FES_FIELDS.items())
+
+    def _check_fes_combinations(self) -> None:
+        """Checks across fields of the FES extensions (doc/model.md section 7).
+
+        :raises ValueError: naming the fields and their values
+        """
+        k = self.n_fibre_types
+        if k > N_FIBRE_TYPES_MAX:
+            raise ValueError(f'`fibre_fractions` must have at most {N_FIBRE_TYPES_MAX} '
+                             f'entries, got {k}')
+        if not sum(self.fibre_fractions) > 0.0:
+            raise ValueError('`fibre_fractions` must have a positive sum, got '
+                             f'{list(self.fibre_fractions)!r}')
+        for name in ('fibre_force_weights', 'fatigue_min', 'tau_fatigue_s',
+                     'tau_recovery_s'):
+            n = len(getattr(self, name))
+            if n not in (1, k):
+                raise ValueError(
+                    f'`{name}` must have 1 entry or one per fibre type ({k}, as '
+                    f'`fibre_fractions`), got {n}: {list(getattr(self, name))!r}')
+        if (self.recruitment_curve == 'threshold_linear'
+                and not self.pw_threshold_s < self.pw_max_s):
+            raise ValueError(
+                '`pw_threshold_s` must be below `pw_max_s` for the threshold_linear curve, '
+                f'got pw_threshold_s = {self.pw_threshold_s!r} >= pw_max_s = '
+                f'{self.pw_max_s!r}')
+        if self.units == 'single':
+            if k != 1:
+                raise ValueError(
+                    '`fibre_fractions` must have a single entry with `units: single` '
+                    f'(one unit has one fibre type), got {list(self.fibre_fractions)!r}')
+            if self.unit_length_spread != 0.0:
+                raise ValueError(
+                    '`unit_length_spread` must be 0 with `units: single` (one unit has no '
+                    f'spread of lengths), got {self.unit_length_spread!r}')
+            for name in ('fibre_force_weights', 'fatigue_min', 'tau_fatigue_s',
+                         'tau_recovery_s'):
+                if len(getattr(self, name)) != 1:
+                    raise ValueError(f'`{name}` must have a single entry with `units: '
+                                     f'single`, got {list(getattr(self, name))!r}')
 
     def _check_rest_length_makes_force(self) -> None:
         """Reject l_rest / l_opt where FL is below :data:`MIN_FL_AT_REST`.
@@ -197,3 +383,8 @@ class MuscleParams:
     def replace(self, **changes: Any) -> 'MuscleParams':
         """A copy with some fields changed, validated like a new instance."""
         return dataclasses.replace(self, **changes)
+
+
+#: The FES extensions' fields (all declared after ``pw_max_s``), by name.
+_FES_FIELDS = {f.name: f for f in dataclasses.fields(MuscleParams)[
+    MuscleParams.field_names().index('pw_max_s') + 1:]}

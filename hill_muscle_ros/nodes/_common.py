@@ -44,6 +44,7 @@ from rclpy.parameter import Parameter
 
 from ..dds_transport import use_udp_transport
 from ..model import MuscleParams
+from ..model.params import range_text
 from ..params_file import SIMULATOR_NODE_KEYS
 # The QoS profiles live below the nodes and the recording code; re-exported here.
 from ..qos import OUTPUT_HISTORY_DEPTH, OUTPUT_QOS, QUEUE_DEPTH, RELIABLE_QOS  # noqa: F401
@@ -287,9 +288,10 @@ def field_descriptor(field: dataclasses.Field, *, read_only: bool = False,
     # (from_value 0.0 would claim 0 is accepted), and rclpy checks a range
     # before the node's callback, answering with its range text instead of
     # the model's reason. The model checks these bounds; the words say them.
+    each = 'each entry ' if field.type.startswith('tuple') else ''
     return ParameterDescriptor(
         description=f'[{spec["unit"]}] {description}', read_only=read_only,
-        additional_constraints=f'> {spec["low"]:g} and <= {spec["high"]:g} (finite)')
+        additional_constraints=f'{each}{range_text(spec)} (finite)')
 
 
 def declare_checked(node: Node, name: str, default: Any,
