@@ -20,7 +20,8 @@ from hill_muscle_ros.params_file import load_muscle_params
 from hill_muscle_ros.resources import default_params_file
 
 HILL_MUSCLE = Path(sys.executable).with_name('hill-muscle')
-CSV_HEADER = 't_s,recruitment,dl_mt_m,l_ce_m,v_ce_m_s,f_se_n,f_pe_n,force_n,eff_f_iso_n'
+CSV_HEADER = ('t_s,recruitment,dl_mt_m,l_ce_m,v_ce_m_s,f_se_n,f_pe_n,force_n,eff_f_iso_n,'
+              'command,mean_fitness')
 #: [s] generous: the machine is shared with other test runs.
 SUBPROCESS_TIMEOUT_S = 120
 #: Shipped parameters; the CLI uses them when --params is not given.

@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hill_muscle_ros.model import Muscle, MuscleParams, Protocol, simulate
+from hill_muscle_ros.model import Muscle, MuscleOutputs, MuscleParams, Protocol, simulate
 from hill_muscle_ros.model.curves import force_velocity_inverse, series_force
 
 #: Equal up to rounding: the fast path evaluates the same expressions.
@@ -109,7 +109,7 @@ def test_run_over_a_sequence_equals_stepping_one_at_a_time(params, sequence):
     batch, single = Muscle(params), Muscle(params)
     r = [x for x, _ in sequence]
     dl = [x for _, x in sequence]
-    columns = [[None] * len(sequence) for _ in range(10)]
+    columns = [[None] * len(sequence) for _ in range(len(MuscleOutputs._fields))]
     last = batch.run(r, dl, 1e-3, columns=columns)
     for k, (rk, dlk) in enumerate(sequence):
         out = single.step(rk, dlk, 1e-3)

@@ -40,6 +40,9 @@ class MuscleOutputs(NamedTuple):
     :param f_pe_n: [N] parallel elastic force (f_PE)
     :param force_n: [N] muscle force f_SE + f_PE
     :param eff_f_iso_n: [N] effective isometric force (Eff.f_iso, F0)
+    :param command: [-] recruitment command u given last (before the delay and
+        the activation; equal to R in the paper's model)
+    :param mean_fitness: [-] mean fitness of all units (1 without fatigue)
     """
 
     t_s: float
@@ -52,6 +55,8 @@ class MuscleOutputs(NamedTuple):
     f_pe_n: float
     force_n: float
     eff_f_iso_n: float
+    command: float
+    mean_fitness: float
 
 
 def check_recruitment(recruitment: float, name: str = 'recruitment') -> float:
@@ -113,8 +118,19 @@ class Muscle:
     evaluate the readable curves of :mod:`.curves` and are the reference the
     tests compare the hot loop against.
 
+    With any FES extension switched on in ``params``, ``Muscle(params)`` makes
+    a :class:`~hill_muscle_ros.model.fes_muscle.FesMuscle`, which has the same
+    interface; with every FES parameter at its default it is this class, the
+    paper's model, with its specialised loop.
+
     :param params: the muscle's parameters (paper defaults if omitted)
     """
+
+    def __new__(cls, params: MuscleParams | None = None) -> 'Muscle':
+        if cls is Muscle and params is not None and not params.fes_defaults:
+            from .fes_muscle import FesMuscle   # it subclasses Muscle: imported late
+            return super().__new__(FesMuscle)
+        return super().__new__(cls)
 
     def __init__(self, params: MuscleParams | None = None) -> None:
         self.params = params if params is not None else MuscleParams()
@@ -237,7 +253,7 @@ class Muscle:
         else:
             v_ce = self._v_free
         return MuscleOutputs(self.t_s, self.recruitment, self.n_recruited, dl, l_ce,
-                             v_ce, f_se, f_pe, f_se + f_pe, f0)
+                             v_ce, f_se, f_pe, f_se + f_pe, f0, self.recruitment, 1.0)
 
     # -- dynamics ------------------------------------------------------------
 
@@ -264,7 +280,7 @@ class Muscle:
         :param dl_mt_end_m: [m] MTU length change at the end of each step
         :param dt_s: [s] step length, > 0
         :param r_end: [-] recruitment applied after each step, before the outputs
-        :param columns: if given, ten preallocated lists in the order of
+        :param columns: if given, twelve preallocated lists in the order of
             :class:`MuscleOutputs`; step k writes index k of each
         :return: the outputs after the last step
         """
@@ -363,7 +379,7 @@ def _hot_loop(muscle: Muscle) -> Callable[..., MuscleOutputs]:
         if r_end is None:
             r_end = r_start
         if columns is not None:
-            (c_t, c_r, c_m, c_dl, c_l, c_v, c_se, c_pe, c_force, c_f0) = columns
+            (c_t, c_r, c_m, c_dl, c_l, c_v, c_se, c_pe, c_force, c_f0, c_u, c_mu) = columns
         l = muscle.l_ce_m
         dl0 = muscle.dl_mt_m
         t = muscle.t_s
@@ -431,6 +447,8 @@ def _hot_loop(muscle: Muscle) -> Callable[..., MuscleOutputs]:
                 c_pe[k] = f_pe
                 c_force[k] = f_se + f_pe
                 c_f0[k] = f0
+                c_u[k] = r_now
+                c_mu[k] = 1.0
         muscle.l_ce_m = l
         muscle.dl_mt_m = dl0
         muscle.t_s = t
@@ -442,6 +460,6 @@ def _hot_loop(muscle: Muscle) -> Callable[..., MuscleOutputs]:
         # NamedTuple's generated __new__ is a Python function; building the
         # tuple directly gives the same object at a quarter of the cost.
         return _tuple_new(MuscleOutputs, (t, r_now, m_now, dl0, l, v, f_se, f_pe,
-                                          f_se + f_pe, f0))
+                                          f_se + f_pe, f0, r_now, 1.0))
 
     return run

@@ -111,6 +111,22 @@ class Protocol:
             return float(values) if values.ndim == 0 else values
         return values
 
+    def command(self, t_s: np.ndarray | float, params) -> np.ndarray | float:
+        """Recruitment command u(t) in [0, 1]: pulse widths through the muscle's
+        recruitment curve (:func:`~hill_muscle_ros.model.stimulus.command_from_pulse_width`),
+        recruitment values as they are.
+
+        :param t_s: [s] time(s)
+        :param params: the muscle's :class:`~hill_muscle_ros.model.params.MuscleParams`
+        :return: [-] u at those times
+        """
+        if self.stimulation_key != 'pulse_width_s' or params.recruitment_curve == 'linear':
+            return self.recruitment(t_s, params.pw_max_s)
+        from .stimulus import command_from_pulse_width
+        values = np.asarray(self.stimulation(t_s), dtype=float)
+        u = np.array([command_from_pulse_width(v, params) for v in values.ravel()])
+        return float(u[0]) if values.ndim == 0 else u.reshape(values.shape)
+
     def stimulation_command(self, t_s: float, output: str, pw_max_s: float) -> float:
         """The value a stimulator is sent at ``t_s`` on the topic ``output``.
 

@@ -21,6 +21,8 @@ COLUMNS = (
     ('f_pe_n', 'f_pe_n'),
     ('force_n', 'force_n'),
     ('eff_f_iso_n', 'eff_f_iso_n'),
+    ('command', 'command'),
+    ('mean_fitness', 'mean_fitness'),
 )
 
 
@@ -42,6 +44,8 @@ class SimulationResult:
     f_pe_n: np.ndarray
     force_n: np.ndarray
     eff_f_iso_n: np.ndarray
+    command: np.ndarray
+    mean_fitness: np.ndarray
 
     def at(self, t_s: float) -> int:
         """Index of the sample nearest to time ``t_s``."""
@@ -64,9 +68,11 @@ def simulate(protocol: Protocol, params: MuscleParams | None = None,
              rate_hz: float = 1000.0) -> SimulationResult:
     """Run a protocol from the resting state at a fixed step of 1 / ``rate_hz``.
 
-    The sample at t_k shows the state at t_k with the recruitment of t_k
-    already applied to the memory; the step from t_k to t_(k+1) holds R(t_k)
-    and ramps dl_MT linearly between the protocol's values at the two ends.
+    The sample at t_k shows the state at t_k with the command of t_k already
+    given (in the paper's model: the recruitment of t_k applied to the
+    memory); the step from t_k to t_(k+1) holds the command u(t_k) and ramps
+    dl_MT linearly between the protocol's values at the two ends. Pulse
+    widths pass through the muscle's recruitment curve.
 
     :param protocol: the protocol to replay
     :param params: muscle parameters (paper defaults if omitted)
@@ -75,7 +81,7 @@ def simulate(protocol: Protocol, params: MuscleParams | None = None,
     """
     muscle = Muscle(params)
     t = sample_times(protocol.duration_s, rate_hz)
-    r = np.asarray(protocol.recruitment(t, muscle.params.pw_max_s), dtype=float)
+    r = np.asarray(protocol.command(t, muscle.params), dtype=float)
     dl = np.asarray(protocol.dl_mt(t), dtype=float)
     # The protocol validated its knots; interpolation keeps the values in range,
     # so one check of the whole arrays replaces the per-step validation.
@@ -90,8 +96,8 @@ def simulate(protocol: Protocol, params: MuscleParams | None = None,
     columns = [[0.0] * n_steps for _ in first]
     r_list = r.tolist()
     muscle.run(r_list[:-1], dl.tolist()[1:], dt, r_end=r_list[1:], columns=columns)
-    # The sample times and the recruitment are the inputs themselves.
-    fields = {'t_s': t, 'recruitment': r}
+    # The sample times are the inputs themselves.
+    fields = {'t_s': t}
     for name, value, col in zip(first._fields, first, columns):
         if name not in fields:
             array = np.empty(n_steps + 1, dtype=type(value))

@@ -1,0 +1,393 @@
+"""The muscle with the FES extensions: delay, activation, per-unit fatigue,
+fibre types and unit lengths (doc/model.md section 7).
+
+State, split the way the equations split it:
+
+- continuous: the CE length l_ce (integrated with RK4, the MTU length
+  ramping linearly within a step), and for ``single`` the whole-muscle
+  fitness mu (closed form);
+- the activation a (closed form on each piece of constant delayed command,
+  :mod:`.stimulus`) and the delay line of commands not yet in effect;
+- discrete: the recruitment memory and per-unit fitness
+  (:class:`~hill_muscle_ros.model.unit_pool.UnitPool`).
+
+The step is split at the instants where the delayed command switches and where
+the activation crosses a unit's recruitment level (the closed form gives
+those instants), so that each unit stores the CE length of its own
+recruitment instant and the force rises when it does, not at the next step.
+Within each piece the integrator evaluates the effective isometric force at
+the RK4 stage times, including the fatigue clocks. The curves are those of
+:mod:`.curves`, called, not copied: this path is the readable one.
+
+With every FES parameter at its default, :class:`~hill_muscle_ros.model.muscle.Muscle`
+keeps the paper's specialised loop instead; the two agree to 1e-9 N (tests).
+"""
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+from .curves import force_length, force_velocity_inverse
+from .memory import recruited_units
+from .muscle import Muscle, MuscleOutputs
+from .params import MuscleParams
+from .stimulus import DelayLine, activation_at, command_from_pulse_width, time_to_reach
+from .unit_pool import UnitPool
+
+#: Most recruitment events resolved one by one within a piece of a step. With
+#: more (a fast activation of many units), the events are taken in this many
+#: groups of equal unit counts, each group recruited at its last unit's
+#: instant: the force is then held for 1/64 of the piece's recruitment change
+#: instead of all of it, about 1/64 of the error of holding R over the step.
+MAX_EVENTS_PER_PIECE = 64
+
+
+class FesMuscle(Muscle):
+    """A muscle whose parameters switch on any FES extension.
+
+    Made by ``Muscle(params)`` itself when ``params.fes_defaults`` is false;
+    the public interface is :class:`Muscle`'s. The stimulation input of
+    :meth:`step` and :meth:`run` is the recruitment *command* u (after the
+    recruitment curve, before the delay and the activation); the
+    ``recruitment`` state is the activation a = R.
+
+    :param params: the muscle's parameters
+    """
+
+    def __init__(self, params: MuscleParams | None = None) -> None:
+        self.params = p = params if params is not None else MuscleParams()
+        self._multi = p.units == 'multi'
+        self._initial = p.length == 'initial'
+        self._pool = UnitPool(p) if self._multi else None
+        self._delay = DelayLine(p.emd_s)
+        self._relative = p.fv_scaling == 'relative'
+        self._single_fatigue = (not self._multi) and p.fatigue == 'riener'
+        # Single: with deactivation the activation only tends to 0; the muscle
+        # lets go when N a falls below one half, as a multi muscle drops its
+        # last unit (doc/model.md section 7.2).
+        self._release_level = 0.5 / p.n_units if p.tau_deact_s > 0.0 else 0.0
+        self.reset()
+
+    # -- state -----------------------------------------------------------------
+
+    def reset(self) -> None:
+        """Return to rest: no command, a = 0, every unit fresh and unrecruited."""
+        p = self.params
+        self.t_s = 0.0
+        self.l_ce_m = p.l_rest_m
+        self.dl_mt_m = 0.0
+        self.recruitment = 0.0          # a = R
+        self.command = 0.0              # u, the latest command given
+        self.n_recruited = 0
+        self._delay.reset()
+        if self._pool is not None:
+            self._pool.reset()
+        self._f_iso_single_n = 0.0      # single/initial: f_iso_max FL(l_o / l_opt)
+        self._mu = 1.0                  # single: whole-muscle fitness
+        self._v_free = 0.0
+        # Piece context read by the force evaluation (single's activation).
+        self._piece = (0.0, 0.0, 0.0, 1.0)   # (s0, a0, u_d, tau)
+        self._mu_law = (0.0, 1.0, 1.0, 0.0)  # (s0, mu0, mu_inf, lambda)
+
+    @property
+    def n_runs(self) -> int:
+        """Segments held by the unit memory (multi)."""
+        return self._pool.n_segments if self._pool is not None else 0
+
+    @property
+    def mean_fitness(self) -> float:
+        """[-] mean fitness of all units now (1 without fatigue)."""
+        if self._pool is not None:
+            return self._pool.mean_fitness(self.t_s)
+        return self._mu
+
+    def fitness_profile(self):
+        """[-] fitness of every unit along the recruitment order (multi), O(N)."""
+        if self._pool is None:
+            raise ValueError('`fitness_profile` needs `units: multi`, got single')
+        return self._pool.fitness_profile(self.t_s)
+
+    def set_recruitment(self, recruitment: float) -> None:
+        """Give the recruitment command u now (R directly, bypassing the curve).
+
+        It takes effect after ``emd_s``, through the activation; with no delay
+        and instantaneous activation, now.
+
+        :param recruitment: [-] command u in [0, 1]
+        """
+        from .muscle import check_recruitment
+        self._give_command(check_recruitment(recruitment))
+
+    def set_pulse_width(self, pulse_width_s: float) -> None:
+        """Give an FES pulse width now, through the recruitment curve.
+
+        :param pulse_width_s: [s] stimulation pulse width (PW), >= 0
+        """
+        self._give_command(command_from_pulse_width(pulse_width_s, self.params))
+
+    def _give_command(self, u: float) -> None:
+        """Queue command ``u`` at the current instant and apply what is due now."""
+        self.command = u
+        self._delay.push(self.t_s, u)
+        # A command due now (no delay) with an instantaneous activation acts now.
+        u_d = self._delay.settle(self.t_s)
+        if u_d != self.recruitment and self._tau(u_d) == 0.0:
+            self._set_activation(u_d, self.t_s)
+
+    def _tau(self, u_d: float) -> float:
+        p = self.params
+        return p.tau_act_s if u_d > self.recruitment else p.tau_deact_s
+
+    # -- the force of the recruited units ------------------------------------------
+
+    def _set_activation(self, a: float, t_s: float) -> None:
+        """Set a = R at instant ``t_s`` and update the memory from l_ce now."""
+        p = self.params
+        if self._multi:
+            m = recruited_units(a, p.n_units)
+            self._pool.update(m, self.l_ce_m / p.l_opt_m, t_s)
+            self.n_recruited = m
+        else:
+            if a == 0.0:
+                self._f_iso_single_n = 0.0
+            elif self.recruitment == 0.0:
+                self._f_iso_single_n = p.f_iso_max_n * force_length(self.l_ce_m / p.l_opt_m)
+            self.n_recruited = 1 if a > 0.0 else 0
+        self.recruitment = a
+
+    def eff_f_iso(self, l_ce_m: float | None = None, t_s: float | None = None) -> float:
+        """[N] Eff.f_iso at CE length ``l_ce_m`` and instant ``t_s`` (default: now).
+
+        Multi: the unit memory (Eq. 2 with each unit's fitness and length
+        scale). Single: R mu f_iso_max FL(l_o or l_ce), R and mu following
+        their closed forms within the current piece.
+        """
+        p = self.params
+        l = self.l_ce_m if l_ce_m is None else l_ce_m
+        t = self.t_s if t_s is None else t_s
+        if self._multi:
+            return self._pool.eff_f_iso(l / p.l_opt_m, t)
+        s0, a0, u_d, tau = self._piece
+        a = activation_at(a0, u_d, tau, t - s0) if (tau > 0.0 and a0 != u_d) else a0
+        if a <= 0.0:
+            return 0.0
+        if self._single_fatigue:
+            m0, mu0, mu_inf, lam = self._mu_law
+            mu = mu_inf + (mu0 - mu_inf) * math.exp(-lam * (t - m0))
+        else:
+            mu = 1.0
+        f = self._f_iso_single_n if self._initial else p.f_iso_max_n * force_length(
+            l / p.l_opt_m)
+        return a * mu * f
+
+    def _velocity(self, l: float, dl: float, f0: float) -> float:
+        """[m/s] FV_inv(f_SE, F0), Eq. 3 inverted; ``relative`` scales a and a' with F0."""
+        p = self.params
+        stretch = dl - (l - p.l_rest_m)
+        f_se = p.k_se_n_per_m * stretch if stretch > 0.0 else 0.0
+        a, a_ecc = p.fv_a_n, p.fv_a_ecc_n
+        if self._relative:
+            share = f0 / p.f_iso_max_n
+            a, a_ecc = a * share, a_ecc * share
+        return force_velocity_inverse(f_se, f0, a, p.fv_b_m_per_s, a_ecc, p.fv_b_ecc_m_per_s)
+
+    # -- integration -----------------------------------------------------------------
+
+    def _integrate(self, s0: float, s1: float, t0: float, dl0: float, rate: float) -> None:
+        """RK4 for l_ce over [s0, s1] with the recruitment fixed; dl_MT(s) linear.
+
+        :param t0: [s] start of the step; dl_MT(s) = dl0 + rate (s - t0)
+        """
+        h = s1 - s0
+        if h <= 0.0:
+            return
+        p = self.params
+        l = self.l_ce_m
+        if self._single_fatigue:
+            self._start_mu_law(s0, s1)
+        f0 = self.eff_f_iso(l, s0)
+        dl_a = dl0 + rate * (s0 - t0)
+        dl_b = dl0 + rate * (s1 - t0)
+        if f0 > 0.0:
+            mid, dl_m = s0 + 0.5 * h, 0.5 * (dl_a + dl_b)
+            k1 = self._velocity(l, dl_a, f0)
+            l2 = l + 0.5 * h * k1
+            k2 = self._velocity(l2, dl_m, self.eff_f_iso(l2, mid))
+            l3 = l + 0.5 * h * k2
+            k3 = self._velocity(l3, dl_m, self.eff_f_iso(l3, mid))
+            l4 = l + h * k3
+            k4 = self._velocity(l4, dl_b, self.eff_f_iso(l4, s1))
+            l = l + h * (k1 + 2.0 * k2 + 2.0 * k3 + k4) / 6.0
+            if self.eff_f_iso(l, s1) == 0.0:
+                l = p.l_rest_m + dl_b   # the instantaneous CE left the FL range
+        else:
+            l = p.l_rest_m + dl_b       # the free CE takes up the SE slack
+        self.l_ce_m = l
+        if self._single_fatigue:
+            m0, mu0, mu_inf, lam = self._mu_law
+            self._mu = mu_inf + (mu0 - mu_inf) * math.exp(-lam * (s1 - m0))
+
+    def _start_mu_law(self, s0: float, s1: float) -> None:
+        """Whole-muscle Riener law over [s0, s1] with a held at its midpoint value.
+
+        mu' = (mu_min - mu) a / T_fat + (1 - mu)(1 - a) / T_rec is linear in
+        mu: with a held it has the closed form mu_inf + (mu0 - mu_inf) e^(-lam t).
+        """
+        p = self.params
+        s_a, a0, u_d, tau = self._piece
+        mid = 0.5 * (s0 + s1)
+        a = activation_at(a0, u_d, tau, mid - s_a) if (tau > 0.0 and a0 != u_d) else a0
+        a = max(a, 0.0) if a > self._release_level else 0.0
+        rate_f, rate_r = 1.0 / p.tau_fatigue_s[0], 1.0 / p.tau_recovery_s[0]
+        lam = a * rate_f + (1.0 - a) * rate_r
+        mu_inf = (p.fatigue_min[0] * a * rate_f + (1.0 - a) * rate_r) / lam
+        self._mu_law = (s0, self._mu, mu_inf, lam)
+
+    def _events(self, s0: float, s1: float, a0: float, u_d: float,
+                tau: float) -> list[tuple[float, int]]:
+        """Instants in (s0, s1) where M = floor(N a + 0.5) changes, with the new M.
+
+        From the closed form of a; at most :data:`MAX_EVENTS_PER_PIECE` of them
+        (grouped: see there).
+        """
+        n = self.params.n_units
+        m0 = self.n_recruited
+        m1 = recruited_units(activation_at(a0, u_d, tau, s1 - s0), n)
+        if m1 == m0:
+            return []
+        step = 1 if m1 > m0 else -1
+        count = abs(m1 - m0)
+        if count <= MAX_EVENTS_PER_PIECE:
+            targets = range(m0 + step, m1 + step, step)
+        else:
+            targets = [m0 + step * round(count * (i + 1) / MAX_EVENTS_PER_PIECE)
+                       for i in range(MAX_EVENTS_PER_PIECE)]
+        out = []
+        for m in targets:
+            # M reaches m rising when N a + 0.5 >= m; falls to m when N a + 0.5 < m + 1.
+            level = (m - 0.5) / n if step > 0 else (m + 0.5) / n
+            s = s0 + time_to_reach(a0, u_d, tau, level)
+            out.append((min(max(s, s0), s1), m))
+        return out
+
+    def _piece_step(self, s0: float, s1: float, u_d: float, t0: float, dl0: float,
+                    rate: float) -> None:
+        """Advance over [s0, s1] with the delayed command u_d constant."""
+        a0 = self.recruitment
+        tau = self._tau(u_d) if u_d != a0 else 0.0
+        if u_d != a0 and tau == 0.0:
+            self._set_activation(u_d, s0)      # instantaneous: all at the piece start
+            a0 = u_d
+        self._piece = (s0, a0, u_d, tau)
+        if a0 == u_d or tau == 0.0:
+            self._integrate(s0, s1, t0, dl0, rate)
+            return
+        if self._multi:
+            s = s0
+            for s_e, m in self._events(s0, s1, a0, u_d, tau):
+                self._integrate(s, s_e, t0, dl0, rate)
+                self._pool.update(m, self.l_ce_m / self.params.l_opt_m, s_e)
+                self.n_recruited = m
+                s = s_e
+            self._integrate(s, s1, t0, dl0, rate)
+            self.recruitment = activation_at(a0, u_d, tau, s1 - s0)
+            return
+        # Single: R = a follows the closed form inside the force evaluation.
+        if a0 == 0.0:
+            self._set_activation_single_rise(s0)
+        a1 = activation_at(a0, u_d, tau, s1 - s0)
+        level = self._release_level
+        if u_d < a0 and u_d < level and a1 < level < a0:
+            s_rel = s0 + time_to_reach(a0, u_d, tau, level)
+            self._integrate(s0, s_rel, t0, dl0, rate)
+            self._set_activation(0.0, s_rel)
+            self._piece = (s_rel, 0.0, u_d, tau if u_d > 0.0 else 0.0)
+            if u_d > 0.0:   # still rising towards a small command: rest from here
+                self._set_activation_single_rise(s_rel)
+            self._integrate(s_rel, s1, t0, dl0, rate)
+            self.recruitment = 0.0 if u_d == 0.0 else activation_at(0.0, u_d, tau, s1 - s_rel)
+            return
+        self._integrate(s0, s1, t0, dl0, rate)
+        self.recruitment = a1
+        self.n_recruited = 1 if a1 > 0.0 else 0
+
+    def _set_activation_single_rise(self, s: float) -> None:
+        """Single: a rises from 0 at ``s``: store FL at the CE length of that instant."""
+        p = self.params
+        self._f_iso_single_n = p.f_iso_max_n * force_length(self.l_ce_m / p.l_opt_m)
+        self.n_recruited = 1
+
+    # -- stepping --------------------------------------------------------------------
+
+    def _advance(self, u: float, dl1: float, dt: float) -> None:
+        """One step: command ``u`` given at its start, dl_MT ramping to ``dl1``."""
+        t0, dl0 = self.t_s, self.dl_mt_m
+        t1 = t0 + dt
+        self._give_command(u)
+        rate = (dl1 - dl0) / dt
+        for s0, s1, u_d in self._delay.pieces(t0, t1):
+            self._piece_step(s0, s1, u_d, t0, dl0, rate)
+        self._v_free = rate
+        self.dl_mt_m = dl1
+        self.t_s = t1
+        # A switch due exactly at the step's end acts in this sample already,
+        # as a command given at t_k does in the paper's model.
+        u_d = self._delay.settle(t1)
+        if u_d != self.recruitment and self._tau(u_d) == 0.0:
+            self._set_activation(u_d, t1)
+        if self._pool is not None:
+            self._pool.advance_to(t1)
+
+    def outputs(self) -> MuscleOutputs:
+        """The outputs at the current instant, derived from the state."""
+        p = self.params
+        l, dl, t = self.l_ce_m, self.dl_mt_m, self.t_s
+        self._piece = (t, self.recruitment, self.recruitment, 0.0)
+        self._mu_law = (t, self._mu, self._mu, 0.0)
+        stretch = dl - (l - p.l_rest_m)
+        f_se = p.k_se_n_per_m * stretch if stretch > 0.0 else 0.0
+        f_pe = p.k_pe_n_per_m * dl if dl > 0.0 else 0.0
+        f0 = self.eff_f_iso(l, t)
+        v = self._velocity(l, dl, f0) if f0 > 0.0 else self._v_free
+        return MuscleOutputs(t, self.recruitment, self.n_recruited, dl, l, v, f_se, f_pe,
+                             f_se + f_pe, f0, self.command, self.mean_fitness)
+
+    def run(self, r_start: Sequence[float], dl_mt_end_m: Sequence[float], dt_s: float,
+            r_end: Sequence[float] | None = None,
+            columns: Sequence[list] | None = None) -> MuscleOutputs:
+        """Advance ``len(dl_mt_end_m)`` steps; see :meth:`Muscle.run`.
+
+        ``r_start[k]`` is the command given at the start of step k, ``r_end[k]``
+        the one given at its end (the next step's start), before the outputs.
+        """
+        out = None
+        for k, dl1 in enumerate(dl_mt_end_m):
+            self._advance(r_start[k], dl1, dt_s)
+            if r_end is not None and r_end[k] != self.command:
+                self._give_command(r_end[k])
+            out = self.outputs()
+            if columns is not None:
+                for column, value in zip(columns, out):
+                    column[k] = value
+        return out if out is not None else self.outputs()
+
+    def advance(self, dl_mt_end_m: float, dt_s: float) -> None:
+        """Integrate one step with the command held; see :meth:`Muscle.advance`."""
+        self._advance(self.command, dl_mt_end_m, dt_s)
+
+    def step(self, recruitment: float, dl_mt_m: float, dt_s: float) -> MuscleOutputs:
+        """Advance one step with command u = ``recruitment`` given at its start.
+
+        :param recruitment: [-] recruitment command u in [0, 1]
+        :param dl_mt_m: [m] MTU length change at the end of the step (dl_MT)
+        :param dt_s: [s] step length, > 0
+        :return: the outputs at the end of the step
+        :raises ValueError: on a NaN, infinite or out-of-range input; the state
+            is unchanged
+        """
+        from .muscle import check_dl_mt, check_recruitment
+        u, dl = check_recruitment(recruitment), check_dl_mt(dl_mt_m)
+        if not (math.isfinite(dt_s) and dt_s > 0.0):
+            raise ValueError(f'`dt_s` must be positive and finite, got {dt_s!r}')
+        self._advance(u, dl, dt_s)
+        return self.outputs()

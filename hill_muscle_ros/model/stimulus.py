@@ -1,0 +1,145 @@
+"""From stimulus to recruitment: the recruitment curve, the electromechanical
+delay and the first-order activation (doc/model.md section 7.1-7.2).
+
+Pure Python; every law here is written once and used by the scalar engine,
+the batch, the limb, the protocol player and the CLI.
+
+- The recruitment curve maps a pulse width PW [s] to the recruitment command
+  u in [0, 1].
+- The delay shifts the command by ``emd_s``: u_d(t) = u(t - emd_s), 0 before.
+- The activation a follows da/dt = (u_d - a) / tau, tau = ``tau_act_s`` while
+  u_d > a and ``tau_deact_s`` otherwise; a is the recruitment R.
+
+u_d is piecewise constant, so a has a closed form on each piece,
+a(t) = u_d + (a0 - u_d) exp(-(t - t0) / tau), and so has the instant at which
+it crosses a level: the instants at which units are recruited.
+"""
+from __future__ import annotations
+
+import math
+from collections import deque
+
+from .params import MuscleParams
+
+
+def command_from_pulse_width(pulse_width_s: float, params: MuscleParams,
+                             name: str = 'pulse_width_s') -> float:
+    """Recruitment command u of an FES pulse: the recruitment curve.
+
+    ``linear`` (the paper): u = PW / PW_max. ``threshold_linear`` (Veltink et
+    al. 1992): u = (PW - PW_th) / (PW_max - PW_th). ``exponential`` (Ding et al.
+    2007): u = 1 - exp(-(PW - PW_th) / PW_scale) above the threshold, 0 below.
+    Each is then clipped to [0, 1]: below threshold nothing is recruited, and
+    above saturation every unit already is. That is the stimulator's physics,
+    not a correction. Negative or non-finite widths raise.
+
+    :param pulse_width_s: [s] stimulation pulse width (PW)
+    :param params: the muscle's parameters (curve, PW_max, PW_th, PW_scale)
+    :param name: what to call the value in the error message (e.g. the topic)
+    :return: [-] recruitment command u in [0, 1]
+    """
+    pw = float(pulse_width_s)
+    if not (math.isfinite(pw) and pw >= 0.0):
+        raise ValueError(f'`{name}` must be finite and non-negative, '
+                         f'got {pulse_width_s!r}')
+    curve = params.recruitment_curve
+    if curve == 'linear':
+        return min(pw / params.pw_max_s, 1.0)
+    above = pw - params.pw_threshold_s
+    if above <= 0.0:
+        return 0.0
+    if curve == 'threshold_linear':
+        return min(above / (params.pw_max_s - params.pw_threshold_s), 1.0)
+    return -math.expm1(-above / params.pw_scale_s)
+
+
+def activation_at(a0: float, u_d: float, tau_s: float, elapsed_s: float) -> float:
+    """Closed form of the first-order activation with a constant input.
+
+    :param a0: [-] activation at the start of the piece
+    :param u_d: [-] delayed command, constant over the piece
+    :param tau_s: [s] time constant in force on the piece, > 0
+    :param elapsed_s: [s] time since the start of the piece
+    :return: [-] a(t0 + elapsed)
+    """
+    return u_d + (a0 - u_d) * math.exp(-elapsed_s / tau_s)
+
+
+def time_to_reach(a0: float, u_d: float, tau_s: float, level: float) -> float:
+    """[s] time after the piece start at which the activation reaches ``level``.
+
+    The inverse of :func:`activation_at`; ``level`` must lie strictly between
+    ``a0`` and ``u_d`` (a reaches u_d only asymptotically).
+    """
+    return tau_s * math.log((a0 - u_d) / (level - u_d))
+
+
+def time_constant(params: MuscleParams, a: float, u_d: float) -> float:
+    """[s] tau in force: ``tau_act_s`` while u_d > a, else ``tau_deact_s``."""
+    return params.tau_act_s if u_d > a else params.tau_deact_s
+
+
+class DelayLine:
+    """The electromechanical delay: commands take effect ``emd_s`` after they are given.
+
+    A command given at t holds from t + emd_s until the next command takes
+    effect. Exact in time: with an ``emd_s`` that is not a multiple of the step,
+    the delayed command switches inside a step, and :meth:`pieces` says where.
+
+    :param emd_s: [s] electromechanical delay, >= 0
+    """
+
+    #: [s] Two instants closer than this are one. A switch lands at t + emd_s
+    #: while the step ends are sums of steps: over the emd_s / dt steps between
+    #: them the sums round by at most a few ulp of t each (about 1e-11 s at t
+    #: = 1 h), so a switch meant to fall on a step end is within 1e-9 s of it,
+    #: and no physiological time is that short.
+    TIME_TOLERANCE_S = 1e-9
+
+    def __init__(self, emd_s: float) -> None:
+        self.emd_s = emd_s
+        self.reset()
+
+    def reset(self) -> None:
+        """No command given: u_d = 0."""
+        self._pending: deque[tuple[float, float]] = deque()
+        #: [-] delayed command u_d at the end of the time consumed so far
+        self.u_d = 0.0
+
+    def push(self, t_s: float, u: float) -> None:
+        """Give command ``u`` at ``t_s``; it takes effect at ``t_s + emd_s``."""
+        pending = self._pending
+        last = pending[-1][1] if pending else self.u_d
+        if u != last:
+            pending.append((t_s + self.emd_s, u))
+
+    def pieces(self, t0_s: float, t1_s: float) -> list[tuple[float, float, float]]:
+        """Split [t0, t1] where the delayed command is constant, and consume it.
+
+        A switch within :data:`TIME_TOLERANCE_S` of ``t1`` belongs to the next
+        step, which starts with it.
+
+        :return: ``(start, end, u_d)`` pieces covering [t0, t1] in order
+        """
+        pending, tol = self._pending, self.TIME_TOLERANCE_S
+        out = []
+        start, u_d = t0_s, self.u_d
+        while pending and pending[0][0] < t1_s - tol:
+            t_switch, u_next = pending.popleft()
+            if t_switch > start + tol:
+                out.append((start, t_switch, u_d))
+                start = t_switch
+            u_d = u_next
+        out.append((start, t1_s, u_d))
+        self.u_d = u_d
+        return out
+
+    def settle(self, t_s: float) -> float:
+        """Take every switch due at or before ``t_s``: the delayed command now.
+
+        :return: [-] u_d at ``t_s``
+        """
+        pending, tol = self._pending, self.TIME_TOLERANCE_S
+        while pending and pending[0][0] <= t_s + tol:
+            self.u_d = pending.popleft()[1]
+        return self.u_d

@@ -1,0 +1,158 @@
+"""The virtual motor units as FES recruits them: fibre types, recruitment order
+and per-unit lengths (doc/model.md sections 7.3-7.5).
+
+Units are numbered 1..N. Fibre type k owns a contiguous block of them, with
+block ends floor(N cumsum(fractions) / sum(fractions) + 0.5); a unit of type k
+has maximal force f_max,k = f_iso_max w_k / sum of w over all N units. The
+recruitment order lists the units in the order they are recruited; everything
+below works on *positions* p = 0..N-1 along that order, so the recruited set is
+always the prefix [0, M).
+
+The unit at position p sees the CE length scaled by
+c_p = 1 + s (2 frac((p + 1) phi) - 1), phi = (sqrt(5) - 1) / 2: any prefix of
+the order spreads evenly over [1 - s, 1 + s].
+
+:class:`UnitLayout` answers, for a range of positions and a normalised length x,
+the sum over its units of f_max FL(c x), per fibre type, in O(1): FL (Eq. 1) is
+a parabola, so that sum is A x^2 sum(c^2) + B x sum(c) + C n, read from prefix
+sums, as long as no unit of the range falls outside FL's support (where FL is
+clipped to 0). When some may, the sum is taken unit by unit over the range.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .curves import FL_A, FL_B, FL_C
+from .params import MuscleParams
+
+#: The golden-ratio conjugate (sqrt(5) - 1) / 2 of the length-spread sequence.
+PHI = (math.sqrt(5.0) - 1.0) / 2.0
+
+#: The roots of FL (Eq. 1): FL(x) > 0 exactly for FL_ROOT_LOW < x < FL_ROOT_HIGH.
+_DISCRIMINANT = math.sqrt(FL_B * FL_B - 4.0 * FL_A * FL_C)
+FL_ROOT_LOW = (-FL_B + _DISCRIMINANT) / (2.0 * FL_A)
+FL_ROOT_HIGH = (-FL_B - _DISCRIMINANT) / (2.0 * FL_A)
+
+
+def type_block_ends(n_units: int, fractions: tuple[float, ...]) -> list[int]:
+    """Last unit number of each fibre type's block: floor(N cumsum / sum + 0.5).
+
+    :return: K block ends; type k owns units ends[k-1] + 1 .. ends[k] (1-based)
+    """
+    total = sum(fractions)
+    ends, acc = [], 0.0
+    for f in fractions:
+        acc += f
+        ends.append(int(math.floor(n_units * acc / total + 0.5)))
+    return ends
+
+
+def length_scale(positions: np.ndarray, spread: float) -> np.ndarray:
+    """[-] c_p of the units at 0-based positions ``positions`` of the order."""
+    frac = np.mod((np.asarray(positions, dtype=float) + 1.0) * PHI, 1.0)
+    return 1.0 + spread * (2.0 * frac - 1.0)
+
+
+class UnitLayout:
+    """Types, maximal forces and length scales of the units along the order.
+
+    :param params: the muscle's parameters (``multi``)
+    """
+
+    def __init__(self, params: MuscleParams) -> None:
+        n = params.n_units
+        self.n_units = n
+        self.n_types = k = params.n_fibre_types
+        self.spread = params.unit_length_spread
+        ends = type_block_ends(n, params.fibre_fractions)
+        starts = [0] + ends[:-1]
+        counts = [e - s for s, e in zip(starts, ends)]
+        weights = params.per_type('fibre_force_weights')
+        total_weight = sum(c * w for c, w in zip(counts, weights))
+        #: [N] maximal force of one unit of each type (f_max,k)
+        self.f_max = [params.f_iso_max_n * w / total_weight for w in weights]
+        self.type_counts = counts
+        order = params.recruitment_order
+        # Type of each position, as contiguous blocks where the order keeps them.
+        if order == 'size':
+            self._blocks = list(zip(starts, ends))
+            self._type_of = None
+        elif order == 'reverse':
+            blocks, pos = [None] * k, 0
+            for t in reversed(range(k)):
+                blocks[t] = (pos, pos + counts[t])
+                pos += counts[t]
+            self._blocks = blocks
+            self._type_of = None
+        else:
+            unit_type = np.repeat(np.arange(k, dtype=np.int8), counts)
+            perm = np.random.default_rng(params.recruitment_seed).permutation(n)
+            self._type_of = unit_type[perm]
+            self._blocks = None
+        self._prefix = None
+        if self._type_of is not None or self.spread > 0.0:
+            self._build_prefix_sums()
+
+    def _build_prefix_sums(self) -> None:
+        """Per type, prefix sums over positions of 1, c and c^2 (O(N K) memory)."""
+        n, k = self.n_units, self.n_types
+        c = length_scale(np.arange(n), self.spread)
+        types = self.types_of(0, n)
+        prefix = np.zeros((k, 3, n + 1))
+        for t in range(k):
+            mask = (types == t).astype(float)
+            np.cumsum(mask, out=prefix[t, 0, 1:])
+            np.cumsum(mask * c, out=prefix[t, 1, 1:])
+            np.cumsum(mask * c * c, out=prefix[t, 2, 1:])
+        self._prefix = prefix
+
+    def types_of(self, p0: int, p1: int) -> np.ndarray:
+        """Fibre type of each position in [p0, p1)."""
+        if self._type_of is not None:
+            return self._type_of[p0:p1]
+        out = np.empty(p1 - p0, dtype=np.int8)
+        for t, (b0, b1) in enumerate(self._blocks):
+            lo, hi = max(b0, p0), min(b1, p1)
+            if hi > lo:
+                out[lo - p0:hi - p0] = t
+        return out
+
+    def moments(self, p0: int, p1: int) -> list[tuple[float, float, float]]:
+        """Per type: (n, sum c, sum c^2) over the units at positions [p0, p1)."""
+        if self._prefix is None:
+            out = []
+            for b0, b1 in self._blocks:
+                m = float(max(0, min(b1, p1) - max(b0, p0)))
+                out.append((m, m, m))
+            return out
+        d = self._prefix[:, :, p1] - self._prefix[:, :, p0]
+        return [tuple(row) for row in d.tolist()]
+
+    def fl_sums(self, p0: int, p1: int, x: float,
+                moments: list[tuple[float, float, float]] | None = None) -> list[float]:
+        """Per type: f_max,k x sum of FL(c_p x) over its units in [p0, p1).
+
+        :param x: [-] CE length over optimal length, before the unit scale c_p
+        :param moments: :meth:`moments` of the range, if already at hand
+        """
+        s = self.spread
+        if s == 0.0:
+            fl = (FL_A * x + FL_B) * x + FL_C
+            if fl <= 0.0:
+                return [0.0] * self.n_types
+            m = moments if moments is not None else self.moments(p0, p1)
+            return [f * fl * mk[0] for f, mk in zip(self.f_max, m)]
+        if FL_ROOT_LOW < x * (1.0 - s) and x * (1.0 + s) < FL_ROOT_HIGH:
+            # No unit can leave FL's support: the parabola summed over moments.
+            m = moments if moments is not None else self.moments(p0, p1)
+            a2, a1 = FL_A * x * x, FL_B * x
+            return [f * (a2 * mk[2] + a1 * mk[1] + FL_C * mk[0])
+                    for f, mk in zip(self.f_max, m)]
+        # Some units may be off the FL range: clip unit by unit, O(p1 - p0).
+        cx = length_scale(np.arange(p0, p1), s) * x
+        fl = np.maximum((FL_A * cx + FL_B) * cx + FL_C, 0.0)
+        types = self.types_of(p0, p1)
+        sums = np.bincount(types, weights=fl, minlength=self.n_types)
+        return [f * float(v) for f, v in zip(self.f_max, sums)]
