@@ -119,6 +119,7 @@ class UnitPool:
         :param x_ce: [-] CE length over optimal length at this instant
         :param t_s: [s] the instant
         """
+        self.advance_to(t_s)   # the clocks divide here: keep them in range
         if m > self.m:
             self._recruit(m, x_ce, t_s)
         elif m < self.m:
