@@ -116,3 +116,99 @@ def test_delay_holds_the_muscle_at_rest_until_it_has_passed():
     assert np.all(result.recruitment[before] == 0.0)
     assert np.all(result.eff_f_iso_n[before] == 0.0)
     assert result.recruitment[result.at(0.03)] == 1.0
+
+
+# -- the batch shares the scalar engine ---------------------------------------------------
+
+#: One muscle per FES feature, plus all of them at once and a paper muscle.
+FEATURES = {
+    'curve+delay+activation': dict(recruitment_curve='exponential', emd_s=0.025,
+                                   tau_act_s=0.06, tau_deact_s=0.11),
+    'relative fv': dict(fv_scaling='relative', tau_act_s=0.02, tau_deact_s=0.05),
+    'fatigue': dict(fatigue='riener', tau_fatigue_s=[0.5], tau_recovery_s=[0.8]),
+    'fibre types random': dict(fibre_fractions=[0.4, 0.6], fibre_force_weights=[1.0, 2.5],
+                               recruitment_order='random', recruitment_seed=3,
+                               fatigue='riener', tau_fatigue_s=[2.0, 0.4]),
+    'length spread': dict(unit_length_spread=0.3, length='instantaneous'),
+    'single fatigue': dict(units='single', fatigue='riener', tau_fatigue_s=[0.5],
+                           tau_act_s=0.03, tau_deact_s=0.05),
+    'paper': dict(),
+}
+
+
+def test_batch_equals_separate_muscles_on_every_feature_to_1e_9_newton():
+    from hill_muscle_ros.model.batch import MuscleBatch
+    params = [MuscleParams(**kw) for kw in FEATURES.values()]
+    batch = MuscleBatch(params)
+    singles = [Muscle(p) for p in params]
+    rng = np.random.default_rng(7)
+    command = 0.0
+    for k in range(1500):
+        if k % 100 == 0:
+            command = float(rng.choice([0.0, rng.uniform(0.05, 1.0)]))
+        dl = 0.004 * math.sin(2 * math.pi * k / 700)
+        out = batch.step(command, dl, 1e-3)
+        for i, muscle in enumerate(singles):
+            ref = muscle.step(command, dl, 1e-3)
+            assert abs(out.force_n[i] - ref.force_n) <= SAME_MODEL_TOL_N, \
+                (list(FEATURES)[i], k)
+            assert out.recruitment[i] == ref.recruitment
+            assert out.mean_fitness[i] == ref.mean_fitness
+
+
+# -- fatigue --------------------------------------------------------------------------------
+
+def _held(params, level, duration_s, rate_hz=100.0):
+    protocol = Protocol.from_mapping({'name': 'held', 'duration_s': duration_s,
+                                      'recruitment': [[0.0, level]],
+                                      'dl_mt_m': [[0.0, 0.0]]})
+    return simulate(protocol, params, rate_hz)
+
+
+@pytest.mark.parametrize('units', ['multi', 'single'])
+def test_fatigue_under_full_recruitment_decays_to_fatigue_min_with_tau_fatigue(units):
+    mu_min, tau = 0.3, 4.0
+    result = _held(MuscleParams(units=units, fatigue='riener', fatigue_min=[mu_min],
+                                tau_fatigue_s=[tau]), 1.0, 20.0)
+    expected = mu_min + (1.0 - mu_min) * np.exp(-result.t_s / tau)
+    np.testing.assert_allclose(result.mean_fitness, expected, rtol=0, atol=1e-12)
+
+
+def test_recovery_of_a_released_unit_follows_tau_recovery():
+    mu_min, tau_f, tau_r = 0.2, 2.0, 5.0
+    params = MuscleParams(fatigue='riener', fatigue_min=[mu_min], tau_fatigue_s=[tau_f],
+                          tau_recovery_s=[tau_r])
+    protocol = Protocol.from_mapping({'name': 'on-off', 'duration_s': 20.0,
+                                      'recruitment': [[0.0, 1.0], [3.0, 1.0], [3.0, 0.0]],
+                                      'dl_mt_m': [[0.0, 0.0]]})
+    result = simulate(protocol, params, 100.0)
+    mu_release = mu_min + (1.0 - mu_min) * math.exp(-3.0 / tau_f)
+    after = result.t_s >= 3.0
+    expected = 1.0 - (1.0 - mu_release) * np.exp(-(result.t_s[after] - 3.0) / tau_r)
+    np.testing.assert_allclose(result.mean_fitness[after], expected, rtol=0, atol=1e-12)
+
+
+def _fatigued_profile(order='size', fractions=(1.0,), level=0.5, duration_s=30.0):
+    muscle = Muscle(MuscleParams(fatigue='riener', fibre_fractions=fractions,
+                                 recruitment_order=order))
+    muscle.set_recruitment(level)
+    for _ in range(int(duration_s * 100)):
+        muscle.step(level, 0.0, 0.01)
+    return muscle.fitness_profile()
+
+
+def test_units_recruited_only_at_high_r_stay_fresh():
+    mu = _fatigued_profile(level=0.5)
+    assert np.all(mu[500:] == 1.0)
+    assert np.all(mu[:500] < 0.6)
+
+
+def test_the_first_units_of_the_order_tire_first():
+    # Ramp up: unit j is recruited at an instant that grows with j, so it has
+    # been working for less time; its fitness must not be lower than unit j-1's.
+    muscle = Muscle(MuscleParams(fatigue='riener'))
+    for k in range(2000):
+        muscle.step(k / 2000, 0.0, 0.01)
+    mu = muscle.fitness_profile()
+    assert np.all(np.diff(mu) >= 0.0)
+    assert mu[0] < mu[-2]

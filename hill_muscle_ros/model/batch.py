@@ -16,6 +16,12 @@ muscles whose recruitment changed in that step, which is cheap when the
 recruitment is held most of the time (the usual FES case: a new pulse width
 every few to hundreds of steps) and costs about a microsecond per changing
 muscle otherwise.
+
+Muscles with any FES extension switched on (delay, activation, fatigue, fibre
+types, unit lengths: doc/model.md section 7) are stepped by their own
+:class:`~hill_muscle_ros.model.fes_muscle.FesMuscle`, the scalar engine, so the
+two paths share the equations by construction; their cost is one scalar step
+each. The arrays of state and outputs cover every muscle alike.
 """
 from __future__ import annotations
 
@@ -24,6 +30,7 @@ from typing import NamedTuple, Sequence
 import numpy as np
 
 from .curves import ECC_PLATEAU, FL_A, FL_B, FL_C
+from .fes_muscle import FesMuscle
 from .memory import UnitMemory
 from .muscle import DL_MT_LIMIT_M
 from .params import MuscleParams
@@ -48,6 +55,8 @@ class BatchOutputs(NamedTuple):
     f_pe_n: np.ndarray
     force_n: np.ndarray
     eff_f_iso_n: np.ndarray
+    command: np.ndarray
+    mean_fitness: np.ndarray
 
 
 def _force_length(l_ce_m: np.ndarray, l_opt_m: np.ndarray) -> np.ndarray:
@@ -93,6 +102,8 @@ class MuscleBatch:
         self._memories = {i: UnitMemory(p.n_units, p.f_iso_max_n, p.l_opt_m)
                           for i, p in enumerate(params)
                           if p.units == 'multi' and p.length == 'initial'}
+        #: Muscles with an FES extension on: their scalar engines, by index.
+        self._fes = {i: FesMuscle(p) for i, p in enumerate(params) if not p.fes_defaults}
         self.reset()
 
     # -- state ---------------------------------------------------------------
@@ -107,6 +118,10 @@ class MuscleBatch:
         self.n_recruited = np.zeros(k, dtype=np.int64)
         for memory in self._memories.values():
             memory.clear()
+        for muscle in self._fes.values():
+            muscle.reset()
+        self.command = np.zeros(k)
+        self.mean_fitness = np.ones(k)
         self._f_iso_single = np.zeros(k)   # [N] single/initial: f_iso at recruitment
         # [N] Eff.f_iso (initial) or Eff.f_iso / FL (instantaneous), as Muscle._gain_n.
         self._gain = np.zeros(k)
@@ -145,6 +160,19 @@ class MuscleBatch:
             raise ValueError(f'`recruitment` must be in [0, 1], got {r[i]!r} '
                              f'for muscle {i}')
         self._apply_recruitment(r)
+        self.command = r.copy()
+        for i, muscle in self._fes.items():
+            muscle.set_recruitment(float(r[i]))
+            self._copy_state(i, muscle)
+
+    def _copy_state(self, i: int, muscle: FesMuscle) -> None:
+        """Write an FES muscle's state into the batch arrays."""
+        self.l_ce_m[i] = muscle.l_ce_m
+        self.dl_mt_m[i] = muscle.dl_mt_m
+        self.recruitment[i] = muscle.recruitment
+        self.n_recruited[i] = muscle.n_recruited
+        self.command[i] = muscle.command
+        self.mean_fitness[i] = muscle.mean_fitness
 
     def _apply_recruitment(self, r: np.ndarray) -> None:
         """Update memories and gains of the muscles whose R changed (validated)."""
@@ -274,6 +302,16 @@ class MuscleBatch:
         self.l_ce_m, self.dl_mt_m, self._v_free, self._v_ce = l1, dl1, v_free, v_ce
         self._v_is_k1 = True
         self.t_s += dt
+        if self._fes:
+            # The vector step above computed these too (the paper's model); the
+            # scalar FES engines replace them: same inputs, their own model.
+            self._v_ce = v_ce.copy()
+            f0 = f0.copy()
+            for i, muscle in self._fes.items():
+                out = muscle.step(float(self.command[i]), float(dl1[i]), dt)
+                self._copy_state(i, muscle)
+                self._v_ce[i] = out.v_ce_m_per_s
+                f0[i] = out.eff_f_iso_n
         return self._outputs(f0)
 
     def outputs(self) -> BatchOutputs:
@@ -283,6 +321,12 @@ class MuscleBatch:
             v = self._velocity(self.l_ce_m, self.dl_mt_m, f0)
             self._v_ce = np.where(f0 > 0.0, v, self._v_free)
             self._v_is_k1 = True
+        if self._fes:
+            f0 = f0.copy()
+            for i, muscle in self._fes.items():
+                out = muscle.outputs()
+                self._v_ce[i] = out.v_ce_m_per_s
+                f0[i] = out.eff_f_iso_n
         return self._outputs(f0)
 
     def _outputs(self, f0: np.ndarray) -> BatchOutputs:
@@ -290,4 +334,5 @@ class MuscleBatch:
         f_se = self._k_se * np.maximum(dl - (l_ce - self._l_rest), 0.0)
         f_pe = self._k_pe * np.maximum(dl, 0.0)
         return BatchOutputs(self.t_s, self.recruitment.copy(), self.n_recruited.copy(),
-                            dl, l_ce, self._v_ce, f_se, f_pe, f_se + f_pe, f0.copy())
+                            dl, l_ce, self._v_ce, f_se, f_pe, f_se + f_pe, f0.copy(),
+                            self.command.copy(), self.mean_fitness.copy())
