@@ -187,6 +187,12 @@ class FesMuscle(Muscle):
         f_se = p.k_se_n_per_m * stretch if stretch > 0.0 else 0.0
         a, a_ecc = p.fv_a_n, p.fv_a_ecc_n
         if self._relative:
+            if f0 <= 0.0:
+                # The limits of the fastest speeds as F0 -> 0, which no longer
+                # depend on F0: b f_iso_max / a shortening, b' f_iso_max / a' lengthening.
+                if f_se <= 0.0:
+                    return -p.fv_b_m_per_s * p.f_iso_max_n / p.fv_a_n
+                return p.fv_b_ecc_m_per_s * p.f_iso_max_n / p.fv_a_ecc_n
             share = f0 / p.f_iso_max_n
             a, a_ecc = a * share, a_ecc * share
         return force_velocity_inverse(f_se, f0, a, p.fv_b_m_per_s, a_ecc, p.fv_b_ecc_m_per_s)
@@ -208,7 +214,9 @@ class FesMuscle(Muscle):
         f0 = self.eff_f_iso(l, s0)
         dl_a = dl0 + rate * (s0 - t0)
         dl_b = dl0 + rate * (s1 - t0)
-        if f0 > 0.0:
+        # Single: the activation may rise from exactly 0 at s0, so the CE is
+        # free at the first stage only; it is integrated when force builds up.
+        if f0 > 0.0 or self.eff_f_iso(l, s1) > 0.0:
             mid, dl_m = s0 + 0.5 * h, 0.5 * (dl_a + dl_b)
             k1 = self._velocity(l, dl_a, f0)
             l2 = l + 0.5 * h * k1
