@@ -160,6 +160,9 @@ class MuscleBatch:
             raise ValueError(f'`recruitment` must be in [0, 1], got {r[i]!r} '
                              f'for muscle {i}')
         self._apply_recruitment(r)
+        # Released muscles: the free CE takes up the slack at once (as Muscle).
+        self.l_ce_m = np.where(self._eff_f_iso(self.l_ce_m) == 0.0,
+                               self._l_rest + self.dl_mt_m, self.l_ce_m)
         self.command = r.copy()
         for i, muscle in self._fes.items():
             muscle.set_recruitment(float(r[i]))

@@ -130,9 +130,17 @@ class FesMuscle(Muscle):
         self.command = u
         self._delay.push(self.t_s, u)
         # A command due now (no delay) with an instantaneous activation acts now.
+        self._settle_now()
+
+    def _settle_now(self) -> None:
+        """Apply a delayed command due at the current instant, if the activation
+        follows it at once; a release to zero frees the CE at once."""
         u_d = self._delay.settle(self.t_s)
         if u_d != self.recruitment and self._tau(u_d) == 0.0:
             self._set_activation(u_d, self.t_s)
+            self._piece = (self.t_s, u_d, u_d, 0.0)
+            if self.eff_f_iso(self.l_ce_m, self.t_s) == 0.0:
+                self.l_ce_m = self.params.l_rest_m + self.dl_mt_m
 
     def _tau(self, u_d: float) -> float:
         p = self.params
@@ -340,9 +348,7 @@ class FesMuscle(Muscle):
         self.t_s = t1
         # A switch due exactly at the step's end acts in this sample already,
         # as a command given at t_k does in the paper's model.
-        u_d = self._delay.settle(t1)
-        if u_d != self.recruitment and self._tau(u_d) == 0.0:
-            self._set_activation(u_d, t1)
+        self._settle_now()
         if self._pool is not None:
             self._pool.advance_to(t1)
 

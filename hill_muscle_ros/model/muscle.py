@@ -178,6 +178,8 @@ class Muscle:
         :raises ValueError: if R is outside [0, 1] or not finite
         """
         self._apply_recruitment(check_recruitment(recruitment))
+        if self.eff_f_iso() == 0.0:
+            self.l_ce_m = self.params.l_rest_m + self.dl_mt_m   # released: the CE is free
 
     def _apply_recruitment(self, r: float) -> float:
         """Update the memory for a validated R at the current CE length.
@@ -432,6 +434,10 @@ def _hot_loop(muscle: Muscle) -> Callable[..., MuscleOutputs]:
                 gain = apply_recruitment(r)
                 r_now, m_now = r, muscle.n_recruited
                 f0 = f0_at(l, gain)
+                if f0 == 0.0:
+                    # Released at this instant: the free CE takes up the slack
+                    # at once, so the sample shows f_SE = 0 (doc/model.md 4).
+                    l = l_rest + dl1
             v = velocity(l, dl1, gain) if f0 > 0.0 else v_free
             if columns is not None:
                 stretch = dl1 - (l - l_rest)
