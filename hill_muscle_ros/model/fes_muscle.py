@@ -224,18 +224,31 @@ class FesMuscle(Muscle):
         dl_b = dl0 + rate * (s1 - t0)
         # Single: the activation may rise from exactly 0 at s0, so the CE is
         # free at the first stage only; it is integrated when force builds up.
-        if f0 > 0.0 or self.eff_f_iso(l, s1) > 0.0:
+        f0_end = self.eff_f_iso(l, s1)
+        if f0 > 0.0 or f0_end > 0.0:
             mid, dl_m = s0 + 0.5 * h, 0.5 * (dl_a + dl_b)
-            k1 = self._velocity(l, dl_a, f0)
+            velocity = self._velocity
+            k1 = velocity(l, dl_a, f0)
             l2 = l + 0.5 * h * k1
-            k2 = self._velocity(l2, dl_m, self.eff_f_iso(l2, mid))
-            l3 = l + 0.5 * h * k2
-            k3 = self._velocity(l3, dl_m, self.eff_f_iso(l3, mid))
-            l4 = l + h * k3
-            k4 = self._velocity(l4, dl_b, self.eff_f_iso(l4, s1))
+            if self._initial:
+                # F0 does not depend on the CE length: once per stage time.
+                f0_mid = self.eff_f_iso(l2, mid)
+                k2 = velocity(l2, dl_m, f0_mid)
+                l3 = l + 0.5 * h * k2
+                k3 = velocity(l3, dl_m, f0_mid)
+                l4 = l + h * k3
+                k4 = velocity(l4, dl_b, f0_end)
+            else:
+                k2 = velocity(l2, dl_m, self.eff_f_iso(l2, mid))
+                l3 = l + 0.5 * h * k2
+                k3 = velocity(l3, dl_m, self.eff_f_iso(l3, mid))
+                l4 = l + h * k3
+                k4 = velocity(l4, dl_b, self.eff_f_iso(l4, s1))
             l = l + h * (k1 + 2.0 * k2 + 2.0 * k3 + k4) / 6.0
-            if self.eff_f_iso(l, s1) == 0.0:
+            if not self._initial and self.eff_f_iso(l, s1) == 0.0:
                 l = p.l_rest_m + dl_b   # the instantaneous CE left the FL range
+            elif self._initial and f0_end == 0.0:
+                l = p.l_rest_m + dl_b   # single: released within the piece
         else:
             l = p.l_rest_m + dl_b       # the free CE takes up the SE slack
         self.l_ce_m = l

@@ -188,6 +188,12 @@ class UnitPool:
             self._w_static = static[:, _N:] * weight[:, None]
             self._w_dyn = dyn[:, _N:]
         self._rates = self.rate_fat.tolist()
+        if self.fatigue:
+            # Mean fitness, in plain floats: tired = const - sum dyn_k D_k + sum rest_k H_k.
+            self._tired_const = float(((1.0 - self.mu_min) * static[:, _N]).sum())
+            self._tired_dyn = dyn[:, _N].tolist()
+            self._tired_rest = (self._u[-1][3] if self._u else np.zeros(self.k)).tolist()
+            self._rates_rec = self.rate_rec.tolist()
 
     def eff_f_iso(self, x_ce: float, t_s: float) -> float:
         """[N] Eff.f_iso: the sum of f_max,j FL(c_j x_j) mu_j(t) over recruited units.
@@ -230,11 +236,13 @@ class UnitPool:
         """[-] mean of mu over all N units (1 without fatigue)."""
         if not self.fatigue:
             return 1.0
-        static, dyn = self._r_static[-1], self._r_dyn[-1]
-        tired = float(((1.0 - self.mu_min) * static[:, _N]).sum()
-                      - (dyn[:, _N] * self._decay(t_s)).sum())
-        if self._u:
-            tired += float((self._u[-1][3] * self._recovery(t_s)).sum())
+        elapsed = t_s - self._epoch
+        exp = math.exp
+        tired = self._tired_const
+        for x, rate in zip(self._tired_dyn, self._rates):
+            tired -= x * exp(-elapsed * rate)
+        for x, rate in zip(self._tired_rest, self._rates_rec):
+            tired += x * exp(-elapsed * rate)
         return 1.0 - tired / self.n_units
 
     def fitness_profile(self, t_s: float) -> np.ndarray:
