@@ -212,3 +212,31 @@ def test_the_first_units_of_the_order_tire_first():
     mu = muscle.fitness_profile()
     assert np.all(np.diff(mu) >= 0.0)
     assert mu[0] < mu[-2]
+
+
+# -- the protocol player's mapping ---------------------------------------------------------
+
+def test_pulse_width_for_command_inverts_each_curve():
+    from hill_muscle_ros.model.stimulus import pulse_width_for_command
+    for curve in ('linear', 'threshold_linear', 'exponential'):
+        p = MuscleParams(recruitment_curve=curve, pw_threshold_s=100e-6)
+        for u in (0.1, 0.5, 0.9):
+            pw = pulse_width_for_command(u, p)
+            assert command_from_pulse_width(pw, p) == pytest.approx(u, abs=1e-12)
+
+
+def test_full_recruitment_has_no_pulse_width_on_the_exponential_curve():
+    from hill_muscle_ros.model.stimulus import pulse_width_for_command
+    with pytest.raises(ValueError, match='infinite pulse width'):
+        pulse_width_for_command(1.0, MuscleParams(recruitment_curve='exponential'))
+
+
+def test_player_sends_the_command_of_the_curve_on_the_recruitment_output():
+    protocol = Protocol.from_mapping({'name': 'pw', 'duration_s': 1.0,
+                                      'pulse_width_s': [[0.0, 300e-6]],
+                                      'dl_mt_m': [[0.0, 0.0]]})
+    p = MuscleParams(recruitment_curve='exponential', pw_threshold_s=131.4e-6)
+    expected = 1.0 - math.exp(-(300e-6 - 131.4e-6) / 194.1e-6)
+    assert protocol.stimulation_command(0.5, 'recruitment', p) == pytest.approx(expected,
+                                                                                abs=1e-15)
+    assert protocol.stimulation_command(0.5, 'pulse_width', p) == 300e-6

@@ -65,7 +65,13 @@ def test_descriptor_comes_from_the_field_metadata(field):
         assert f'[{spec["unit"]}]' in desc.description
         # No closed range can say "> 0": the bounds are in words, the model checks them.
         assert not desc.floating_point_range
-        assert desc.additional_constraints == '> 0 and <= 1e+12 (finite)'
+        low = '>=' if spec['low_inclusive'] else '>'
+        high = '<=' if spec['high_inclusive'] else '<'
+        each = 'each entry ' if field.type.startswith('tuple') else ''
+        assert desc.additional_constraints == \
+            f'{each}{low} {spec["low"]:g} and {high} {spec["high"]:g} (finite)'
+        if field.name == 'k_se_n_per_m':
+            assert desc.additional_constraints == '> 0 and <= 1e+12 (finite)'
 
 
 def test_every_muscle_parameter_has_a_live_change_rule():

@@ -49,6 +49,9 @@ UNIT_LENGTH_SPREAD_MAX = 0.5
 #: Largest random-order seed: NumPy's ``default_rng`` takes any non-negative
 #: integer; this keeps it a ROS ``integer`` (int64).
 SEED_MAX = 2**63 - 1
+#: The fields of the recruitment curve, which maps pulse width to command
+#: (with ``pw_max_s``): the stimulator side, not the muscle's dynamics.
+CURVE_FIELDS = ('pw_max_s', 'recruitment_curve', 'pw_threshold_s', 'pw_scale_s')
 
 
 def finite_float(value: Any) -> float | None:
@@ -136,6 +139,13 @@ def range_text(spec: Mapping[str, Any]) -> str:
     left = '[' if spec['low_inclusive'] else '('
     right = ']' if spec['high_inclusive'] else ')'
     return f'in {left}{spec["low"]:g}, {spec["high"]:g}{right}'
+
+
+def range_constraint(spec: Mapping[str, Any]) -> str:
+    """The accepted range as a constraint, e.g. ``> 0 and <= 1e+12`` (descriptors)."""
+    low = '>=' if spec['low_inclusive'] else '>'
+    high = '<=' if spec['high_inclusive'] else '<'
+    return f'{low} {spec["low"]:g} and {high} {spec["high"]:g}'
 
 
 def _in_range(number: float, spec: Mapping[str, Any]) -> bool:
@@ -291,8 +301,15 @@ class MuscleParams:
 
     @property
     def fes_defaults(self) -> bool:
-        """True if every FES extension is off: the paper's model exactly."""
-        return all(getattr(self, n) == f.default for n, f in _FES_FIELDS.items())
+        """True if every FES extension of the muscle's dynamics is off: the
+        paper's model exactly.
+
+        The recruitment curve is not part of it: it maps a pulse width to the
+        command before the muscle (:mod:`.stimulus`), and a muscle given the
+        command behaves the same whatever the curve.
+        """
+        return all(getattr(self, n) == f.default for n, f in _FES_FIELDS.items()
+                   if n not in CURVE_FIELDS)
 
     def _check_fes_combinations(self) -> None:
         """Checks across fields of the FES extensions (doc/model.md section 7).

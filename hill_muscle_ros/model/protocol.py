@@ -127,25 +127,33 @@ class Protocol:
         u = np.array([command_from_pulse_width(v, params) for v in values.ravel()])
         return float(u[0]) if values.ndim == 0 else u.reshape(values.shape)
 
-    def stimulation_command(self, t_s: float, output: str, pw_max_s: float) -> float:
+    def stimulation_command(self, t_s: float, output: str, params) -> float:
         """The value a stimulator is sent at ``t_s`` on the topic ``output``.
 
-        ``recruitment``: R(t). ``pulse_width``: the protocol's own pulse widths
-        (unclipped, as the stimulator would get them) or R(t) x PW_max.
+        ``recruitment``: the command u(t), pulse widths through the muscle's
+        recruitment curve. ``pulse_width``: the protocol's own pulse widths
+        (unclipped, as the stimulator would get them), or the width that gives
+        R(t) on the curve (:func:`~hill_muscle_ros.model.stimulus.pulse_width_for_command`).
 
         :param t_s: [s] time
         :param output: ``pulse_width`` or ``recruitment``
-        :param pw_max_s: [s] pulse width that recruits every unit (PW_max)
-        :return: [-] R or [s] pulse width
+        :param params: the muscle's :class:`~hill_muscle_ros.model.params.MuscleParams`
+            (its curve fields), or, as before the curves existed, PW_max [s]
+            alone for the linear curve
+        :return: [-] u or [s] pulse width
         """
+        from .params import MuscleParams
+        from .stimulus import pulse_width_for_command
+        if not isinstance(params, MuscleParams):
+            params = MuscleParams(pw_max_s=params)
         if output not in STIMULATION_OUTPUTS:
             raise ValueError(f'`output` must be one of {", ".join(STIMULATION_OUTPUTS)}, '
                              f'got {output!r}')
         if output == 'recruitment':
-            return float(self.recruitment(t_s, pw_max_s))
+            return float(self.command(t_s, params))
         if self.stimulation_key == 'pulse_width_s':
             return float(self.stimulation(t_s))
-        return float(self.recruitment(t_s, pw_max_s)) * pw_max_s
+        return pulse_width_for_command(float(self.stimulation(t_s)), params)
 
     def dl_mt(self, t_s: np.ndarray | float) -> np.ndarray | float:
         """MTU length change dl_MT(t) [m]."""

@@ -53,6 +53,34 @@ def command_from_pulse_width(pulse_width_s: float, params: MuscleParams,
     return -math.expm1(-above / params.pw_scale_s)
 
 
+def pulse_width_for_command(command: float, params: MuscleParams,
+                            name: str = 'recruitment') -> float:
+    """[s] The pulse width that gives command ``command``: the curve inverted.
+
+    ``linear`` and ``threshold_linear`` reach u = 1 at ``pw_max_s``; u = 0 is
+    given by a zero width. The exponential curve reaches u = 1 only at an
+    infinite width, so it cannot be inverted there.
+
+    :param command: [-] recruitment command u in [0, 1]
+    :param params: the muscle's parameters (curve, PW_max, PW_th, PW_scale)
+    :raises ValueError: for u outside [0, 1], or u = 1 on the exponential curve
+    """
+    u = float(command)
+    if not 0.0 <= u <= 1.0:
+        raise ValueError(f'`{name}` must be in [0, 1], got {command!r}')
+    if u == 0.0:
+        return 0.0
+    curve = params.recruitment_curve
+    if curve == 'linear':
+        return u * params.pw_max_s
+    if curve == 'threshold_linear':
+        return params.pw_threshold_s + u * (params.pw_max_s - params.pw_threshold_s)
+    if u == 1.0:
+        raise ValueError(f'`{name}` = 1 needs an infinite pulse width on the exponential '
+                         'recruitment curve; give the protocol in pulse widths')
+    return params.pw_threshold_s - params.pw_scale_s * math.log1p(-u)
+
+
 def activation_at(a0: float, u_d: float, tau_s: float, elapsed_s: float) -> float:
     """Closed form of the first-order activation with a constant input.
 

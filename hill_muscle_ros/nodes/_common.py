@@ -44,7 +44,7 @@ from rclpy.parameter import Parameter
 
 from ..dds_transport import use_udp_transport
 from ..model import MuscleParams
-from ..model.params import range_text
+from ..model.params import CURVE_FIELDS, range_constraint
 from ..params_file import SIMULATOR_NODE_KEYS
 # The QoS profiles live below the nodes and the recording code; re-exported here.
 from ..qos import OUTPUT_HISTORY_DEPTH, OUTPUT_QOS, QUEUE_DEPTH, RELIABLE_QOS  # noqa: F401
@@ -291,7 +291,7 @@ def field_descriptor(field: dataclasses.Field, *, read_only: bool = False,
     each = 'each entry ' if field.type.startswith('tuple') else ''
     return ParameterDescriptor(
         description=f'[{spec["unit"]}] {description}', read_only=read_only,
-        additional_constraints=f'{each}{range_text(spec)} (finite)')
+        additional_constraints=f'{each}{range_constraint(spec)} (finite)')
 
 
 def declare_checked(node: Node, name: str, default: Any,
@@ -321,9 +321,9 @@ def declare_checked(node: Node, name: str, default: Any,
 
 
 #: What a live change of a muscle parameter does (README "ROS 2 nodes").
-#: ``pw_max_s`` only maps pulse widths to recruitment in the node, so it can
-#: change with the state kept.
-LIVE_KEEPS_STATE = ('pw_max_s',)
+#: The recruitment curve (``pw_max_s`` and the curve's fields) only maps pulse
+#: widths to the command in the node, so it can change with the state kept.
+LIVE_KEEPS_STATE = CURVE_FIELDS
 #: The model core builds its step from the other parameters once, when the
 #: muscle is made, so a live change rebuilds the muscle at rest.
 LIVE_RESETS = tuple(n for n in MuscleParams.field_names() if n not in LIVE_KEEPS_STATE)

@@ -40,6 +40,7 @@ from rclpy.time import Time
 from std_msgs.msg import Float64
 
 from ..model import MuscleParams, Protocol, ProtocolError
+from ..model.params import CURVE_FIELDS
 from ..model.protocol import STIMULATION_OUTPUTS
 from ..resources import BUILTIN_PROTOCOLS, protocol_path
 from ..timebase import NS_PER_S
@@ -112,10 +113,14 @@ class ProtocolPlayer(Node):
             self, 'min_subscribers', DEFAULT_MIN_SUBSCRIBERS, number_descriptor(
                 'subscribers every output needs before the protocol starts', '-',
                 *MIN_SUBSCRIBERS_RANGE, integer=True, read_only=True))
-        pw_field = {f.name: f for f in dataclasses.fields(MuscleParams)}['pw_max_s']
-        self._pw_max_s = declare_checked(
-            self, 'pw_max_s', MuscleParams().pw_max_s, field_descriptor(
-                pw_field, read_only=True, note='to turn recruitment into pulse width'))
+        # The recruitment curve of the muscle it drives: a `recruitment` output
+        # sends the command u = curve(PW), a `pulse_width` output of a
+        # recruitment protocol the width that gives u.
+        fields = {f.name: f for f in dataclasses.fields(MuscleParams)}
+        defaults = MuscleParams()
+        curve = {name: declare_checked(self, name, getattr(defaults, name), field_descriptor(
+            fields[name], read_only=True, note='the recruitment curve between pulse width '
+            'and recruitment command')) for name in CURVE_FIELDS}
         reject_unknown_overrides(self)
         if not math.isfinite(self._lookahead_s):
             raise StartupError(f'parameter `lookahead_s` must be finite, got '
@@ -124,8 +129,11 @@ class ProtocolPlayer(Node):
             raise StartupError(f'parameter `output` must be one of '
                                f'{", ".join(OUTPUT_CHOICES)}, got {self._output!r}')
         try:
-            MuscleParams(pw_max_s=self._pw_max_s)
+            self._curve = MuscleParams(**curve)
             self._protocol = Protocol.from_yaml(protocol_path(spec))
+            # Fail now, not mid-run: every knot of the protocol maps on the curve.
+            for t_s in self._protocol.stimulation.times_s:
+                self._protocol.stimulation_command(float(t_s), self._output, self._curve)
         except (ValueError, ProtocolError) as err:
             raise StartupError(str(err)) from None
 
@@ -254,7 +262,7 @@ class ProtocolPlayer(Node):
         if not self._stamped:
             self._pub_dl.publish(Float64(data=float(p.dl_mt(t_s))))
         self._pub_stim.publish(Float64(data=p.stimulation_command(t_s, self._output,
-                                                                  self._pw_max_s)))
+                                                                  self._curve)))
 
     def _on_tick(self) -> None:
         t_s = (self.get_clock().now() - self._t0).nanoseconds / NS_PER_S

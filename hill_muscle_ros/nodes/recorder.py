@@ -83,6 +83,10 @@ KNOWN_TYPES = {
     'force': 'std_msgs/msg/Float64',
     'ce_length': 'std_msgs/msg/Float64',
     'wrench': 'geometry_msgs/msg/WrenchStamped',
+    # The FES muscle's state (not in DEFAULT_TOPICS: two more 1 kHz streams
+    # for every run; add them to `topics` to record them).
+    'recruitment_state': 'std_msgs/msg/Float64',
+    'fitness': 'std_msgs/msg/Float64',
     DIAGNOSTICS_TOPIC: 'diagnostic_msgs/msg/DiagnosticArray',
 }
 #: Where bags go by default, one directory per run named by its UTC start time.

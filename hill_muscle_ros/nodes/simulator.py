@@ -3,8 +3,9 @@
 Subscribes ``pulse_width`` [s], ``recruitment`` [-] and ``length_command``
 [m] (std_msgs/Float64, zero-order hold), steps :class:`Muscle` at a fixed
 dt = 1 / ``rate_hz`` against the steady clock, and publishes ``force`` [N],
-``ce_length`` [m] and ``wrench`` (geometry_msgs/WrenchStamped, force along +x)
-for every step, stamped with the step's simulated time; optionally ``/clock``.
+``ce_length`` [m], ``wrench`` (geometry_msgs/WrenchStamped, force along +x),
+``recruitment_state`` [-] (R, the activation) and ``fitness`` [-] (the mean
+fitness of the units) for every step, stamped with the step's simulated time; optionally ``/clock``.
 A late tick catching up publishes every step it runs, in order, as a burst, so
 a recording has no holes. When the steps run faster than 1 kHz of the steady
 clock (``real_time_factor`` > 1, ``rate_hz`` > 1 kHz) the outputs of every
@@ -48,7 +49,8 @@ from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
 from ..model import CommandTrack, Muscle, MuscleParams
-from ..model.muscle import check_dl_mt, check_recruitment, recruitment_from_pulse_width
+from ..model.muscle import check_dl_mt, check_recruitment
+from ..model.stimulus import command_from_pulse_width
 from ..timebase import NS_PER_S
 from ._common import (LIVE_RESETS, OUTPUT_HISTORY_DEPTH, OUTPUT_QOS, RELIABLE_QOS,
                       BadInputWarner, DiagnosticReport, NodeDiagnostics,
@@ -197,7 +199,10 @@ class Simulator(Node):
         self._muscle = Muscle(params)
         self._rate_hz = rate_hz
         self._dt_s = 1.0 / rate_hz
-        self._recruitment = 0.0      # [-] held R (zero-order hold)
+        # [-] held recruitment command u (zero-order hold): a `recruitment`
+        # message as it is, a `pulse_width` through the recruitment curve. In
+        # the paper's model u is R; with delay and activation R follows it.
+        self._recruitment = 0.0
         self._dl_mt_m = 0.0          # [m] held dl_MT
         self._last_stim_t_s = 0.0    # [s] sim time of the last stimulation message
         self._watchdog_tripped = False
@@ -212,6 +217,11 @@ class Simulator(Node):
         self._pub_force = overridable_publisher(self, Float64, 'force', OUTPUT_QOS)
         self._pub_ce_length = overridable_publisher(self, Float64, 'ce_length', OUTPUT_QOS)
         self._pub_wrench = overridable_publisher(self, WrenchStamped, 'wrench', OUTPUT_QOS)
+        self._pub_r_state = overridable_publisher(self, Float64, 'recruitment_state',
+                                                  OUTPUT_QOS)
+        self._pub_fitness = overridable_publisher(self, Float64, 'fitness', OUTPUT_QOS)
+        self._r_state_msg = Float64()
+        self._fitness_msg = Float64()
         # One message per output, refilled every tick: building them anew
         # each tick cost more CPU than the model step (profiled for the benchmarks).
         self._force_msg = Float64()
@@ -337,10 +347,11 @@ class Simulator(Node):
                 return False
             # Steps on a fixed grid of simulated time, whatever the tick phase.
             if not schedule.steps_done % every:
-                publish(force_n, l_ce_m)
+                publish(force_n, l_ce_m, out.recruitment, out.mean_fitness)
         return True
 
-    def _publish(self, force_n: float, l_ce_m: float) -> None:
+    def _publish(self, force_n: float, l_ce_m: float, recruitment: float,
+                 fitness: float) -> None:
         """Publish the outputs of the step just run, stamped with its end time."""
         sim_ns = round(self._schedule.steps_done * NS_PER_S / self._rate_hz)
         sec, nanosec = divmod(self._stamp_origin_ns + sim_ns, NS_PER_S)
@@ -357,6 +368,10 @@ class Simulator(Node):
         self._pub_ce_length.publish(self._ce_length_msg)
         wrench.wrench.force.x = force_n
         self._pub_wrench.publish(wrench)
+        self._r_state_msg.data = recruitment
+        self._pub_r_state.publish(self._r_state_msg)
+        self._fitness_msg.data = fitness
+        self._pub_fitness.publish(self._fitness_msg)
 
     def _watchdog(self) -> None:
         """Stimulation watchdog: R -> 0 when the controller has gone quiet."""
@@ -393,7 +408,7 @@ class Simulator(Node):
         pw_max_s = self._params.pw_max_s
         try:
             # Finite and non-negative first: only a finite width can be microseconds.
-            r = recruitment_from_pulse_width(msg.data, pw_max_s, topic)
+            r = command_from_pulse_width(msg.data, self._params, topic)
             limit_s = PULSE_WIDTH_UNIT_HINT_FACTOR * pw_max_s
             if msg.data > limit_s:
                 raise ValueError(
@@ -592,6 +607,9 @@ class Simulator(Node):
         report.add('watchdog_tripped', self._watchdog_tripped)
         report.add('input_timeout_s', self._input_timeout_s)
         report.add('recruitment', self._recruitment)
+        out = self._muscle.outputs()
+        report.add('recruitment_state', out.recruitment)
+        report.add('mean_fitness', out.mean_fitness)
         report.add('stimulation_received', stimulated)
         report.add('stimulation_age_s', self.sim_time_s - self._last_stim_t_s if stimulated
                    else None)

@@ -76,7 +76,7 @@ def write_simulation_bag(bag_dir: str | os.PathLike, result: SimulationResult,
         for k, t_s in enumerate(result.t_s):
             t_ns = round(float(t_s) * NS_PER_S)
             if t_s < protocol.duration_s:
-                stim = protocol.stimulation_command(float(t_s), output, params.pw_max_s)
+                stim = protocol.stimulation_command(float(t_s), output, params)
                 dl_mt = float(protocol.dl_mt(float(t_s)))
             else:
                 # The player's last messages: the final length and zero stimulation.
