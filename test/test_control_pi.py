@@ -25,11 +25,13 @@ VARIANTS = ['initial', 'instantaneous']
 
 
 def closed_loop(length, target_n, duration_s, ramp_start_s=None, ramp_m_per_s=0.01,
-                ramp_to_m=0.01, feedforward='model', kp=None, ki=None, units='multi'):
-    muscle = Muscle(MuscleParams(length=length, units=units))
+                ramp_to_m=0.01, feedforward='model', kp=None, ki=None, units='multi',
+                curve=None):
+    curve = curve or {}
+    muscle = Muscle(MuscleParams(length=length, units=units, **curve))
     gains = {k: v for k, v in (('kp_s_per_n', kp), ('ki_s_per_n_s', ki)) if v is not None}
     ctrl = ForceController(ControllerParams(feedforward=feedforward, **gains),
-                           MuscleParams(length=length, units=units))
+                           MuscleParams(length=length, units=units, **curve))
     rate = LengthRate(ctrl.params.length_rate_window_s)
     every = int(round(1.0 / (ctrl.params.rate_hz * MUSCLE_DT_S)))
     history = [0.0] * (FEEDBACK_DELAY_STEPS + 1)
@@ -92,6 +94,17 @@ def test_model_feedforward_alone_holds_the_target_at_rest_length():
     """single/instantaneous, no PI: the steady state of the nominal model is
     exactly the target, since the feedforward solves for it."""
     t, f = closed_loop('instantaneous', 20.0, 2.0, kp=0.0, ki=0.0, units='single')
+    assert f[-1] == pytest.approx(20.0, abs=1e-6)
+
+
+@pytest.mark.parametrize('curve', [
+    dict(recruitment_curve='threshold_linear', pw_threshold_s=100e-6),
+    dict(recruitment_curve='exponential', pw_threshold_s=131.4e-6, pw_scale_s=194.1e-6)])
+def test_model_feedforward_inverts_a_nonlinear_recruitment_curve(curve):
+    """The same steady state on a muscle with a threshold or Ding's curve: the
+    feedforward sends the pulse width that gives the recruitment it solved for."""
+    t, f = closed_loop('instantaneous', 20.0, 2.0, kp=0.0, ki=0.0, units='single',
+                       curve=curve)
     assert f[-1] == pytest.approx(20.0, abs=1e-6)
 
 

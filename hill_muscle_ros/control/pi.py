@@ -22,6 +22,7 @@ from ..model.command_track import CommandTrack, check_time
 from ..model.curves import force_length, isometric_force_for, parallel_force
 from ..model.muscle import check_dl_mt
 from ..model.params import MuscleParams
+from ..model.stimulus import command_from_pulse_width, pulse_width_for_command
 
 _DEFAULTS = MuscleParams()
 #: [N] force of the default muscle at full recruitment, held at rest length with
@@ -348,7 +349,18 @@ class ForceController:
         per_unit_r = m.f_iso_max_n * force_length(l_ce / m.l_opt_m)
         if per_unit_r <= 0.0:
             return 0.0     # no recruitment makes force at this length: leave it to the PI
-        return p.pw_max_s * min(f0 / per_unit_r, 1.0)
+        return self._pulse_width_for(min(f0 / per_unit_r, 1.0))
+
+    def _pulse_width_for(self, command: float) -> float:
+        """[s] The pulse width that recruits ``command`` on the model's curve,
+        at most this controller's PW_max (the exponential curve reaches u = 1
+        only at an infinite width)."""
+        p, m = self.params, self.model
+        if m.recruitment_curve == 'linear':
+            return p.pw_max_s * command
+        if command >= command_from_pulse_width(p.pw_max_s, m):
+            return p.pw_max_s
+        return pulse_width_for_command(command, m)
 
     def update(self, target_n: float, force_n: float, dt_s: float,
                dl_mt_m: float = 0.0, v_mt_m_per_s: float = 0.0) -> float:

@@ -211,12 +211,13 @@ class Muscle:
         return gain
 
     def set_pulse_width(self, pulse_width_s: float) -> None:
-        """Apply an FES pulse width now: R = clip(PW / PW_max, 0, 1).
+        """Apply an FES pulse width now, through the recruitment curve
+        (:func:`~hill_muscle_ros.model.stimulus.command_from_pulse_width`).
 
         :param pulse_width_s: [s] stimulation pulse width (PW), >= 0
         """
-        self.set_recruitment(recruitment_from_pulse_width(pulse_width_s,
-                                                          self.params.pw_max_s))
+        from .stimulus import command_from_pulse_width   # stimulus imports params only
+        self.set_recruitment(command_from_pulse_width(pulse_width_s, self.params))
 
     def eff_f_iso(self, l_ce_m: float | None = None) -> float:
         """Effective isometric force (Eff.f_iso) of the four variants.
