@@ -313,3 +313,24 @@ def test_simulator_subcommand_hands_ros_parameters_to_the_real_node():
     proc = run_cli('simulator', '--ros-args', '-p', 'rate_hz:=-1.0')
     assert proc.returncode == 1
     assert 'rate_hz' in proc.stdout + proc.stderr
+
+
+def test_fes_params_file_with_arrays_runs_and_writes_command_and_mean_fitness(tmp_path):
+    params = write_params(tmp_path, 'recruitment_curve: exponential\npw_threshold_s: 0.0001314\n'
+                                    'tau_act_s: 0.05\ntau_deact_s: 0.08\nemd_s: 0.02\n'
+                                    'fatigue: riener\ntau_fatigue_s: [2.0, 1.0]\n'
+                                    'fibre_fractions: [0.5, 0.5]\nrecruitment_order: random\n')
+    protocol = tmp_path / 'pw.yaml'
+    protocol.write_text('name: pw\nduration_s: 2.0\npulse_width_s: [[0.0, 0.0004]]\n'
+                        'dl_mt_m: [[0.0, 0.0]]\n')
+    out = tmp_path / 'run.csv'
+    assert cli.main(['simulate', '--protocol', str(protocol), '--params', str(params),
+                     '--rate', '200', '--csv', str(out)]) == 0
+    header, data = read_csv(out)
+    assert header == CSV_HEADER
+    expected = simulate(Protocol.from_yaml(protocol), MuscleParams(
+        recruitment_curve='exponential', pw_threshold_s=0.0001314, tau_act_s=0.05,
+        tau_deact_s=0.08, emd_s=0.02, fatigue='riener', tau_fatigue_s=[2.0, 1.0],
+        fibre_fractions=[0.5, 0.5], recruitment_order='random'), 200.0)
+    assert_csv_equals_result(data, expected)
+    assert data[-1][-1] < 1.0    # the units tired
