@@ -161,9 +161,11 @@ def build_parser() -> argparse.ArgumentParser:
     _add_output_options(sim)
 
     fig = sub.add_parser(
-        'figures', help="write PNGs reproducing the paper's Figures 8-11",
+        'figures', help="write PNGs of the paper's Figures 8-11 and of the FES extensions",
         description="Simulate Protocols I and II in the model variants of the paper's "
-                    'Figures 8-11 and write one PNG per figure.')
+                    'Figures 8-11, and the protocols of the FES figures (recruitment '
+                    'curves, activation, fatigue, fibre types, force-velocity scaling); '
+                    'write one PNG per figure.')
     fig.add_argument('--out', required=True, type=Path, metavar='DIR',
                      help='directory for the PNG files (created if missing)')
 

@@ -1,4 +1,7 @@
-"""The paper's Figures 8-11: files written by ``hill-muscle figures`` and their content."""
+"""The figures of ``hill-muscle figures``: the paper's Figures 8-11 and the FES
+figures, the files written and, for each FES figure, its claim checked on the
+data behind it against closed forms written here."""
+import math
 import os
 import subprocess
 import sys
@@ -15,6 +18,8 @@ HILL_MUSCLE = Path(sys.executable).with_name('hill-muscle')
 PNG_SIGNATURE = b'\x89PNG\r\n\x1a\n'
 FIGURE_FILES = ('fig08_protocol_I_initial.png', 'fig09_protocol_II_initial.png',
                 'fig10_protocol_I_all.png', 'fig11_protocol_II_all.png')
+FES_FILES = ('fes_recruitment_curves.png', 'fes_activation.png', 'fes_fatigue.png',
+             'fes_fibre_types.png', 'fes_fv_scaling.png')
 #: [s] generous: the machine is shared with other test runs.
 SUBPROCESS_TIMEOUT_S = 120
 #: A drawn figure has far more colours than a blank canvas.
@@ -31,20 +36,26 @@ def figure_dir(tmp_path_factory):
     return out
 
 
-def test_figures_command_writes_the_four_files(figure_dir):
-    assert sorted(p.name for p in figure_dir.iterdir()) == list(FIGURE_FILES)
+def test_figures_command_writes_the_papers_four_and_the_five_fes_figures(figure_dir):
+    assert sorted(p.name for p in figure_dir.iterdir()) == sorted(FIGURE_FILES + FES_FILES)
 
 
-@pytest.mark.parametrize('name', FIGURE_FILES)
+def _declared_size_in(name):
+    if name == 'fes_fatigue.png':
+        return figures.FATIGUE_FIGSIZE_IN
+    return figures.FES_FIGSIZE_IN if name.startswith('fes_') else figures.FIGSIZE_IN
+
+
+@pytest.mark.parametrize('name', FIGURE_FILES + FES_FILES)
 def test_each_figure_is_a_valid_png_of_the_declared_size(figure_dir, name):
     path = figure_dir / name
     assert path.read_bytes()[:len(PNG_SIGNATURE)] == PNG_SIGNATURE
     image = imread(path)
-    width_in, height_in = figures.FIGSIZE_IN
+    width_in, height_in = _declared_size_in(name)
     assert image.shape[:2] == (round(height_in * figures.DPI), round(width_in * figures.DPI))
 
 
-@pytest.mark.parametrize('name', FIGURE_FILES)
+@pytest.mark.parametrize('name', FIGURE_FILES + FES_FILES)
 def test_each_figure_is_not_blank(figure_dir, name):
     image = imread(figure_dir / name)
     colours = np.unique(image.reshape(-1, image.shape[-1]), axis=0)
@@ -127,3 +138,258 @@ def test_figures_into_an_existing_file_exits_2(tmp_path):
                           timeout=SUBPROCESS_TIMEOUT_S)
     assert proc.returncode == 2
     assert 'Traceback' not in proc.stderr and str(blocker) in proc.stderr
+
+
+# =============================================================================
+# FES figures: each claim on the data behind the figure
+# =============================================================================
+
+#: [Hz] step rate of the FES figure data in these tests: a fifth of the figures'
+#: 1 kHz keeps them fast; every event of the protocols falls on a 5 ms sample.
+TEST_RATE_HZ = 200.0
+
+
+def fl(x):
+    """Eq. 1 written out here: FL(x) = max(0, -2.777 x^2 + 5.554 x - 1.777)."""
+    return max(0.0, -2.777 * x * x + 5.554 * x - 1.777)
+
+
+def test_fes_figure_functions_return_the_paths_they_write(tmp_path):
+    path = figures.write_recruitment_curves_figure(tmp_path)
+    assert path == tmp_path / 'fes_recruitment_curves.png'
+    assert path.stat().st_size > 0
+
+
+# --------------------------------------------------------------- recruitment curves
+
+@pytest.fixture(scope='module')
+def curves():
+    return figures.recruitment_curve_data()
+
+
+def test_exponential_curve_is_one_minus_1_over_e_at_threshold_plus_scale(curves):
+    from hill_muscle_ros.model.stimulus import command_from_pulse_width
+    p = curves.params['exponential']
+    assert (p.pw_threshold_s, p.pw_scale_s) == (131.4e-6, 194.1e-6)   # Ding et al. 2007
+    u = command_from_pulse_width(p.pw_threshold_s + p.pw_scale_s, p)
+    assert u == pytest.approx(1.0 - 1.0 / math.e, abs=1e-12)
+
+
+def test_exponential_curve_data_is_zero_below_threshold_then_its_closed_form(curves):
+    p = curves.params['exponential']
+    pw = curves.pulse_width_s
+    expected = np.where(pw > p.pw_threshold_s,
+                        1.0 - np.exp(-(pw - p.pw_threshold_s) / p.pw_scale_s), 0.0)
+    np.testing.assert_allclose(curves.command['exponential'], expected, rtol=0, atol=1e-12)
+
+
+def test_linear_curves_saturate_at_pw_max_and_threshold_linear_starts_at_threshold(curves):
+    pw = curves.pulse_width_s
+    linear, thr = curves.params['linear'], curves.params['threshold_linear']
+    np.testing.assert_allclose(curves.command['linear'], np.minimum(pw / linear.pw_max_s, 1.0),
+                               rtol=0, atol=1e-12)
+    expected = np.clip((pw - thr.pw_threshold_s) / (thr.pw_max_s - thr.pw_threshold_s), 0, 1)
+    np.testing.assert_allclose(curves.command['threshold_linear'], expected, rtol=0, atol=1e-12)
+
+
+def test_recruitment_curve_figure_plots_the_data(curves):
+    fig = figures.plot_recruitment_curves(curves)
+    lines = [line for line in fig.axes[0].get_lines() if len(line.get_xdata()) > 2]
+    assert len(lines) == len(figures.CURVES)
+    for line, curve in zip(lines, figures.CURVES):
+        np.testing.assert_array_equal(line.get_ydata(), curves.command[curve])
+
+
+# --------------------------------------------------------------- activation
+
+@pytest.fixture(scope='module')
+def activation():
+    return figures.activation_data()
+
+
+def test_activation_equals_its_closed_form_after_the_delay(activation):
+    """a = u (1 - exp(-(t - t_on - emd) / tau_act)) while the delayed command is on,
+    then a_off exp(-(t - t_off - emd) / tau_deact)."""
+    p = activation.params
+    r = activation.results['initial']
+    u = 1.0 - math.exp(-(figures.ACT_PW_S - p.pw_threshold_s) / p.pw_scale_s)
+    t_up, t_down = figures.ACT_T_ON_S + p.emd_s, figures.ACT_T_OFF_S + p.emd_s
+    a_off = u * (1.0 - math.exp(-(t_down - t_up) / p.tau_act_s))
+    t = r.t_s
+    expected = np.where(t < t_up, 0.0,
+                        np.where(t < t_down, u * (1.0 - np.exp(-(t - t_up) / p.tau_act_s)),
+                                 a_off * np.exp(-(t - t_down) / p.tau_deact_s)))
+    np.testing.assert_allclose(r.recruitment, expected, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(r.command[(t >= figures.ACT_T_ON_S) & (t < figures.ACT_T_OFF_S)],
+                               u, rtol=0, atol=1e-12)
+
+
+def test_no_force_before_the_delay_has_passed(activation):
+    p = activation.params
+    for r in activation.results.values():
+        before = r.t_s <= figures.ACT_T_ON_S + p.emd_s
+        assert np.all(r.force_n[before] == 0.0)
+        assert r.force_n[r.at(figures.ACT_T_ON_S + p.emd_s + 0.05)] > 1.0
+
+
+def test_stretch_during_recruitment_separates_initial_from_instantaneous_length(activation):
+    """Rest length is on the descending limb of FL (1.25 l_opt): after the stretch the
+    current CE is longer than where most units were recruited, so ``initial`` is higher."""
+    end_of_stretch = figures.ACT_STRETCH_KNOTS[-1][0]
+    initial, instantaneous = (activation.results[k].force_n for k in figures.ACT_LENGTHS)
+    i = activation.results['initial'].at(end_of_stretch)
+    assert initial[i] > instantaneous[i] + 0.5
+
+
+# --------------------------------------------------------------- fatigue
+
+@pytest.fixture(scope='module')
+def fatigue():
+    return figures.fatigue_data(TEST_RATE_HZ)
+
+
+def tired_fitness_at_step(params, before_s=0.0):
+    """Fitness of the units every train recruits, ``before_s`` before the step:
+    Riener's law per unit, recruited 5 s then resting 5 s, eleven times, then
+    recruited again until then."""
+    mu_min, t_fat, t_rec = params.fatigue_min[0], params.tau_fatigue_s[0], params.tau_recovery_s[0]
+    mu = 1.0
+    for i in range(figures.FATIGUE_TRAINS):
+        on_s = figures.FATIGUE_ON_S - (before_s if i == figures.FATIGUE_TRAINS - 1 else 0.0)
+        mu = mu_min + (mu - mu_min) * math.exp(-on_s / t_fat)
+        if i < figures.FATIGUE_TRAINS - 1:
+            mu = 1.0 - (1.0 - mu) * math.exp(-(figures.FATIGUE_PERIOD_S - figures.FATIGUE_ON_S)
+                                             / t_rec)
+    return mu
+
+
+def test_before_the_step_the_trained_units_are_tired_and_the_others_fresh(fatigue):
+    params = figures.fatigue_params('multi')
+    profile = fatigue.profiles[fatigue.step_s]
+    m_low = int(params.n_units * figures.FATIGUE_PW_LOW_S / params.pw_max_s + 0.5)
+    np.testing.assert_allclose(profile[:m_low], tired_fitness_at_step(params), rtol=0, atol=1e-9)
+    assert np.all(profile[m_low:] == 1.0)
+
+
+def test_step_up_adds_fresh_units_to_the_per_unit_model(fatigue):
+    """F0 just after the step = the tired units (recruited at rest length) + the added
+    units at full fitness, recruited at the CE length of the step instant."""
+    p = figures.fatigue_params('multi')
+    r = fatigue.results['multi']
+    i = r.at(fatigue.step_s)
+    m_low = int(p.n_units * figures.FATIGUE_PW_LOW_S / p.pw_max_s + 0.5)
+    m_high = int(p.n_units * figures.FATIGUE_PW_HIGH_S / p.pw_max_s + 0.5)
+    tired = m_low * p.f_iso_max_n / p.n_units * fl(p.l_rest_m / p.l_opt_m)
+    fresh = (m_high - m_low) * p.f_iso_max_n / p.n_units * fl(r.l_ce_m[i] / p.l_opt_m)
+    dt = r.t_s[i] - r.t_s[i - 1]
+    assert r.eff_f_iso_n[i - 1] == pytest.approx(tired * tired_fitness_at_step(p, dt), rel=1e-9)
+    assert r.eff_f_iso_n[i] == pytest.approx(tired * tired_fitness_at_step(p) + fresh, rel=1e-9)
+
+
+def test_step_up_raises_force_per_recruitment_per_unit_but_not_whole_muscle(fatigue):
+    """Whole-muscle fitness is one number: the units a step adds are as tired as the
+    rest, F0 / R is continuous and the force grows with R. Per unit, they are fresh."""
+    r_ratio = figures.FATIGUE_PW_HIGH_S / figures.FATIGUE_PW_LOW_S
+    gain = {}
+    for units, r in fatigue.results.items():
+        i = r.at(fatigue.step_s)
+        per_r = figures.f0_per_recruitment(r)
+        gain[units] = (per_r[i] / per_r[i - 1],
+                       r.force_n[r.at(fatigue.step_s + 1.0)] / r.force_n[i - 1])
+    assert gain['single'][0] == pytest.approx(1.0, abs=1e-3)
+    assert gain['multi'][0] > 1.3
+    assert gain['single'][1] == pytest.approx(r_ratio, rel=0.05)
+    assert gain['multi'][1] > 1.25 * r_ratio
+
+
+def test_fitness_profiles_agree_with_the_simulated_mean_fitness(fatigue):
+    r = fatigue.results['multi']
+    assert sorted(fatigue.profiles) == sorted(figures.FATIGUE_PROFILE_TIMES_S)
+    for t, profile in fatigue.profiles.items():
+        assert profile.mean() == pytest.approx(r.mean_fitness[r.at(t)], abs=1e-12)
+
+
+def test_whole_muscle_fitness_follows_riener_with_a_equal_to_r(fatigue):
+    """First train: mu' = (mu_min - mu) a / T_fat + (1 - mu)(1 - a) / T_rec, a = 0.4."""
+    p = figures.fatigue_params('single')
+    a = figures.FATIGUE_PW_LOW_S / p.pw_max_s
+    rate_f, rate_r = a / p.tau_fatigue_s[0], (1.0 - a) / p.tau_recovery_s[0]
+    lam = rate_f + rate_r
+    mu_inf = (p.fatigue_min[0] * rate_f + rate_r) / lam
+    r = fatigue.results['single']
+    i = r.at(figures.FATIGUE_ON_S)
+    assert r.mean_fitness[i] == pytest.approx(
+        mu_inf + (1.0 - mu_inf) * math.exp(-lam * r.t_s[i]), abs=1e-12)
+
+
+# --------------------------------------------------------------- fibre types
+
+@pytest.fixture(scope='module')
+def fibres():
+    return figures.fibre_data(TEST_RATE_HZ)
+
+
+def _riener_recruited(t, mu_min, t_fat):
+    return mu_min + (1.0 - mu_min) * np.exp(-t / t_fat)
+
+
+def test_size_and_reverse_orders_tire_with_their_types_own_time_constant(fibres):
+    """R = 0.5 recruits exactly the slow type in size order and the fast one in reverse,
+    all at t = 0 and rest length, so F0 / F0(0) is that type's fitness."""
+    p = figures.fibre_params('size')
+    for order, t_fat in (('size', p.tau_fatigue_s[0]), ('reverse', p.tau_fatigue_s[1])):
+        r = fibres.results[order]
+        np.testing.assert_allclose(r.eff_f_iso_n / r.eff_f_iso_n[0],
+                                   _riener_recruited(r.t_s, p.fatigue_min[0], t_fat),
+                                   rtol=1e-9, atol=0)
+
+
+def test_fast_first_starts_twice_as_strong_as_slow_first(fibres):
+    w = figures.fibre_params('size').fibre_force_weights
+    ratio = fibres.results['reverse'].eff_f_iso_n[0] / fibres.results['size'].eff_f_iso_n[0]
+    assert ratio == pytest.approx(w[1] / w[0], rel=1e-12)
+
+
+def test_random_order_tires_as_the_mix_of_types_its_permutation_recruits(fibres):
+    p = figures.fibre_params('random')
+    n = p.n_units
+    types = np.repeat([0, 1], [n // 2, n - n // 2])[np.random.default_rng(
+        p.recruitment_seed).permutation(n)]
+    m = int(n * figures.FIBRE_PW_S / p.pw_max_s + 0.5)
+    counts = np.bincount(types[:m], minlength=2)
+    r = fibres.results['random']
+    weighted = [counts[k] * p.fibre_force_weights[k] for k in (0, 1)]
+    expected = sum(wk * _riener_recruited(r.t_s, p.fatigue_min[0], p.tau_fatigue_s[k])
+                   for k, wk in enumerate(weighted)) / sum(weighted)
+    np.testing.assert_allclose(r.eff_f_iso_n / r.eff_f_iso_n[0], expected, rtol=1e-9, atol=0)
+
+
+# --------------------------------------------------------------- fv_scaling
+
+@pytest.fixture(scope='module')
+def fv():
+    return figures.fv_data()
+
+
+def test_last_unit_leaves_at_the_closed_form_instant(fv):
+    for r in fv.results.values():
+        k = int(np.flatnonzero(r.n_recruited > 0)[-1])
+        assert r.t_s[k] < fv.release_s <= r.t_s[k + 1]
+
+
+def test_absolute_scaling_holds_the_force_then_drops_it_when_the_last_unit_leaves(fv):
+    r = fv.results['absolute']
+    plateau = r.f_se_n[r.at(figures.FV_T_OFF_S)]
+    drops = -np.diff(r.f_se_n)
+    k = int(np.argmax(drops))
+    assert r.t_s[k] < fv.release_s <= r.t_s[k + 1]
+    assert drops[k] > 0.5 * plateau
+    # Just before, one unit's F0 of a few hundredths of a newton carries it all.
+    assert r.f_se_n[k] > 100.0 * r.eff_f_iso_n[k]
+
+
+def test_relative_scaling_lets_the_force_decay_with_f0(fv):
+    r = fv.results['relative']
+    plateau = r.f_se_n[r.at(figures.FV_T_OFF_S)]
+    assert r.f_se_n[r.at(figures.FV_T_OFF_S + 0.5)] < 0.05 * plateau
+    assert np.max(-np.diff(r.f_se_n)) < 0.05 * plateau
