@@ -113,8 +113,8 @@ def test_holding_r_over_each_step_would_miss_the_target():
     from hill_muscle_ros.model import fes_muscle
     original = fes_muscle.FesMuscle._events
 
-    def at_step_end(self, s0, s1, a0, u_d, tau):
-        return [(s1, m) for _, m in original(self, s0, s1, a0, u_d, tau)[-1:]]
+    def at_step_end(self, s0, s1, *args):
+        return [(s1, m) for _, m in original(self, s0, s1, *args)[-1:]]
     fes_muscle.FesMuscle._events = at_step_end
     try:
         error = _max_error(_varying_protocol(), VARIANTS['multi-initial'], 1e-5)

@@ -143,8 +143,12 @@ class FesMuscle(Muscle):
                 self.l_ce_m = self.params.l_rest_m + self.dl_mt_m
 
     def _tau(self, u_d: float) -> float:
+        return self._tau_for(self.recruitment, u_d)
+
+    def _tau_for(self, a: float, u_d: float) -> float:
+        """[s] tau in force: ``tau_act_s`` while u_d > a, else ``tau_deact_s``."""
         p = self.params
-        return p.tau_act_s if u_d > self.recruitment else p.tau_deact_s
+        return p.tau_act_s if u_d > a else p.tau_deact_s
 
     # -- the force of the recruited units ------------------------------------------
 
@@ -272,15 +276,16 @@ class FesMuscle(Muscle):
         mu_inf = (p.fatigue_min[0] * a * rate_f + (1.0 - a) * rate_r) / lam
         self._mu_law = (s0, self._mu, mu_inf, lam)
 
-    def _events(self, s0: float, s1: float, a0: float, u_d: float,
-                tau: float) -> list[tuple[float, int]]:
+    def _events(self, s0: float, s1: float, a0: float, u_d: float, tau: float,
+                m0: int) -> list[tuple[float, int]]:
         """Instants in (s0, s1) where M = floor(N a + 0.5) changes, with the new M.
 
         From the closed form of a; at most :data:`MAX_EVENTS_PER_PIECE` of them
         (grouped: see there).
+
+        :param m0: [-] M at s0
         """
         n = self.params.n_units
-        m0 = self.n_recruited
         m1 = recruited_units(activation_at(a0, u_d, tau, s1 - s0), n)
         if m1 == m0:
             return []
@@ -299,46 +304,76 @@ class FesMuscle(Muscle):
             out.append((min(max(s, s0), s1), m))
         return out
 
-    def _piece_step(self, s0: float, s1: float, u_d: float, t0: float, dl0: float,
-                    rate: float) -> None:
-        """Advance over [s0, s1] with the delayed command u_d constant."""
-        a0 = self.recruitment
-        tau = self._tau(u_d) if u_d != a0 else 0.0
-        if u_d != a0 and tau == 0.0:
-            self._set_activation(u_d, s0)      # instantaneous: all at the piece start
-            a0 = u_d
-        self._piece = (s0, a0, u_d, tau)
-        if a0 == u_d or tau == 0.0:
-            self._integrate(s0, s1, t0, dl0, rate)
-            return
-        if self._multi:
-            s = s0
-            for s_e, m in self._events(s0, s1, a0, u_d, tau):
-                self._integrate(s, s_e, t0, dl0, rate)
-                self._pool.update(m, self.l_ce_m / self.params.l_opt_m, s_e)
-                self.n_recruited = m
-                s = s_e
-            self._integrate(s, s1, t0, dl0, rate)
-            self.recruitment = activation_at(a0, u_d, tau, s1 - s0)
-            return
-        # Single: R = a follows the closed form inside the force evaluation.
-        if a0 == 0.0:
-            self._set_activation_single_rise(s0)
-        a1 = activation_at(a0, u_d, tau, s1 - s0)
-        level = self._release_level
-        if u_d < a0 and u_d < level and a1 < level < a0:
-            s_rel = s0 + time_to_reach(a0, u_d, tau, level)
-            self._integrate(s0, s_rel, t0, dl0, rate)
-            self._set_activation(0.0, s_rel)
-            self._piece = (s_rel, 0.0, u_d, tau if u_d > 0.0 else 0.0)
-            if u_d > 0.0:   # still rising towards a small command: rest from here
-                self._set_activation_single_rise(s_rel)
-            self._integrate(s_rel, s1, t0, dl0, rate)
-            self.recruitment = 0.0 if u_d == 0.0 else activation_at(0.0, u_d, tau, s1 - s_rel)
-            return
-        self._integrate(s0, s1, t0, dl0, rate)
-        self.recruitment = a1
-        self.n_recruited = 1 if a1 > 0.0 else 0
+    def plan(self, t0_s: float, t1_s: float) -> list[tuple[float, str, object]]:
+        """The recruitment changes of the step [t0, t1]: ``(instant, action, value)``.
+
+        The delayed command and the activation follow closed forms that do not
+        depend on the CE length, so every instant at which the recruitment
+        changes is known before the step is integrated. An integrator (this
+        muscle's :meth:`step`, or a limb's, which integrates several muscles
+        and a joint together) integrates up to each instant in turn and calls
+        :meth:`apply` there. Consumes the delayed commands due in the step.
+
+        Actions: ``jump`` (a takes the value at once), ``piece`` (a follows
+        the closed form from here), ``recruit`` (multi: M units from here),
+        ``rise`` and ``release`` (single: a leaves or returns to 0), and
+        ``end`` (the activation at t1), always last.
+        """
+        p = self.params
+        actions: list[tuple[float, str, object]] = []
+        a, m = self.recruitment, self.n_recruited
+        for s0, s1, u_d in self._delay.pieces(t0_s, t1_s):
+            tau = self._tau_for(a, u_d) if u_d != a else 0.0
+            if tau == 0.0:
+                if u_d != a:
+                    actions.append((s0, 'jump', u_d))
+                    a = u_d
+                    m = recruited_units(a, p.n_units) if self._multi else int(a > 0.0)
+                actions.append((s0, 'piece', (s0, a, a, 0.0)))
+                continue
+            actions.append((s0, 'piece', (s0, a, u_d, tau)))
+            if self._multi:
+                for s_e, m_e in self._events(s0, s1, a, u_d, tau, m):
+                    actions.append((s_e, 'recruit', m_e))
+                    m = m_e
+                a = activation_at(a, u_d, tau, s1 - s0)
+                continue
+            if a == 0.0:
+                actions.append((s0, 'rise', None))
+            a1 = activation_at(a, u_d, tau, s1 - s0)
+            level = self._release_level
+            if u_d < a and u_d < level and a1 < level < a:
+                s_rel = s0 + time_to_reach(a, u_d, tau, level)
+                actions.append((s_rel, 'release', None))
+                if u_d > 0.0:   # rising again towards a command below one unit
+                    actions.append((s_rel, 'piece', (s_rel, 0.0, u_d, p.tau_act_s)))
+                    actions.append((s_rel, 'rise', None))
+                    a1 = activation_at(0.0, u_d, p.tau_act_s, s1 - s_rel)
+                else:
+                    actions.append((s_rel, 'piece', (s_rel, 0.0, 0.0, 0.0)))
+                    a1 = 0.0
+            a = a1
+        actions.append((t1_s, 'end', a))
+        return actions
+
+    def apply(self, action: str, value: object, t_s: float) -> None:
+        """Apply one planned recruitment change at instant ``t_s`` (see :meth:`plan`),
+        with the CE length of that instant in ``l_ce_m``."""
+        if action == 'piece':
+            self._piece = value
+        elif action == 'recruit':
+            self._pool.update(value, self.l_ce_m / self.params.l_opt_m, t_s)
+            self.n_recruited = value
+        elif action == 'jump':
+            self._set_activation(value, t_s)
+        elif action == 'rise':
+            self._set_activation_single_rise(t_s)
+        elif action == 'release':
+            self._set_activation(0.0, t_s)
+        else:   # 'end'
+            self.recruitment = value
+            if not self._multi:
+                self.n_recruited = 1 if value > 0.0 else 0
 
     def _set_activation_single_rise(self, s: float) -> None:
         """Single: a rises from 0 at ``s``: store FL at the CE length of that instant."""
@@ -354,8 +389,11 @@ class FesMuscle(Muscle):
         t1 = t0 + dt
         self._give_command(u)
         rate = (dl1 - dl0) / dt
-        for s0, s1, u_d in self._delay.pieces(t0, t1):
-            self._piece_step(s0, s1, u_d, t0, dl0, rate)
+        s = t0
+        for instant, action, value in self.plan(t0, t1):
+            self._integrate(s, instant, t0, dl0, rate)
+            self.apply(action, value, instant)
+            s = instant
         self._v_free = rate
         self.dl_mt_m = dl1
         self.t_s = t1
