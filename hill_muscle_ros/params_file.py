@@ -11,6 +11,7 @@ from typing import Any
 import yaml
 
 from .model import MuscleParams
+from .model.limb import LimbPlant
 from .model.protocol import safe_load_yaml
 
 #: Parameters of the simulator node that are not muscle parameters. They are
@@ -27,14 +28,15 @@ _WILDCARD = '/**'
 _NODE_NAME = 'simulator'
 
 
-def read_ros_parameters(path: str | Path) -> dict[str, Any]:
-    """The ``ros__parameters`` that a ROS 2 params file gives the simulator node.
+def read_ros_parameters(path: str | Path, node_name: str = _NODE_NAME) -> dict[str, Any]:
+    """The ``ros__parameters`` that a ROS 2 params file gives a node.
 
     Sections ``/**`` and those naming the node (``simulator``, ``/simulator``,
     ``/ns/simulator``, ``/**/simulator``) are merged in file order, later ones
     winning, as ``--params-file`` does.
 
     :param path: the YAML file
+    :param node_name: the node's name (``simulator``, ``limb``)
     :raises ValueError: naming the file if it cannot be read or has no section
         for the simulator
     """
@@ -52,7 +54,7 @@ def read_ros_parameters(path: str | Path) -> dict[str, Any]:
     found = False
     for node, section in doc.items():
         name = str(node)
-        if name != _WILDCARD and name.rstrip('/').split('/')[-1] != _NODE_NAME:
+        if name != _WILDCARD and name.rstrip('/').split('/')[-1] != node_name:
             continue
         if not isinstance(section, dict) or 'ros__parameters' not in section:
             raise ValueError(f'{path}: section `{name}` must contain `ros__parameters:`')
@@ -63,7 +65,7 @@ def read_ros_parameters(path: str | Path) -> dict[str, Any]:
         merged.update(params)
         found = True
     if not found:
-        raise ValueError(f'{path}: no `/**` or `{_NODE_NAME}` section with '
+        raise ValueError(f'{path}: no `/**` or `{node_name}` section with '
                          f'`ros__parameters`')
     return merged
 
@@ -84,3 +86,22 @@ def load_muscle_params(path: str | Path) -> tuple[MuscleParams, dict[str, Any]]:
     params = MuscleParams.from_mapping(values, source=str(path), ignore=SIMULATOR_NODE_KEYS)
     node = {k: v for k, v in values.items() if k in SIMULATOR_NODE_KEYS}
     return params, node
+
+
+#: Parameters of the limb node that are not part of the plant.
+LIMB_NODE_KEYS = SIMULATOR_NODE_KEYS
+
+
+def load_plant(path: str | Path) -> tuple[LimbPlant, dict[str, Any]]:
+    """A limb plant (joint and muscles) and the node settings from a plant file.
+
+    :param path: the YAML file (``/**`` or ``limb`` sections)
+    :return: the validated :class:`LimbPlant` and a dict of the node keys present
+    :raises ValueError: naming the file and the key on any defect
+    """
+    values = read_ros_parameters(path, 'limb')
+    values = {k: v for k, v in values.items()
+              if k != QOS_OVERRIDES_KEY and not str(k).startswith(QOS_OVERRIDES_KEY + '.')}
+    plant = LimbPlant.from_mapping(values, source=str(path), ignore=LIMB_NODE_KEYS)
+    node = {k: v for k, v in values.items() if k in LIMB_NODE_KEYS}
+    return plant, node

@@ -221,8 +221,7 @@ class FesMuscle(Muscle):
             return
         p = self.params
         l = self.l_ce_m
-        if self._single_fatigue:
-            self._start_mu_law(s0, s1)
+        self.begin_interval(s0, s1)
         f0 = self.eff_f_iso(l, s0)
         dl_a = dl0 + rate * (s0 - t0)
         dl_b = dl0 + rate * (s1 - t0)
@@ -256,9 +255,30 @@ class FesMuscle(Muscle):
         else:
             l = p.l_rest_m + dl_b       # the free CE takes up the SE slack
         self.l_ce_m = l
+        self.end_interval(s1)
+
+    def begin_interval(self, s0: float, s1: float) -> None:
+        """Before integrating [s0, s1] with no recruitment change inside it:
+        fix the closed form of the single muscle's fitness over the interval."""
+        if self._single_fatigue:
+            self._start_mu_law(s0, s1)
+
+    def end_interval(self, s1: float) -> None:
+        """After integrating up to ``s1``: the single muscle's fitness there."""
         if self._single_fatigue:
             m0, mu0, mu_inf, lam = self._mu_law
             self._mu = mu_inf + (mu0 - mu_inf) * math.exp(-lam * (s1 - m0))
+
+    def free(self, l_ce_m: float, s0: float, s1: float) -> bool:
+        """True if no recruited unit makes force over [s0, s1]: the CE is then
+        free and follows the MTU, f_SE = 0 (doc/model.md section 4)."""
+        return self.eff_f_iso(l_ce_m, s0) == 0.0 and self.eff_f_iso(l_ce_m, s1) == 0.0
+
+    def ce_velocity(self, l_ce_m: float, dl_mt_m: float, t_s: float) -> float:
+        """[m/s] d l_CE / dt at CE length ``l_ce_m``, MTU length change
+        ``dl_mt_m`` and instant ``t_s``: Eq. 3 inverted at the SE force, with
+        Eff.f_iso of that instant (recruitment, fitness, activation)."""
+        return self._velocity(l_ce_m, dl_mt_m, self.eff_f_iso(l_ce_m, t_s))
 
     def _start_mu_law(self, s0: float, s1: float) -> None:
         """Whole-muscle Riener law over [s0, s1] with a held at its midpoint value.
