@@ -141,11 +141,14 @@ def test_fast_type_tires_faster_and_the_mix_starts_at_riener_s_rate(preset):
 
 
 def test_rate_keeps_the_integration_of_this_stiff_tendon_stable(preset):
-    """RK4's real stability bound is 2.785 time constants; the CE's smallest time
-    constant with absolute scaling is a / (k_SE b), at F0 = 0."""
+    """RK4's stability bound on the negative real axis is 2.785 time constants. Near
+    f_SE = F0 the CE answers a force change with (F0 + a) / (k_SE b) when shortening
+    and (F0 + a') / (2 k_SE b') when lengthening (slopes of the inverse of Eq. 3);
+    with absolute scaling both are smallest at F0 = 0."""
     params, node = preset
     assert params.fv_scaling == 'absolute'
-    tau_min = params.fv_a_n / (params.k_se_n_per_m * params.fv_b_m_per_s)
+    tau_min = min(params.fv_a_n / (params.k_se_n_per_m * params.fv_b_m_per_s),
+                  params.fv_a_ecc_n / (2.0 * params.k_se_n_per_m * params.fv_b_ecc_m_per_s))
     assert 1.0 / node['rate_hz'] < 2.785 * tau_min
 
 

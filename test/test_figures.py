@@ -384,8 +384,9 @@ def test_absolute_scaling_holds_the_force_then_drops_it_when_the_last_unit_leave
     k = int(np.argmax(drops))
     assert r.t_s[k] < fv.release_s <= r.t_s[k + 1]
     assert drops[k] > 0.5 * plateau
-    # Just before, one unit's F0 of a few hundredths of a newton carries it all.
-    assert r.f_se_n[k] > 100.0 * r.eff_f_iso_n[k]
+    # Just before, the stretch has pushed the force back above its plateau, carried
+    # by the last unit's F0 of less than a hundredth of it.
+    assert r.f_se_n[k] > plateau > 100.0 * r.eff_f_iso_n[k]
 
 
 def test_relative_scaling_lets_the_force_decay_with_f0(fv):
