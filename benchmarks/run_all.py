@@ -8,6 +8,12 @@ targets are reported as met or not.
 Usage::
 
     .venv/bin/python benchmarks/run_all.py --out BENCHMARKS.md [--runs 7]
+
+``--only fes`` runs only section 7, the FES features (``bench_fes.py``, a few
+minutes), and prints its Markdown instead of writing BENCHMARKS.md (or writes
+it to ``--out`` if given)::
+
+    .venv/bin/python benchmarks/run_all.py --only fes --runs 5
 """
 from __future__ import annotations
 
@@ -28,6 +34,7 @@ HERE = Path(__file__).resolve().parent
 REPO = HERE.parent
 sys.path.insert(0, str(HERE))
 
+import bench_fes  # noqa: E402
 import bench_node  # noqa: E402
 # bench_rtf.py (item 6, live); run_all.bench_rtf is the offline item 2.
 import bench_rtf as live_rtf  # noqa: E402
@@ -556,6 +563,8 @@ def write_report(path: Path, runs: int, started: dict, results: dict) -> None:
     add('')
     write_rtf_section(add, results.get('rtf_live'))
     add('')
+    bench_fes.write_section(add, results['fes'])
+    add('')
     add('## Profiles')
     add('')
     add('`benchmarks/profile_simulate.py` writes cProfile and pyinstrument output of '
@@ -567,8 +576,11 @@ def write_report(path: Path, runs: int, started: dict, results: dict) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument('--out', type=Path, default=REPO / 'BENCHMARKS.md',
-                        help='Markdown file to write (default: BENCHMARKS.md)')
+    parser.add_argument('--out', type=Path, default=None,
+                        help='Markdown file to write (default: BENCHMARKS.md; with --only, '
+                             'print the section instead)')
+    parser.add_argument('--only', choices=('fes',), default=None,
+                        help='run one section only: fes = section 7, the FES features')
     parser.add_argument('--runs', type=int, default=7,
                         help=f'runs per measurement, at least {MIN_RUNS} (default: 7)')
     parser.add_argument('--node-seconds', type=float, default=30.0,
@@ -580,6 +592,22 @@ def main(argv: list[str] | None = None) -> int:
                'load': load_average()}
     t0 = time.perf_counter()
     os.chdir(REPO)
+    if args.only == 'fes':
+        lines = []
+        fes = bench_fes.run(args.runs)
+        lines.append(f'<!-- run_all.py --only fes --runs {args.runs}, {started["date"]}, load '
+                     f'average {started["load"]} at start, {load_average()} at end, '
+                     f'{time.perf_counter() - t0:.0f} s -->')
+        lines.append('')
+        bench_fes.write_section(lines.append, fes)
+        text = '\n'.join(lines) + '\n'
+        if args.out is None:
+            print(text)
+        else:
+            args.out.write_text(text, encoding='utf-8')
+            print(f'wrote {args.out}')
+        return 0
+    out = REPO / 'BENCHMARKS.md' if args.out is None else args.out
     protocol = Protocol.from_yaml(protocol_path('II'))
     _, r, dl = protocol_inputs(protocol)
     results = {}
@@ -595,14 +623,16 @@ def main(argv: list[str] | None = None) -> int:
     results['rtf'] = bench_rtf(args.runs)
     print('batch', flush=True)
     results['batch'] = bench_batch(args.runs, protocol)
+    print('FES features', flush=True)
+    results['fes'] = bench_fes.run(args.runs)
     print('ROS nodes', flush=True)
     results['node_seconds'] = args.node_seconds
     results['nodes'] = bench_nodes(args.node_seconds)
     print('faster than real time, live on sim time', flush=True)
     results['rtf_live'] = bench_rtf_live(MIN_RUNS)
     results['elapsed'] = time.perf_counter() - t0
-    write_report(args.out, args.runs, started, results)
-    print(f'wrote {args.out}')
+    write_report(out, args.runs, started, results)
+    print(f'wrote {out}')
     return 0
 
 
