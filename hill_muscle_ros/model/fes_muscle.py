@@ -27,7 +27,7 @@ from __future__ import annotations
 import math
 from typing import Sequence
 
-from .curves import force_length, force_velocity_inverse
+from .curves import ECC_PLATEAU, force_length, force_velocity_inverse
 from .memory import recruited_units
 from .muscle import Muscle, MuscleOutputs
 from .params import MuscleParams
@@ -40,6 +40,13 @@ from .unit_pool import UnitPool
 #: instant: the force is then held for 1/64 of the piece's recruitment change
 #: instead of all of it, about 1/64 of the error of holding R over the step.
 MAX_EVENTS_PER_PIECE = 64
+#: Largest h lambda per RK4 step, lambda the CE's relaxation rate
+#: (:meth:`FesMuscle.stiffness_rate`): classical RK4 is stable on the real axis
+#: up to 2.785; 2 leaves a margin for the rate changing within the step.
+RK4_STABLE_H_LAMBDA = 2.0
+#: Most RK4 steps one interval is cut into. Only a CE whose constants vanish
+#: with F0 (``fv_scaling: relative`` as the last units leave) gets near it.
+MAX_SUBSTEPS = 1000
 
 
 class FesMuscle(Muscle):
@@ -214,14 +221,56 @@ class FesMuscle(Muscle):
     def _integrate(self, s0: float, s1: float, t0: float, dl0: float, rate: float) -> None:
         """RK4 for l_ce over [s0, s1] with the recruitment fixed; dl_MT(s) linear.
 
+        The interval is cut into as many equal RK4 steps as stability needs
+        (:meth:`substeps`): one, unless the CE is stiff.
+
         :param t0: [s] start of the step; dl_MT(s) = dl0 + rate (s - t0)
         """
         h = s1 - s0
         if h <= 0.0:
             return
+        self.begin_interval(s0, s1)
+        n = self.substeps(h, self.l_ce_m, dl0 + rate * (s0 - t0), s0)
+        for i in range(n):
+            a = s0 + h * i / n
+            b = s1 if i == n - 1 else s0 + h * (i + 1) / n
+            self._rk4(a, b, t0, dl0, rate)
+        self.end_interval(s1)
+
+    def stiffness_rate(self, l_ce_m: float, dl_mt_m: float, t_s: float) -> float:
+        """[1/s] Bound on |d v_CE / d l_CE| with the present Eff.f_iso: how fast
+        the CE length can relax.
+
+        v_CE = FV_inv(f_SE) with f_SE = k_SE (dl_MT - l_CE + l_rest), so the
+        rate is k_SE times the slope of Eq. 3's inverse. A step can carry the
+        force across the branches, so this is the steepest slope over all of
+        them: b (a + F0) / a^2 at f = 0 or 2 b' (F0 + a') / a'^2 at f = 1.5 F0.
+        With ``fv_scaling: relative`` the constants a and a' shrink with F0 and
+        the rate grows as 1 / F0, which no fixed step can follow.
+        """
+        p = self.params
+        f0 = self.eff_f_iso(l_ce_m, t_s)
+        if f0 <= 0.0:
+            return 0.0
+        a, a_ecc = p.fv_a_n, p.fv_a_ecc_n
+        if self._relative:
+            share = f0 / p.f_iso_max_n
+            a, a_ecc = a * share, a_ecc * share
+        slope = max(p.fv_b_m_per_s * (a + f0) / (a * a),
+                    2.0 * p.fv_b_ecc_m_per_s * (f0 + a_ecc) / (a_ecc * a_ecc))
+        return p.k_se_n_per_m * slope
+
+    def substeps(self, h_s: float, l_ce_m: float, dl_mt_m: float, t_s: float) -> int:
+        """RK4 steps needed over ``h_s`` for the CE's relaxation rate now:
+        h lambda at most :data:`RK4_STABLE_H_LAMBDA` per step."""
+        n = h_s * self.stiffness_rate(l_ce_m, dl_mt_m, t_s) / RK4_STABLE_H_LAMBDA
+        return 1 if n <= 1.0 else min(math.ceil(n), MAX_SUBSTEPS)
+
+    def _rk4(self, s0: float, s1: float, t0: float, dl0: float, rate: float) -> None:
+        """One RK4 step of l_ce over [s0, s1] (see :meth:`_integrate`)."""
+        h = s1 - s0
         p = self.params
         l = self.l_ce_m
-        self.begin_interval(s0, s1)
         f0 = self.eff_f_iso(l, s0)
         dl_a = dl0 + rate * (s0 - t0)
         dl_b = dl0 + rate * (s1 - t0)
@@ -255,7 +304,6 @@ class FesMuscle(Muscle):
         else:
             l = p.l_rest_m + dl_b       # the free CE takes up the SE slack
         self.l_ce_m = l
-        self.end_interval(s1)
 
     def begin_interval(self, s0: float, s1: float) -> None:
         """Before integrating [s0, s1] with no recruitment change inside it:

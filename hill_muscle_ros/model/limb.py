@@ -313,13 +313,27 @@ class Limb:
         return alpha, v_ce
 
     def _integrate(self, s0: float, s1: float) -> None:
-        """RK4 of (theta, omega, l_CE...) over [s0, s1], no recruitment change inside."""
+        """RK4 of (theta, omega, l_CE...) over [s0, s1], no recruitment change
+        inside; cut into as many equal steps as the stiffest CE needs
+        (:meth:`~hill_muscle_ros.model.fes_muscle.FesMuscle.substeps`)."""
         h = s1 - s0
         if h <= 0.0:
             return
         muscles = self.muscles
         for m in muscles:
             m.begin_interval(s0, s1)
+        n = max([m.substeps(h, m.l_ce_m, m.dl_mt_m, s0) for m in muscles], default=1)
+        for i in range(n):
+            a = s0 + h * i / n
+            b = s1 if i == n - 1 else s0 + h * (i + 1) / n
+            self._rk4(a, b)
+        for m in muscles:
+            m.end_interval(s1)
+
+    def _rk4(self, s0: float, s1: float) -> None:
+        """One RK4 step of the joint and every CE over [s0, s1]."""
+        h = s1 - s0
+        muscles = self.muscles
         free = [m.free(m.l_ce_m, s0, s1) for m in muscles]
         th, om = self.theta_rad, self.omega_rad_per_s
         ls = [m.l_ce_m for m in muscles]
@@ -342,7 +356,6 @@ class Limb:
             if free[i] or m.eff_f_iso(l, s1) == 0.0:
                 l = m.params.l_rest_m + dl
             m.l_ce_m, m.dl_mt_m = l, dl
-            m.end_interval(s1)
 
     def step(self, commands: Sequence[float], external_torque_n_m: float,
              dt_s: float) -> LimbOutputs:
