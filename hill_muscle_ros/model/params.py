@@ -214,8 +214,8 @@ class MuscleParams:
     pw_threshold_s: float = field(default=0.0, metadata=_spec(
         's', 'pulse width below which nothing is recruited PW_th', low=0.0,
         high=_FLOAT_MAX, low_inclusive=True))
-    # 194.1 us: pdt of Ding et al. 2007 (J Electromyogr Kinesiol 17:
-    # 1-16, as in cocofest's ding2007 model); only the exponential curve uses it.
+    # 194.1 us: pdt of Ding et al. 2007 (Muscle & Nerve 36(2): 214-222), as in
+    # cocofest's ding2007 model; only the exponential curve uses it.
     pw_scale_s: float = field(default=194.1e-6, metadata=_spec(
         's', 'pulse-width scale of the exponential curve PW_scale', low=0.0,
         high=_FLOAT_MAX, source='Ding et al. 2007 (pdt)'))
@@ -234,18 +234,18 @@ class MuscleParams:
     fatigue: str = field(default='none', metadata=_spec(
         '-', 'fatigue law: none or riener (per unit in multi, whole muscle in single)',
         choices=FATIGUE_CHOICES))
-    # Riener's law as written in cocofest (veltink1992_and_riener1998.py):
+    # Riener's law (Riener 1998) as written in cocofest (veltink1992_and_riener1998.py):
     # mu_min 0.2, T_fat 30 s, T_rec 50 s. One entry per fibre type; one entry
     # applies to every type.
     fatigue_min: tuple[float, ...] = field(default=(0.2,), metadata=_spec(
         '-', 'fitness of a fully fatigued unit mu_min, per fibre type', low=0.0, high=1.0,
-        low_inclusive=True, source='Riener et al. 1996, via cocofest'))
+        low_inclusive=True, source='Riener 1998 as in cocofest'))
     tau_fatigue_s: tuple[float, ...] = field(default=(30.0,), metadata=_spec(
         's', 'fatigue time constant of a recruited unit T_fat, per fibre type', low=0.0,
-        high=_FLOAT_MAX, source='Riener et al. 1996, via cocofest'))
+        high=_FLOAT_MAX, source='Riener 1998 as in cocofest'))
     tau_recovery_s: tuple[float, ...] = field(default=(50.0,), metadata=_spec(
         's', 'recovery time constant of a resting unit T_rec, per fibre type', low=0.0,
-        high=_FLOAT_MAX, source='Riener et al. 1996, via cocofest'))
+        high=_FLOAT_MAX, source='Riener 1998 as in cocofest'))
     fibre_fractions: tuple[float, ...] = field(default=(1.0,), metadata=_spec(
         '-', 'share of the units of each fibre type (normalised by their sum)', low=0.0,
         high=_FLOAT_MAX, low_inclusive=True))
