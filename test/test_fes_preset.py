@@ -140,16 +140,21 @@ def test_fast_type_tires_faster_and_the_mix_starts_at_riener_s_rate(preset):
     assert 1.0 / rate == pytest.approx(30.0, rel=0.05)    # Riener: T_fat = 30 s
 
 
-def test_rate_keeps_the_integration_of_this_stiff_tendon_stable(preset):
-    """RK4's stability bound on the negative real axis is 2.785 time constants. Near
-    f_SE = F0 the CE answers a force change with (F0 + a) / (k_SE b) when shortening
-    and (F0 + a') / (2 k_SE b') when lengthening (slopes of the inverse of Eq. 3);
-    with absolute scaling both are smallest at F0 = 0."""
+def test_the_stiff_tendon_integrates_at_the_presets_rate_as_at_a_tenth_of_its_step(
+        preset, step):
+    """The tendon is stiff (about 1 MN/m) and the F-V constants relative, so the
+    CE relaxes in well under a millisecond once few units are left: the step
+    must cut itself there (doc/model.md 7.6). The preset's 1 kHz run equals a
+    10 kHz run to 0.5 N (0.03 % of f_iso_max) all the way, the release included."""
     params, node = preset
-    assert params.fv_scaling == 'absolute'
-    tau_min = min(params.fv_a_n / (params.k_se_n_per_m * params.fv_b_m_per_s),
-                  params.fv_a_ecc_n / (2.0 * params.k_se_n_per_m * params.fv_b_ecc_m_per_s))
-    assert 1.0 / node['rate_hz'] < 2.785 * tau_min
+    assert params.fv_scaling == 'relative'
+    protocol = Protocol.from_mapping({
+        'name': 'pulse-width step', 'duration_s': DURATION_S,
+        'pulse_width_s': [[T_ON_S, 0.0], [T_ON_S, PW_STEP_S], [T_OFF_S, PW_STEP_S],
+                          [T_OFF_S, 0.0]],
+        'dl_mt_m': [[0.0, 0.0]]})
+    fine = simulate(protocol, params, 10.0 * node['rate_hz'])
+    np.testing.assert_allclose(step.force_n, fine.force_n[::10], rtol=0, atol=0.5)
 
 
 def test_pulse_width_step_force_is_bounded_by_the_fresh_recruited_units(preset, step):
