@@ -80,7 +80,9 @@ class NaiveFesMuscle:
     step start and held over the step (the package splits the step at each
     recruitment instant instead). Its forces therefore differ from the
     package's by the error of holding R over a step, and its cost does not
-    depend on how much the recruitment changes.
+    depend on how much the recruitment changes. It takes one RK4 step per
+    step; the package also cuts an interval into several when the CE is stiff
+    (``fv_scaling: relative`` at small Eff.f_iso).
 
     :param params: the muscle's parameters (``units: multi``)
     """
