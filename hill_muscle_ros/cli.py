@@ -159,15 +159,20 @@ def build_parser() -> argparse.ArgumentParser:
                           '`ros__parameters:`), the one the simulator node loads '
                           f'(default: {resources.default_params_file()})')
     _add_output_options(sim)
+    from . import limb_cli   # it imports this module: here, once both are loaded
+    limb_cli.add_plant_option(sim)
 
     fig = sub.add_parser(
-        'figures', help="write PNGs of the paper's Figures 8-11 and of the FES extensions",
+        'figures', help="write PNGs of the paper's Figures 8-11, of the FES extensions "
+                        'and of the limb',
         description="Simulate Protocols I and II in the model variants of the paper's "
                     'Figures 8-11, and the protocols of the FES figures (recruitment '
-                    'curves, activation, fatigue, fibre types, force-velocity scaling); '
-                    'write one PNG per figure.')
+                    'curves, activation, fatigue, fibre types, force-velocity scaling) '
+                    'and of the limb (the knee in the four variants); write one PNG per '
+                    'figure.')
     fig.add_argument('--out', required=True, type=Path, metavar='DIR',
                      help='directory for the PNG files (created if missing)')
+    limb_cli.add_animate_parser(sub)
 
     for name, node in NODE_COMMANDS.items():
         # Listed for the help text only: main() dispatches node commands before
@@ -266,6 +271,9 @@ def write_outputs(args: argparse.Namespace, run: SimulationRun) -> None:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
+    if args.plant is not None:
+        from .limb_cli import cmd_simulate_limb
+        return cmd_simulate_limb(args)
     protocol, params, rate = load_inputs(args)
     run = SimulationRun(protocol, params, rate, simulate(protocol, params, rate))
     write_outputs(args, run)
@@ -331,7 +339,12 @@ def _args_before_ros(args: Sequence[str]) -> Sequence[str]:
 
 # --------------------------------------------------------------------------- main
 
-_COMMANDS = {'simulate': cmd_simulate, 'figures': cmd_figures}
+def cmd_animate(args: argparse.Namespace) -> int:
+    from .limb_cli import cmd_animate as animate
+    return animate(args)
+
+
+_COMMANDS = {'simulate': cmd_simulate, 'figures': cmd_figures, 'animate': cmd_animate}
 
 
 def _error(message: str) -> int:
