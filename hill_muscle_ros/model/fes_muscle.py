@@ -40,10 +40,13 @@ from .unit_pool import UnitPool
 #: instant: the force is then held for 1/64 of the piece's recruitment change
 #: instead of all of it, about 1/64 of the error of holding R over the step.
 MAX_EVENTS_PER_PIECE = 64
-#: Largest h lambda per RK4 step, lambda the CE's relaxation rate
-#: (:meth:`FesMuscle.stiffness_rate`): classical RK4 is stable on the real axis
-#: up to 2.785; 2 leaves a margin for the rate changing within the step.
-RK4_STABLE_H_LAMBDA = 2.0
+#: Largest h lambda per RK4 step, lambda the bound on the CE's relaxation rate
+#: (:meth:`FesMuscle.stiffness_rate`). Classical RK4 is stable on the real axis
+#: up to 2.785, but a step of h lambda near 1 across a kink of Eq. 3 (the
+#: tendon force leaving the eccentric plateau) errs by over 1 N with a stiff
+#: tendon (limb reference, k_SE = 300 kN/m); 0.5 keeps that within 0.15 N. The
+#: paper's muscle (lambda <= 330 /s) still takes one step per millisecond.
+RK4_MAX_H_LAMBDA = 0.5
 #: Most RK4 steps one interval is cut into. Only a CE whose constants vanish
 #: with F0 (``fv_scaling: relative`` as the last units leave) gets near it.
 MAX_SUBSTEPS = 1000
@@ -262,8 +265,8 @@ class FesMuscle(Muscle):
 
     def substeps(self, h_s: float, l_ce_m: float, dl_mt_m: float, t_s: float) -> int:
         """RK4 steps needed over ``h_s`` for the CE's relaxation rate now:
-        h lambda at most :data:`RK4_STABLE_H_LAMBDA` per step."""
-        n = h_s * self.stiffness_rate(l_ce_m, dl_mt_m, t_s) / RK4_STABLE_H_LAMBDA
+        h lambda at most :data:`RK4_MAX_H_LAMBDA` per step."""
+        n = h_s * self.stiffness_rate(l_ce_m, dl_mt_m, t_s) / RK4_MAX_H_LAMBDA
         return 1 if n <= 1.0 else min(math.ceil(n), MAX_SUBSTEPS)
 
     def _rk4(self, s0: float, s1: float, t0: float, dl0: float, rate: float) -> None:

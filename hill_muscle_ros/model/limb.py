@@ -395,6 +395,7 @@ class Limb:
             if m.eff_f_iso(m.l_ce_m, instant) == 0.0:
                 m.l_ce_m = m.params.l_rest_m + m.dl_mt_m   # released: the CE is free now
             s = max(s, instant)
+        self._integrate(s, t1)   # with no muscles there is no instant: the whole step
         self.t_s = t1
         for m in self.muscles:
             m.t_s = t1

@@ -148,6 +148,12 @@ class UnitPool:
 
     def _push_recruited(self, end: int, x_o: float, exn: np.ndarray,
                         row: np.ndarray) -> None:
+        if not self.fatigue and not self.initial and len(self._r_end) > 1:
+            # Nothing tells these units apart (no stored length, no fitness):
+            # one segment for the whole recruited prefix.
+            self._r_end[-1] = end
+            self._r_static[-1] = self._r_static[-1] + row
+            return
         self._r_end.append(end)
         self._r_x.append(x_o)
         self._r_exn.append(exn)
@@ -167,7 +173,14 @@ class UnitPool:
                 stack.pop()
             if cut > start:   # the bottom of the segment stays recruited
                 self._push_recruited(cut, x_o, exn, self._static_row(start, cut, x_o))
-            dn = ((1.0 - (self.mu_min + exn * d)) / h) if fatigue else np.zeros(self.k)
+            if not fatigue:
+                # Resting units without fatigue are all fresh: one segment.
+                end = self._u.pop()[1] if self._u and self._u[-1][0] == pos else pos
+                zeros = np.zeros(self.k)
+                self._u.append((cut, end, zeros, zeros))
+                pos = cut
+                continue
+            dn = (1.0 - (self.mu_min + exn * d)) / h
             below = self._u[-1][3] if self._u else np.zeros(self.k)
             n_rel = np.array([mk[0] for mk in self.layout.moments(cut, pos)])
             self._u.append((cut, pos, dn, below + n_rel * dn))
