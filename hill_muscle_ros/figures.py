@@ -883,7 +883,7 @@ def plot_limb(data: LimbData) -> Figure:
     ax_th.axvline(data.compare_s, color='grey', linestyle=':', linewidth=1.0)
     ax_th.set_ylabel('knee angle from hanging [deg]')
     ax_th.grid(True, alpha=0.3)
-    ax_th.legend(loc='lower right', fontsize='small')
+    ax_th.legend(loc='lower left', fontsize='small')
     ax_f.set_ylabel(f'{LIMB_MUSCLE} force [N]')
     ax_f.set_ylim(bottom=0.0)
     ax_f.grid(True, alpha=0.3)

@@ -50,7 +50,7 @@ RAJAGOPAL_HAMSTRINGS = {          # biceps femoris long, short head, semimembran
     'semiten': (591.30, 0.1930, 0.2472),
 }
 RAJAGOPAL_TIBIALIS_ANTERIOR = (1227.45, 0.0683, 0.2405)
-#: [m] typical knee moment arms of the hamstrings (ranges' midpoints, Nigg and Herzog).
+#: [m] typical knee moment arms of the hamstrings (midpoints of a textbook table's ranges).
 HAMSTRING_ARMS_M = {'bflh': 0.020, 'bfsh': 0.020, 'semimem': 0.030, 'semiten': 0.0475}
 #: [N] the stimulated quadriceps of config/fes_quadriceps.yaml.
 FES_QUADRICEPS_N = 1500.0
@@ -189,6 +189,11 @@ def test_knee_muscles_are_at_their_optimum_at_60_deg_of_flexion(knee):
     for m in knee.muscles:
         assert m.reference_angle_rad == pytest.approx(optimum, abs=1e-4)
         assert m.params.l_rest_m == m.params.l_opt_m
+    # The quadriceps' force-length factor hanging and horizontal (doc and README).
+    q = muscle(knee, 'quadriceps')
+    for theta, expected in ((0.0, 0.86), (math.pi / 2, 0.45)):
+        x = (q.params.l_rest_m + q.dl_mt(theta)) / q.params.l_opt_m
+        assert fl(x) == pytest.approx(expected, abs=0.005)
 
 
 def test_knee_hamstrings_are_rajagopals_scaled_as_the_quadriceps(knee):
@@ -303,8 +308,9 @@ def test_knee_extends_from_hanging_to_horizontal_inside_the_stimulators_range(kn
     assert p.pw_threshold_s < pw < p.pw_max_s
     estimate = static_pulse_width(knee, 'quadriceps', horizontal)
     assert pw == pytest.approx(estimate, rel=STATIC_ESTIMATE_TOLERANCE)
-    # The number the README quotes: 359 us (the static estimate is 351 us).
-    assert 355e-6 <= pw <= 365e-6
+    # The numbers the README quotes: 359 us, the static estimate 351 us.
+    assert pw == pytest.approx(359e-6, abs=2e-6)
+    assert estimate == pytest.approx(351e-6, abs=1e-6)
 
 
 def test_drop_foot_is_lifted_to_the_neutral_ankle_inside_the_stimulators_range(ankle):
@@ -315,8 +321,9 @@ def test_drop_foot_is_lifted_to_the_neutral_ankle_inside_the_stimulators_range(a
     assert p.pw_threshold_s < pw < p.pw_max_s
     estimate = static_pulse_width(ankle, 'tibialis_anterior', neutral)
     assert pw == pytest.approx(estimate, rel=STATIC_ESTIMATE_TOLERANCE)
-    # The number the README quotes: 225 us (the static estimate is 224 us).
-    assert 220e-6 <= pw <= 230e-6
+    # The numbers the README quotes: 225 us, the static estimate 224 us.
+    assert pw == pytest.approx(225e-6, abs=2e-6)
+    assert estimate == pytest.approx(224e-6, abs=1e-6)
 
 
 #: [deg] release angle of the pendulum test.
@@ -368,3 +375,4 @@ def test_relaxed_knee_decays_with_the_pendulum_tests_damping(knee, pendulum):
     measured = decrement / np.sqrt(4.0 * math.pi ** 2 + decrement ** 2)
     assert len(measured) >= 5
     np.testing.assert_allclose(measured, zeta, rtol=DAMPING_TOLERANCE)
+    assert zeta == pytest.approx(0.061, abs=0.0005)   # the README's number
