@@ -140,7 +140,9 @@ def build_parser() -> argparse.ArgumentParser:
                f'  {PROG} simulate --protocol II\n'
                f'  {PROG} simulate --protocol I --units single --csv protocol_I.csv\n'
                f'  {PROG} simulate --protocol my_protocol.yaml --params my_muscle.yaml '
-               '--rate 2000',
+               '--rate 2000\n'
+               f'  {PROG} simulate --plant config/knee.yaml '
+               '--protocol config/protocols/knee_extension.yaml',
         formatter_class=argparse.RawDescriptionHelpFormatter)
     sim.add_argument('--protocol', required=True, metavar='{I,II,PATH}',
                      help='the paper\'s Protocol I or II, or a protocol YAML file '
