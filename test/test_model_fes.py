@@ -254,3 +254,18 @@ def test_relative_fv_scaling_is_stable_at_1khz_while_f0_decays():
     params = MuscleParams(tau_act_s=0.06, tau_deact_s=0.11, fv_scaling='relative')
     coarse, fine = simulate(protocol, params, 1000.0), simulate(protocol, params, 20000.0)
     np.testing.assert_allclose(coarse.f_se_n, fine.f_se_n[::20], rtol=0, atol=0.05)
+
+
+def test_single_relative_muscle_rising_from_zero_has_no_force_spike():
+    """A single unit's activation rises from exactly 0, so F0 is 0 at the start
+    of the step and the CE's relaxation rate must be taken inside the step too:
+    taken at the start only, a stiff tendon spiked to 21.6 N at 1 kHz where a
+    20 kHz run gives 0.003 N. Within 0.1 N of the 20 kHz run now (0.06 N at
+    the first millisecond of force, where F0 is a few mN)."""
+    params = MuscleParams(units='single', fv_scaling='relative', tau_act_s=0.025,
+                          tau_deact_s=0.025, k_se_n_per_m=962000.0)
+    protocol = Protocol.from_mapping({'name': 'rise', 'duration_s': 0.5,
+                                      'dl_mt_m': [[0.0, 0.01]],
+                                      'recruitment': [[0.0, 0.0], [0.1, 0.0], [0.3, 0.3]]})
+    coarse, fine = simulate(protocol, params, 1000.0), simulate(protocol, params, 20000.0)
+    np.testing.assert_allclose(coarse.f_se_n, fine.f_se_n[::20], rtol=0, atol=0.1)

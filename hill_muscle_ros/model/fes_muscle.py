@@ -233,7 +233,7 @@ class FesMuscle(Muscle):
         if h <= 0.0:
             return
         self.begin_interval(s0, s1)
-        n = self.substeps(h, self.l_ce_m, dl0 + rate * (s0 - t0), s0)
+        n = self.substeps(h, self.l_ce_m, dl0 + rate * (s0 - t0), s0, s1)
         for i in range(n):
             a = s0 + h * i / n
             b = s1 if i == n - 1 else s0 + h * (i + 1) / n
@@ -263,10 +263,16 @@ class FesMuscle(Muscle):
                     2.0 * p.fv_b_ecc_m_per_s * (f0 + a_ecc) / (a_ecc * a_ecc))
         return p.k_se_n_per_m * slope
 
-    def substeps(self, h_s: float, l_ce_m: float, dl_mt_m: float, t_s: float) -> int:
-        """RK4 steps needed over ``h_s`` for the CE's relaxation rate now:
-        h lambda at most :data:`RK4_MAX_H_LAMBDA` per step."""
-        n = h_s * self.stiffness_rate(l_ce_m, dl_mt_m, t_s) / RK4_MAX_H_LAMBDA
+    def substeps(self, h_s: float, l_ce_m: float, dl_mt_m: float, s0: float,
+                 s1: float) -> int:
+        """RK4 steps needed over [s0, s1] (length ``h_s``) for the CE's relaxation
+        rate: h lambda at most :data:`RK4_MAX_H_LAMBDA` per step, lambda the
+        largest of the rates at s0, mid-interval and s1 (F0 may rise from 0
+        within the interval, and with relative constants the rate is largest
+        when F0 is smallest but not zero)."""
+        rate = max(self.stiffness_rate(l_ce_m, dl_mt_m, t)
+                   for t in (s0, 0.5 * (s0 + s1), s1))
+        n = h_s * rate / RK4_MAX_H_LAMBDA
         return 1 if n <= 1.0 else min(math.ceil(n), MAX_SUBSTEPS)
 
     def _rk4(self, s0: float, s1: float, t0: float, dl0: float, rate: float) -> None:

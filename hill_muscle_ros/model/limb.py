@@ -1,4 +1,4 @@
-"""A limb: one joint moved by several muscles (doc/model.md section 8).
+"""A limb: one joint moved by several muscles (doc/model.md section 9).
 
 The joint angle theta [rad] is that of the distal segment from hanging
 vertical, positive in extension against gravity; omega = d theta / dt. With
@@ -322,7 +322,7 @@ class Limb:
         muscles = self.muscles
         for m in muscles:
             m.begin_interval(s0, s1)
-        n = max([m.substeps(h, m.l_ce_m, m.dl_mt_m, s0) for m in muscles], default=1)
+        n = max([m.substeps(h, m.l_ce_m, m.dl_mt_m, s0, s1) for m in muscles], default=1)
         for i in range(n):
             a = s0 + h * i / n
             b = s1 if i == n - 1 else s0 + h * (i + 1) / n
