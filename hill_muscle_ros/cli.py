@@ -174,6 +174,9 @@ def build_parser() -> argparse.ArgumentParser:
                     'figure.')
     fig.add_argument('--out', required=True, type=Path, metavar='DIR',
                      help='directory for the PNG files (created if missing)')
+    fig.add_argument('--rate', type=_positive_rate, default=None, metavar='HZ',
+                     help='step rate of the simulations behind the figures '
+                          '(default: 1000 Hz, the figures of this README)')
     limb_cli.add_animate_parser(sub)
 
     for name, node in NODE_COMMANDS.items():
@@ -288,7 +291,8 @@ def cmd_figures(args: argparse.Namespace) -> int:
     # matplotlib is imported only for this command.
     from .figures import write_figures
     try:
-        paths = write_figures(args.out)
+        rate = {} if args.rate is None else {'rate_hz': args.rate}
+        paths = write_figures(args.out, **rate)
     except OSError as err:
         raise UserError(f'{args.out}: cannot write figures: {err.strerror or err}') from None
     for path in paths:

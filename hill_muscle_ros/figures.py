@@ -905,6 +905,11 @@ def plot_limb(data: LimbData) -> Figure:
     return fig
 
 
-def write_limb_figure(out_dir: str | Path, rate_hz: float = RATE_HZ) -> Path:
-    """Write ``limb_knee.png``; return its path."""
-    return _save(plot_limb(limb_data(rate_hz)), out_dir, LIMB_FIGURE_FILE)
+def write_limb_figure(out_dir: str | Path, rate_hz: float = RATE_HZ,
+                      data: LimbData | None = None) -> Path:
+    """Write ``limb_knee.png``; return its path.
+
+    :param data: the simulations to draw (:func:`limb_data` at ``rate_hz`` if omitted)
+    """
+    return _save(plot_limb(data if data is not None else limb_data(rate_hz)), out_dir,
+                 LIMB_FIGURE_FILE)

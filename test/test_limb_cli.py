@@ -347,8 +347,8 @@ def test_limb_figure_initial_length_ends_far_above_instantaneous(limb_figure):
 
 @pytest.mark.slow
 def test_limb_figure_is_written_by_the_figures_command(tmp_path, limb_figure):
-    figures, _ = limb_figure
-    path = figures.write_limb_figure(tmp_path)
+    figures, data = limb_figure
+    path = figures.write_limb_figure(tmp_path, data=data)
     assert path == tmp_path / 'limb_knee.png'
     with Image.open(path) as png:
         assert png.format == 'PNG' and png.size == (800, 800)

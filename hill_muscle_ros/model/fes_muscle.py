@@ -241,15 +241,16 @@ class FesMuscle(Muscle):
         self.end_interval(s1)
 
     def stiffness_rate(self, l_ce_m: float, dl_mt_m: float, t_s: float) -> float:
-        """[1/s] Bound on |d v_CE / d l_CE| with the present Eff.f_iso: how fast
-        the CE length can relax.
+        """[1/s] |d v_CE / d l_CE| at the present force: how fast the CE relaxes.
 
         v_CE = FV_inv(f_SE) with f_SE = k_SE (dl_MT - l_CE + l_rest), so the
-        rate is k_SE times the slope of Eq. 3's inverse. A step can carry the
-        force across the branches, so this is the steepest slope over all of
-        them: b (a + F0) / a^2 at f = 0 or 2 b' (F0 + a') / a'^2 at f = 1.5 F0.
-        With ``fv_scaling: relative`` the constants a and a' shrink with F0 and
-        the rate grows as 1 / F0, which no fixed step can follow.
+        rate is k_SE times the slope of Eq. 3's inverse at f_SE: b (a + F0) /
+        (f + a)^2 when shortening, 2 b' (F0 + a') / (3 F0 - 2 f + a')^2 when
+        lengthening. On the eccentric plateau the slope is 0, but the force
+        leaves it onto the steepest part of the lengthening branch, so the
+        plateau counts with that edge's slope. With ``fv_scaling: relative``
+        the constants a and a' shrink with F0 and the rate grows as 1 / F0,
+        which no fixed step can follow.
         """
         p = self.params
         f0 = self.eff_f_iso(l_ce_m, t_s)
@@ -259,17 +260,23 @@ class FesMuscle(Muscle):
         if self._relative:
             share = f0 / p.f_iso_max_n
             a, a_ecc = a * share, a_ecc * share
-        slope = max(p.fv_b_m_per_s * (a + f0) / (a * a),
-                    2.0 * p.fv_b_ecc_m_per_s * (f0 + a_ecc) / (a_ecc * a_ecc))
+        f = p.k_se_n_per_m * (dl_mt_m - (l_ce_m - p.l_rest_m))
+        if f <= f0:
+            f = f if f > 0.0 else 0.0
+            slope = p.fv_b_m_per_s * (a + f0) / ((f + a) * (f + a))
+        else:
+            f = f if f < ECC_PLATEAU * f0 else ECC_PLATEAU * f0
+            slope = 2.0 * p.fv_b_ecc_m_per_s * (f0 + a_ecc) / (
+                (3.0 * f0 - 2.0 * f + a_ecc) ** 2)
         return p.k_se_n_per_m * slope
 
     def substeps(self, h_s: float, l_ce_m: float, dl_mt_m: float, s0: float,
                  s1: float) -> int:
         """RK4 steps needed over [s0, s1] (length ``h_s``) for the CE's relaxation
         rate: h lambda at most :data:`RK4_MAX_H_LAMBDA` per step, lambda the
-        largest of the rates at s0, mid-interval and s1 (F0 may rise from 0
-        within the interval, and with relative constants the rate is largest
-        when F0 is smallest but not zero)."""
+        largest of the rates at s0, mid-interval and s1 at the present CE
+        length (F0 may rise from 0 within the interval, and with relative
+        constants the rate is largest when F0 is smallest but not zero)."""
         rate = max(self.stiffness_rate(l_ce_m, dl_mt_m, t)
                    for t in (s0, 0.5 * (s0 + s1), s1))
         n = h_s * rate / RK4_MAX_H_LAMBDA

@@ -197,9 +197,11 @@ class UnitPool:
             self._const = float(weight @ static[:, _G])
             self._dyn_g = dyn[:, _G].tolist() if self.fatigue else []
         else:
-            # Per type: mu-weighted moments = weight x static + D(t) x dyn.
-            self._w_static = static[:, _N:] * weight[:, None]
-            self._w_dyn = dyn[:, _N:]
+            # Per type: mu-weighted moments = weight x static + D(t) x dyn, in
+            # plain floats (read at every RK4 stage).
+            self._w_static = (static[:, _N:] * weight[:, None]).tolist()
+            self._w_dyn = dyn[:, _N:].tolist()
+            self._f_max_list = self.f_max.tolist()
         self._rates = self.rate_fat.tolist()
         if self.fatigue:
             # Mean fitness, in plain floats: tired = const - sum dyn_k D_k + sum rest_k H_k.
@@ -221,18 +223,28 @@ class UnitPool:
                 for g, rate in zip(self._dyn_g, self._rates):
                     f0 += g * math.exp(-elapsed * rate)
             return f0
-        moments = self._w_static
-        if self.fatigue:
-            moments = moments + self._w_dyn * self._decay(t_s)[:, None]
         s = self.layout.spread
+        clipped = s > 0.0 and not (FL_ROOT_LOW < x_ce * (1.0 - s)
+                                   and x_ce * (1.0 + s) < FL_ROOT_HIGH)
+        if clipped:
+            return self._eff_f_iso_clipped(x_ce, t_s)
         if s == 0.0:
             fl = (FL_A * x_ce + FL_B) * x_ce + FL_C
-            return float(fl * (self.f_max @ moments[:, 0])) if fl > 0.0 else 0.0
-        if FL_ROOT_LOW < x_ce * (1.0 - s) and x_ce * (1.0 + s) < FL_ROOT_HIGH:
-            per_type = (FL_A * x_ce * x_ce * moments[:, 2] + FL_B * x_ce * moments[:, 1]
-                        + FL_C * moments[:, 0])
-            return float(self.f_max @ per_type)
-        return self._eff_f_iso_clipped(x_ce, t_s)
+            if fl <= 0.0:
+                return 0.0
+            a2 = a1 = 0.0
+            a0 = fl
+        else:
+            a2, a1, a0 = FL_A * x_ce * x_ce, FL_B * x_ce, FL_C
+        elapsed = t_s - self._epoch
+        total = 0.0
+        for k, (f_max, (n, c1, c2)) in enumerate(zip(self._f_max_list, self._w_static)):
+            if self.fatigue:
+                d = math.exp(-elapsed * self._rates[k])
+                dn, dc1, dc2 = self._w_dyn[k]
+                n, c1, c2 = n + d * dn, c1 + d * dc1, c2 + d * dc2
+            total += f_max * (a2 * c2 + a1 * c1 + a0 * n)
+        return total
 
     def _eff_f_iso_clipped(self, x_ce: float, t_s: float) -> float:
         """Eff.f_iso when some units may be off the FL range: segment by segment."""
