@@ -7,7 +7,8 @@ two concurrent runs on one machine never draw the same one. Subprocesses
 inherit these variables. Under pytest-xdist each worker claims a domain of
 its own.
 
-Two workers (``make test``: ``pytest -n 2 --dist loadgroup``). The tests that
+Two workers, opt-in (``pytest -n 2 --dist loadgroup``; ``make test`` runs
+serially until this is shown deterministic on the 2-core machine). The tests that
 start ROS processes or DDS participants are timing claims about a 1 kHz loop
 on 2 cores, so they run as before: one at a time, in file order, in one worker
 (work unit :data:`SERIAL_GROUP`), at normal priority. The others (the model,
