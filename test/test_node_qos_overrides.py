@@ -151,7 +151,7 @@ def test_without_overrides_the_simulator_keeps_its_profiles(ros_args):
     node = Simulator()
     try:
         entities = qos_of(node)
-        for topic in ('force', 'ce_length', 'wrench'):
+        for topic in ('force', 'ce_length', 'wrench', 'recruitment_state', 'fitness'):
             assert_profile(entities[(f'/q/{topic}', 'publisher')], OUTPUT_QOS, topic)
         assert_profile(entities[('/clock', 'publisher')], OUTPUT_QOS, '/clock')
         assert_profile(entities[('/diagnostics', 'publisher')], DIAGNOSTICS_QOS, 'diag')
