@@ -250,7 +250,8 @@ def run(seconds: float, log_dir: Path, executor: str | None = None
             cpu_percent=100.0 * (cpu1 - cpu0) / wall,
             drift_steps=drift_ms * RATE_HZ / 1e3,
             lag_ms=tuple(percentiles(lag, 50, 99)) + (float(lag.max()),),
-            pubs_subs=('simulator: 4 publishers (force, ce_length, wrench, /diagnostics), '
+            pubs_subs=('simulator: 6 publishers (force, ce_length, wrench, recruitment_state, '
+                       'fitness, /diagnostics), '
                        '4 subscriptions '
                        '(pulse_width, recruitment, length_command, length_command_stamped), '
                        'the reset and parameter services; one observer subscribed to wrench '
