@@ -35,7 +35,8 @@ import numpy as np
 from .fes_muscle import FesMuscle
 from .muscle import DL_MT_LIMIT_M, check_recruitment
 from .params import _FLOAT_MAX, MuscleParams, _float, _spec, finite_float
-from .protocol import Knots, ProtocolError, _parse_knots, safe_load_yaml
+from .protocol import (Knots, ProtocolError, _parse_knots, check_protocol_keys,
+                       safe_load_yaml)
 from .simulate import sample_times
 
 ACTIONS = {'extensor': 1.0, 'flexor': -1.0}
@@ -453,22 +454,8 @@ class LimbProtocol:
 
         :raises ProtocolError: naming the file, key and entry on any defect
         """
-        if not isinstance(data, dict):
-            raise ProtocolError(f'{source}: expected a mapping with keys '
-                                f'{", ".join(LIMB_PROTOCOL_KEYS)}, got {type(data).__name__}')
-        unknown = [k for k in data if k not in LIMB_PROTOCOL_KEYS]
-        if unknown:
-            raise ProtocolError(f'{source}: unknown key `{unknown[0]}` '
-                                f'(allowed: {", ".join(LIMB_PROTOCOL_KEYS)})')
-        for key in ('name', 'duration_s', 'muscles'):
-            if key not in data:
-                raise ProtocolError(f'{source}: missing key `{key}`')
-        duration = data['duration_s']
-        duration_s = (None if isinstance(duration, bool) or not isinstance(duration, (int, float))
-                      else finite_float(duration))
-        if duration_s is None or duration_s <= 0:
-            raise ProtocolError(f'{source}: `duration_s` must be a positive finite number, '
-                                f'got {duration!r}')
+        duration_s = check_protocol_keys(data, source, LIMB_PROTOCOL_KEYS,
+                                         ('name', 'duration_s', 'muscles'))
         muscles = data['muscles']
         if not isinstance(muscles, dict) or not muscles:
             raise ProtocolError(f'{source}: `muscles` must map muscle names to inputs, '

@@ -167,29 +167,13 @@ class Protocol:
         :param source: the file name, for error messages
         :raises ProtocolError: naming the file, key and entry on any defect
         """
-        if not isinstance(data, dict):
-            raise ProtocolError(f'{source}: expected a mapping with keys '
-                                f'{", ".join(ALLOWED_KEYS)}, got {type(data).__name__}')
-        unknown = [k for k in data if k not in ALLOWED_KEYS]
-        if unknown:
-            raise ProtocolError(f'{source}: unknown key `{unknown[0]}` '
-                                f'(allowed: {", ".join(ALLOWED_KEYS)})')
-        for key in ('name', 'duration_s', 'dl_mt_m'):
-            if key not in data:
-                raise ProtocolError(f'{source}: missing key `{key}`')
+        duration_s = check_protocol_keys(data, source, ALLOWED_KEYS,
+                                         ('name', 'duration_s', 'dl_mt_m'))
         given = [k for k in STIMULATION_KEYS if k in data]
         if len(given) != 1:
             raise ProtocolError(f'{source}: give exactly one of `recruitment` or '
                                 f'`pulse_width_s`, got {len(given)}')
         name = data['name']
-        if not isinstance(name, str) or not name.strip():
-            raise ProtocolError(f'{source}: `name` must be a non-empty string, got {name!r}')
-        duration = data['duration_s']
-        duration_s = (None if isinstance(duration, bool) or not isinstance(duration, (int, float))
-                      else finite_float(duration))
-        if duration_s is None or duration_s <= 0:
-            raise ProtocolError(f'{source}: `duration_s` must be a positive finite '
-                                f'number, got {duration!r}')
         key = given[0]
         if key == 'recruitment':
             stim = _parse_knots(data[key], source, key, 0.0, 1.0, 'in [0, 1]')
@@ -217,6 +201,37 @@ class Protocol:
         except yaml.YAMLError as err:
             raise ProtocolError(f'{path}: not valid YAML: {err}') from None
         return cls.from_mapping(data, source=str(path))
+
+
+def check_protocol_keys(data: Any, source: str, allowed: tuple[str, ...],
+                        required: tuple[str, ...]) -> float:
+    """Check a parsed protocol's keys, its ``name`` and its ``duration_s``.
+
+    :param allowed: the keys the format has
+    :param required: the keys it must have (``name`` and ``duration_s`` among them)
+    :return: [s] the duration
+    :raises ProtocolError: naming the file and the key
+    """
+    if not isinstance(data, dict):
+        raise ProtocolError(f'{source}: expected a mapping with keys '
+                            f'{", ".join(allowed)}, got {type(data).__name__}')
+    unknown = [k for k in data if k not in allowed]
+    if unknown:
+        raise ProtocolError(f'{source}: unknown key `{unknown[0]}` '
+                            f'(allowed: {", ".join(allowed)})')
+    for key in required:
+        if key not in data:
+            raise ProtocolError(f'{source}: missing key `{key}`')
+    name = data['name']
+    if not isinstance(name, str) or not name.strip():
+        raise ProtocolError(f'{source}: `name` must be a non-empty string, got {name!r}')
+    duration = data['duration_s']
+    duration_s = (None if isinstance(duration, bool) or not isinstance(duration, (int, float))
+                  else finite_float(duration))
+    if duration_s is None or duration_s <= 0:
+        raise ProtocolError(f'{source}: `duration_s` must be a positive finite '
+                            f'number, got {duration!r}')
+    return duration_s
 
 
 def _parse_knots(raw: Any, source: str, key: str, low: float, high: float,
