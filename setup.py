@@ -52,6 +52,7 @@ setup(
             'protocol_player = hill_muscle_ros.nodes.protocol_player:main',
             'recorder = hill_muscle_ros.nodes.recorder:main',
             'force_controller = hill_muscle_ros.nodes.force_controller:main',
+            'limb_simulator = hill_muscle_ros.nodes.limb:main',
         ],
     },
 )

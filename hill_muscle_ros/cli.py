@@ -72,6 +72,8 @@ NODE_COMMANDS = {
                           'run the recorder node (ROS 2)'),
     'controller': NodeCommand('hill_muscle_ros.nodes.force_controller', 'force_controller',
                               'run the force controller node (ROS 2)'),
+    'limb': NodeCommand('hill_muscle_ros.nodes.limb', 'limb_simulator',
+                        'run the limb simulator node (ROS 2)'),
 }
 _HELP_FLAGS = ('-h', '--help')
 _ROS_ARGS = '--ros-args'

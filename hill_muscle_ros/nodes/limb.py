@@ -1,0 +1,417 @@
+"""The limb node: one joint moved by several muscles, behind ROS 2 topics.
+
+The plant (the joint and its muscles) comes from the node's parameters, i.e.
+a plant file given with ``--ros-args --params-file PLANT.yaml``; ROS flattens
+its nested keys to dotted names (``joint.inertia_kg_m2``,
+``quadriceps.f_iso_max_n``), which are read back here and validated by
+:meth:`~hill_muscle_ros.model.limb.LimbPlant.from_mapping`, the same check as
+the offline CLI's. A bad plant stops start-up with a message naming the key
+(exit status 1).
+
+For each muscle ``<m>`` of the plant it subscribes ``<m>/pulse_width`` [s]
+(through that muscle's recruitment curve) and ``<m>/recruitment`` [-], and it
+subscribes ``external_torque`` [N m] (all std_msgs/Float64, zero-order hold).
+It steps :class:`~hill_muscle_ros.model.limb.Limb` at dt = 1 / ``rate_hz``
+against the steady clock and, for every step, publishes ``joint_states``
+(sensor_msgs/JointState: the joint's name, theta [rad], omega [rad/s], and
+the net muscle torque [N m] as the effort), and each muscle's ``<m>/force``
+[N] (Float64) and ``<m>/wrench`` (geometry_msgs/WrenchStamped, force along +x,
+frame_id the muscle's name), stamped with the step's simulated time as the
+simulator stamps; optionally ``/clock``. The watchdog drops a muscle's command
+to 0 after ``input_timeout_s`` of simulated time without a message on its
+inputs. A ``reset`` service (std_srvs/Trigger) returns the limb to its initial
+state with every held input at 0.
+
+Run: ``ros2 run hill_muscle_ros limb_simulator --ros-args --params-file
+config/knee.yaml`` or ``hill-muscle limb --ros-args ...``.
+"""
+from __future__ import annotations
+
+import math
+import sys
+from array import array
+
+import rclpy
+from geometry_msgs.msg import WrenchStamped
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.clock import Clock, ClockType
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rosgraph_msgs.msg import Clock as ClockMsg
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64
+from std_srvs.srv import Trigger
+
+from ..model.limb import TORQUE_LIMIT_N_M, Limb, LimbPlant
+from ..model.muscle import check_recruitment
+from ..model.stimulus import command_from_pulse_width
+from ..timebase import NS_PER_S
+from ._common import (OTHER_NODE_PARAMETERS, OUTPUT_QOS, QOS_OVERRIDES_PREFIX, RELIABLE_QOS,
+                      BadInputWarner, DiagnosticReport, NodeDiagnostics, StartupError,
+                      StepSchedule, check_qos_overrides, declare_checked, number_descriptor,
+                      overridable_publisher, overridable_subscription, parameter_overrides,
+                      run_node)
+from .simulator import (DEFAULT_INPUT_TIMEOUT_S, DEFAULT_RATE_HZ, DEFAULT_REAL_TIME_FACTOR,
+                        ERROR_BEHIND_S, INPUT_TIMEOUT_RANGE_S, MAX_CATCH_UP_S,
+                        MIN_TICK_PERIOD_S, PULSE_WIDTH_UNIT_HINT_FACTOR, RATE_HZ_RANGE,
+                        RATE_WARN_FRACTION, REAL_TIME_FACTOR_RANGE)
+
+NODE_NAME = 'limb'
+
+#: Parameters of this node that are not part of the plant.
+LIMB_NODE_PARAMETERS = ('rate_hz', 'real_time_factor', 'input_timeout_s', 'publish_clock')
+#: Slack, in steps, for the rounding of ``tick period x rate x real_time_factor``.
+_STEPS_PER_TICK_ROUNDING = 1e-9
+
+
+def plant_values(overrides: dict[str, Parameter]) -> dict[str, object]:
+    """The plant's entries among a node's parameter overrides, by dotted name.
+
+    This node's own parameters, the other nodes' of the package (one ``/**``
+    section may configure them all) and QoS overrides are left out; everything
+    else belongs to the plant, which rejects what it does not know.
+
+    :param overrides: the node's overrides by name (:func:`parameter_overrides`)
+    :return: name to Python value; ROS arrays as lists
+    """
+    values = {}
+    for name, param in overrides.items():
+        if (name in LIMB_NODE_PARAMETERS or name in OTHER_NODE_PARAMETERS
+                or name.startswith(QOS_OVERRIDES_PREFIX)):
+            continue
+        value = param.value
+        values[name] = list(value) if isinstance(value, (array, tuple)) else value
+    return values
+
+
+class LimbNode(Node):
+    """ROS 2 shell around :class:`~hill_muscle_ros.model.limb.Limb`.
+
+    :raises StartupError: on an invalid parameter or plant at start-up
+    """
+
+    NODE_NAME = NODE_NAME
+
+    def __init__(self) -> None:
+        super().__init__(NODE_NAME)
+        rate_hz = declare_checked(self, 'rate_hz', DEFAULT_RATE_HZ, number_descriptor(
+            'step rate, dt = 1 / rate_hz', 'Hz', *RATE_HZ_RANGE, read_only=True))
+        rtf = declare_checked(self, 'real_time_factor', DEFAULT_REAL_TIME_FACTOR,
+                              number_descriptor('simulated seconds per clock second', '-',
+                                                *REAL_TIME_FACTOR_RANGE, read_only=True))
+        self._input_timeout_s = declare_checked(
+            self, 'input_timeout_s', DEFAULT_INPUT_TIMEOUT_S, number_descriptor(
+                "stimulation watchdog: a muscle's command drops to 0 after this long "
+                'without a pulse_width or recruitment message for it; 0 disables', 's',
+                *INPUT_TIMEOUT_RANGE_S))
+        self._publish_clock = declare_checked(self, 'publish_clock', False, ParameterDescriptor(
+            description='publish /clock (sim time from 0) and stamp outputs with it',
+            read_only=True))
+        for name, value in (('rate_hz', rate_hz), ('real_time_factor', rtf),
+                            ('input_timeout_s', self._input_timeout_s)):
+            if not math.isfinite(value):
+                raise StartupError(f'parameter `{name}` must be finite, got {value!r}')
+
+        overrides = parameter_overrides(self)
+        values = plant_values(overrides)
+        try:
+            self._plant = LimbPlant.from_mapping(values, source='plant parameters')
+        except ValueError as err:
+            raise StartupError(str(err)) from None
+        self._declare_plant(values)
+        names = [m.name for m in self._plant.muscles]
+        topics = ['external_torque', 'joint_states']
+        for n in names:
+            topics += [f'{n}/pulse_width', f'{n}/recruitment', f'{n}/force', f'{n}/wrench']
+        check_qos_overrides(self, [n for n in overrides if n.startswith(QOS_OVERRIDES_PREFIX)],
+                            {self.resolve_topic_name(t) for t in topics})
+
+        self._limb = Limb(self._plant)
+        self._rate_hz = rate_hz
+        self._dt_s = 1.0 / rate_hz
+        self._names = names
+        # Held inputs (zero-order hold): each muscle's recruitment command u
+        # [-] (a pulse width through its curve) and the external torque [N m].
+        self._commands = [0.0] * len(names)
+        self._external_torque_n_m = 0.0
+        self._last_stim_t_s = [0.0] * len(names)   # [s] sim time of each muscle's last input
+        self._watchdog_tripped = [False] * len(names)
+        self._stim_messages = 0
+        self._bad_input = BadInputWarner(self.get_logger())
+        self._resets_on_error = 0
+
+        self._pub_joint = overridable_publisher(self, JointState, 'joint_states', OUTPUT_QOS)
+        self._joint_msg = JointState()
+        self._joint_msg.name = [self._plant.joint.name]
+        self._pub_force = [overridable_publisher(self, Float64, f'{n}/force', OUTPUT_QOS)
+                           for n in names]
+        self._pub_wrench = [overridable_publisher(self, WrenchStamped, f'{n}/wrench', OUTPUT_QOS)
+                            for n in names]
+        self._force_msgs = [Float64() for _ in names]
+        self._wrench_msgs = [WrenchStamped() for _ in names]
+        for n, msg in zip(names, self._wrench_msgs):
+            msg.header.frame_id = n   # the muscle's own frame, its line of action along +x
+        self._clock_msg = ClockMsg()
+        self._pub_clock = (overridable_publisher(self, ClockMsg, '/clock', OUTPUT_QOS)
+                           if self._publish_clock else None)
+        self._sub_pw, self._sub_r = [], []
+        for i, n in enumerate(names):
+            self._sub_pw.append(overridable_subscription(
+                self, Float64, f'{n}/pulse_width',
+                lambda msg, i=i: self._on_pulse_width(i, msg), RELIABLE_QOS))
+            self._sub_r.append(overridable_subscription(
+                self, Float64, f'{n}/recruitment',
+                lambda msg, i=i: self._on_recruitment(i, msg), RELIABLE_QOS))
+        self._sub_tau = overridable_subscription(self, Float64, 'external_torque',
+                                                 self._on_external_torque, RELIABLE_QOS)
+        self.create_service(Trigger, 'reset', self._on_reset)
+        self.add_on_set_parameters_callback(self._validate_parameters)
+        self.add_post_set_parameters_callback(self._apply_parameters)
+
+        # Stamps without publish_clock: the node clock at start + simulated time.
+        self._stamp_origin_ns = 0 if self._publish_clock else self.get_clock().now().nanoseconds
+        self._steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self._schedule = StepSchedule(rate_hz, rtf, self._steady.now().nanoseconds)
+        self._max_steps_per_tick = max(1, math.ceil(MAX_CATCH_UP_S * rtf * rate_hz))
+        tick_s = max(MIN_TICK_PERIOD_S, self._dt_s / rtf)
+        self._timer = self.create_timer(tick_s, self._on_tick, clock=self._steady)
+        self._real_time_factor = rtf
+        self._steps_per_tick = max(1, math.ceil(tick_s * rate_hz * rtf
+                                                - _STEPS_PER_TICK_ROUNDING))
+        self._error_behind_steps = max(1, math.ceil(ERROR_BEHIND_S * rtf * rate_hz))
+        self._diagnostics = NodeDiagnostics(self, 'limb simulation', self._diagnose)
+        self.get_logger().info(
+            f'{self._plant.joint.name} with {", ".join(names) or "no muscles"}, '
+            f'{rate_hz:g} Hz, real_time_factor {rtf:g}, publish_clock {self._publish_clock}, '
+            f'watchdog {self._input_timeout_s:g} s')
+
+    def _declare_plant(self, values: dict[str, object]) -> None:
+        """Declare the plant's parameters read-only, so ``ros2 param`` shows them."""
+        for name in sorted(values):
+            try:
+                self.declare_parameter(name, values[name], ParameterDescriptor(
+                    description='plant parameter (read-only)', read_only=True))
+            except (InvalidParameterTypeException, InvalidParameterValueException,
+                    TypeError) as err:
+                raise StartupError(f'plant parameter `{name}` = {values[name]!r}: '
+                                   f'{err}') from None
+
+    # -- time and steps ---------------------------------------------------------
+
+    @property
+    def sim_time_s(self) -> float:
+        """[s] simulated time, from the step count (no accumulated rounding)."""
+        return self._schedule.steps_done / self._rate_hz
+
+    def _on_tick(self) -> None:
+        due = self._schedule.due(self._steady.now().nanoseconds)
+        if due == 0:
+            return
+        n = min(due, self._max_steps_per_tick)
+        if n < due:
+            self.get_logger().warning(
+                f'{due} steps due after a stall or overload: running {n} now and the rest '
+                f'on the next ticks; if this repeats, lower rate_hz ({self._rate_hz:g}) or '
+                'real_time_factor', throttle_duration_sec=1.0)
+        step = self._limb.step
+        for _ in range(n):
+            self._watchdog()
+            try:
+                out = step(self._commands, self._external_torque_n_m, self._dt_s)
+            except ValueError as err:
+                # The inputs were validated, so this is the joint driven out of
+                # the muscles' range (e.g. by a huge external torque): never
+                # publish it, report it and return to rest.
+                self._resets_on_error += 1
+                self.get_logger().error(f'{err}: resetting the limb to its initial state '
+                                        'with every input at 0', throttle_duration_sec=1.0)
+                self._reset_to_rest()
+                return
+            self._schedule.steps_done += 1
+            if not (math.isfinite(out.theta_rad) and math.isfinite(out.omega_rad_per_s)):
+                self._resets_on_error += 1
+                self.get_logger().error(
+                    f'non-finite state (theta {out.theta_rad!r} rad, omega '
+                    f'{out.omega_rad_per_s!r} rad/s): resetting', throttle_duration_sec=1.0)
+                self._reset_to_rest()
+                return
+            self._publish(out)
+
+    def _publish(self, out) -> None:
+        """Publish the outputs of the step just run, stamped with its end time."""
+        sim_ns = round(self._schedule.steps_done * NS_PER_S / self._rate_hz)
+        sec, nanosec = divmod(self._stamp_origin_ns + sim_ns, NS_PER_S)
+        joint = self._joint_msg
+        stamp = joint.header.stamp
+        stamp.sec = sec
+        stamp.nanosec = nanosec
+        if self._pub_clock is not None:
+            self._clock_msg.clock = stamp
+            self._pub_clock.publish(self._clock_msg)
+        joint.position = [out.theta_rad]
+        joint.velocity = [out.omega_rad_per_s]
+        joint.effort = [out.muscle_torque_n_m]
+        self._pub_joint.publish(joint)
+        for i, force_n in enumerate(out.force_n):
+            msg = self._force_msgs[i]
+            msg.data = force_n
+            self._pub_force[i].publish(msg)
+            wrench = self._wrench_msgs[i]
+            wrench.header.stamp = stamp
+            wrench.wrench.force.x = force_n
+            self._pub_wrench[i].publish(wrench)
+
+    def _watchdog(self) -> None:
+        """Stimulation watchdog, per muscle: u -> 0 when its inputs have gone quiet."""
+        if self._input_timeout_s <= 0.0:
+            return
+        now_s = self.sim_time_s
+        for i, u in enumerate(self._commands):
+            if u > 0.0 and now_s - self._last_stim_t_s[i] > self._input_timeout_s:
+                self.get_logger().warning(
+                    f'no {self._names[i]}/pulse_width or recruitment message for '
+                    f'{self._input_timeout_s:g} s (input_timeout_s): command {u:g} -> 0 '
+                    'until the next one')
+                self._commands[i] = 0.0
+                self._watchdog_tripped[i] = True
+
+    # -- inputs -----------------------------------------------------------------
+
+    def _set_command(self, i: int, u: float) -> None:
+        self._commands[i] = u
+        self._stim_messages += 1
+        self._last_stim_t_s[i] = self.sim_time_s
+        if self._watchdog_tripped[i]:
+            self._watchdog_tripped[i] = False
+            self.get_logger().info(f'{self._names[i]} stimulation back: command {u:g}')
+
+    def _reject(self, topic: str, value: float, err: Exception, kept: str) -> None:
+        """Warn (throttled per topic) that ``value`` on ``topic`` was ignored."""
+        self._bad_input.warn(topic, f'ignoring {topic} = {value!r}: {err}; keeping {kept}')
+
+    def _on_pulse_width(self, i: int, msg: Float64) -> None:
+        topic = self._sub_pw[i].topic_name
+        params = self._plant.muscles[i].params
+        try:
+            # Finite and non-negative first: only a finite width can be microseconds.
+            u = command_from_pulse_width(msg.data, params, topic)
+            limit_s = PULSE_WIDTH_UNIT_HINT_FACTOR * params.pw_max_s
+            if msg.data > limit_s:
+                raise ValueError(
+                    f'`{topic}` must be at most {PULSE_WIDTH_UNIT_HINT_FACTOR:g} x pw_max_s '
+                    f'({limit_s:g} s), got {msg.data!r}. It looks like microseconds: '
+                    f'pulse_width is in seconds (REP 103), e.g. {msg.data * 1e-6:g} for '
+                    f'{msg.data:g} us')
+        except ValueError as err:
+            self._reject(topic, msg.data, err, f'command {self._commands[i]:g}')
+            return
+        self._set_command(i, u)
+
+    def _on_recruitment(self, i: int, msg: Float64) -> None:
+        topic = self._sub_r[i].topic_name
+        try:
+            u = check_recruitment(msg.data, topic)
+        except ValueError as err:
+            self._reject(topic, msg.data, err, f'command {self._commands[i]:g}')
+            return
+        self._set_command(i, u)
+
+    def _on_external_torque(self, msg: Float64) -> None:
+        topic = self._sub_tau.topic_name
+        tau = msg.data
+        if not abs(tau) <= TORQUE_LIMIT_N_M:   # also false for NaN
+            self._reject(topic, tau, ValueError(
+                f'`{topic}` must be finite and within ±{TORQUE_LIMIT_N_M:g} N m'),
+                f'external torque {self._external_torque_n_m:g} N m')
+            return
+        self._external_torque_n_m = tau
+
+    # -- reset ------------------------------------------------------------------
+
+    def _reset_to_rest(self) -> None:
+        """Initial state, and every held input back to 0; simulated time runs on."""
+        self._limb.reset()
+        self._commands = [0.0] * len(self._names)
+        self._external_torque_n_m = 0.0
+        self._watchdog_tripped = [False] * len(self._names)
+
+    def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        self._reset_to_rest()
+        response.success = True
+        response.message = (f'{self._plant.joint.name} at its initial state at t = '
+                             f'{self.sim_time_s:.3f} s: commands 0, external torque 0')
+        self.get_logger().info(response.message)
+        return response
+
+    # -- parameters -------------------------------------------------------------
+
+    def _validate_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
+        for p in parameters:
+            if p.name == 'input_timeout_s' and not math.isfinite(p.value):
+                return SetParametersResult(
+                    successful=False, reason=f'`input_timeout_s` must be finite, got {p.value!r}')
+        return SetParametersResult(successful=True)
+
+    def _apply_parameters(self, parameters: list[Parameter]) -> None:
+        for p in parameters:
+            if p.name == 'input_timeout_s':
+                self._input_timeout_s = p.value
+
+    def _diagnose(self, report: DiagnosticReport) -> None:
+        """/diagnostics: step rate, steps behind, watchdog, held inputs, rejected inputs."""
+        s = self._schedule
+        behind = max(0, s.target(self._steady.now().nanoseconds) - s.steps_done)
+        steps = report.delta('steps', s.steps_done)
+        target_hz = self._rate_hz * self._real_time_factor
+        achieved_hz = steps / report.period_s if report.period_s > 0.0 else 0.0
+        bad = report.delta('bad_inputs', self._bad_input.total)
+        report.add('rate_hz', self._rate_hz)
+        report.add('real_time_factor', self._real_time_factor)
+        report.add('target_step_rate_hz', target_hz)
+        report.add('achieved_step_rate_hz', achieved_hz)
+        report.add('sim_time_s', self.sim_time_s)
+        report.add('steps_done', s.steps_done)
+        report.add('steps_behind', behind)
+        report.add('late_ticks_total', s.late_ticks)
+        report.add('max_tick_gap_s', s.max_tick_gap_s)
+        report.add('input_timeout_s', self._input_timeout_s)
+        report.add('theta_rad', self._limb.theta_rad)
+        report.add('external_torque_n_m', self._external_torque_n_m)
+        for name, u, tripped in zip(self._names, self._commands, self._watchdog_tripped):
+            report.add(f'command[{name}]', u)
+            report.add(f'watchdog_tripped[{name}]', tripped)
+        report.add('resets_on_error_total', self._resets_on_error)
+        report.add('bad_inputs_total', self._bad_input.total)
+        for topic, count in sorted(self._bad_input.counts.items()):
+            report.add(f'bad_inputs[{topic}]', count)
+        if behind > self._error_behind_steps:
+            report.error(f'{behind} steps behind the clock, more than {ERROR_BEHIND_S:g} s '
+                         f'worth: not keeping up with {target_hz:g} steps/s')
+        if steps < RATE_WARN_FRACTION * target_hz * report.period_s - self._steps_per_tick:
+            report.warn(f'{achieved_hz:.1f} steps/s in the last {report.period_s:.2f} s, below '
+                        f'{RATE_WARN_FRACTION:.0%} of {target_hz:g}')
+        if any(self._watchdog_tripped):
+            tripped = [n for n, t in zip(self._names, self._watchdog_tripped) if t]
+            report.warn(f'stimulation watchdog tripped for {", ".join(tripped)}: command 0')
+        if bad:
+            report.warn(f'{bad} input message(s) rejected in the last {report.period_s:.2f} s')
+        report.ok(f'stepping at {achieved_hz:.1f} steps/s of {target_hz:g}')
+
+    def on_exit(self) -> None:
+        """Log the run's timing statistics."""
+        s = self._schedule
+        elapsed_s = (self._steady.now().nanoseconds - s.start_ns) / NS_PER_S
+        rclpy.logging.get_logger(f'{self.get_logger().name}.stats').info(
+            f'ran {s.steps_done} steps in {elapsed_s:.3f} s of steady time, {s.ticks} ticks, '
+            f'{s.late_ticks} late, longest gap between ticks {s.max_tick_gap_s * 1e3:.1f} ms, '
+            f'{self._resets_on_error} resets on error')
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point: ``limb_simulator [--ros-args ...]``; returns the exit status."""
+    return run_node(LimbNode, args)
+
+
+if __name__ == '__main__':
+    sys.exit(main())
