@@ -222,6 +222,8 @@ FLOOD_TORQUE_N_M = 50.0
 FLOOD_NAN_EVERY = 7
 #: [N m] the last message of the flood: held once the flood has been taken.
 FLOOD_LAST_N_M = 3.0
+#: Joint states checked after the flood (0.1 s at 200 Hz).
+FLOOD_AFTER_STEPS = 20
 
 
 def test_external_torque_flood_breaks_nothing(leg):
@@ -229,7 +231,6 @@ def test_external_torque_flood_breaks_nothing(leg):
     pub = probe.publisher(f'{NS}/external_torque', Float64)
     probe.spin_until(lambda: pub.get_subscription_count() >= 1, 'the limb subscribed',
                      procs=leg['procs'])
-    mark = rec.mark()
     for k in range(FLOOD_MESSAGES):
         value = math.nan if k % FLOOD_NAN_EVERY == 0 else FLOOD_TORQUE_N_M * (-1) ** k
         pub.publish(Float64(data=value))
@@ -237,7 +238,37 @@ def test_external_torque_flood_breaks_nothing(leg):
     _diagnostics(leg, lambda v: v.get('external_torque_n_m') == f'{FLOOD_LAST_N_M:.6g}',
                  'the last torque of the flood held')
     assert leg['node'].returncode is None
-    msgs = probe.wait_for_messages(rec, mark=mark, procs=leg['procs'])
+    # Recorded after the flood: while the probe floods it does not read, so its
+    # own reader may drop joint states then; the node's stepping is what counts.
+    mark = rec.mark()
+    msgs = probe.wait_for_messages(rec, FLOOD_AFTER_STEPS, mark=mark, procs=leg['procs'])
     assert all(math.isfinite(m.position[0]) and math.isfinite(m.velocity[0]) for m in msgs)
     steps = [_stamp_step(m) for m in msgs]
-    assert steps == list(range(steps[0], steps[0] + len(steps)))   # stepping went on, no hole
+    assert steps == list(range(steps[0], steps[0] + len(steps)))   # stepping goes on
+
+
+#: [s] watchdog timeout set live for the watchdog test (the module runs with it off).
+WATCHDOG_S = 0.2
+
+
+def test_watchdog_drops_a_silent_muscles_command_to_zero(leg):
+    probe = leg['probe']
+    results = probe.set_parameters(f'{NS}/limb', {'input_timeout_s': WATCHDOG_S},
+                                   procs=leg['procs'])
+    try:
+        assert all(r.successful for r in results)
+        u = f'{command_from_pulse_width(EXTENDING_PW_S, QUAD):.6g}'
+        rec = leg['recs']['joint']
+        mark = rec.mark()
+        _publish(leg, 'quadriceps/pulse_width', EXTENDING_PW_S)   # then silence
+        probe.spin_until(lambda: any(m.position[0] > EXTENDED_RAD for m in rec.since(mark)),
+                         'the knee above 30 deg', procs=leg['procs'])
+        values = _diagnostics(leg, lambda v: v.get('watchdog_tripped[quadriceps]') == 'true',
+                              'the quadriceps watchdog tripped')
+        assert values['command[quadriceps]'] == '0' != u
+        # Unstimulated, the knee falls back towards hanging.
+        mark = rec.mark()
+        probe.spin_until(lambda: any(m.position[0] < EXTENDED_RAD for m in rec.since(mark)),
+                         'the knee back below 30 deg', procs=leg['procs'])
+    finally:
+        probe.set_parameters(f'{NS}/limb', {'input_timeout_s': 0.0}, procs=leg['procs'])
