@@ -5,7 +5,8 @@ Subscribes ``pulse_width`` [s], ``recruitment`` [-] and ``length_command``
 dt = 1 / ``rate_hz`` against the steady clock, and publishes ``force`` [N],
 ``ce_length`` [m], ``wrench`` (geometry_msgs/WrenchStamped, force along +x),
 ``recruitment_state`` [-] (R, the activation) and ``fitness`` [-] (the mean
-fitness of the units) for every step, stamped with the step's simulated time; optionally ``/clock``.
+fitness of the units; these two at most at 1 kHz of the steady clock) for every
+step, stamped with the step's simulated time; optionally ``/clock``.
 A late tick catching up publishes every step it runs, in order, as a burst, so
 a recording has no holes. When the steps run faster than 1 kHz of the steady
 clock (``real_time_factor`` > 1, ``rate_hz`` > 1 kHz) the outputs of every
@@ -189,6 +190,13 @@ class Simulator(Node):
                 f'keeps them at or below {DEFAULT_MAX_OUTPUT_RATE_HZ:g} Hz of the steady '
                 'clock (rate_hz x real_time_factor / 1000, rounded up)', '-',
                 *PUBLISH_EVERY_N_STEPS_RANGE, integer=True, read_only=True))
+        # recruitment_state and fitness change at the pace of activation and
+        # fatigue (tens of ms and more): they keep to the default grid, at most
+        # 1 kHz of the steady clock, even when publish_every_n_steps asks for
+        # every step; at real_time_factor 10 they would otherwise add 20,000
+        # messages a second to the force, length and wrench streams.
+        self._state_every = max(self._publish_every,
+                                default_publish_every_n_steps(rate_hz, rtf))
         try:
             check_frame_id(self._frame_id)
         except ValueError as err:
@@ -331,6 +339,7 @@ class Simulator(Node):
         isfinite = math.isfinite
         dt_s = self._dt_s
         every = self._publish_every
+        state_every = self._state_every
         for dl in dls:
             watchdog()
             out = step(self._recruitment, dl, dt_s)
@@ -347,11 +356,12 @@ class Simulator(Node):
                 return False
             # Steps on a fixed grid of simulated time, whatever the tick phase.
             if not schedule.steps_done % every:
-                publish(force_n, l_ce_m, out.recruitment, out.mean_fitness)
+                publish(force_n, l_ce_m)
+                if not schedule.steps_done % state_every:
+                    self._publish_state(out.recruitment, out.mean_fitness)
         return True
 
-    def _publish(self, force_n: float, l_ce_m: float, recruitment: float,
-                 fitness: float) -> None:
+    def _publish(self, force_n: float, l_ce_m: float) -> None:
         """Publish the outputs of the step just run, stamped with its end time."""
         sim_ns = round(self._schedule.steps_done * NS_PER_S / self._rate_hz)
         sec, nanosec = divmod(self._stamp_origin_ns + sim_ns, NS_PER_S)
@@ -368,6 +378,9 @@ class Simulator(Node):
         self._pub_ce_length.publish(self._ce_length_msg)
         wrench.wrench.force.x = force_n
         self._pub_wrench.publish(wrench)
+
+    def _publish_state(self, recruitment: float, fitness: float) -> None:
+        """Publish R (the activation) and the mean fitness of the step just run."""
         self._r_state_msg.data = recruitment
         self._pub_r_state.publish(self._r_state_msg)
         self._fitness_msg.data = fitness
