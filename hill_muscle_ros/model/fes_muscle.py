@@ -29,7 +29,7 @@ from typing import Sequence
 
 from .curves import ECC_PLATEAU, force_length, force_velocity_inverse
 from .memory import recruited_units
-from .muscle import Muscle, MuscleOutputs
+from .muscle import Muscle, MuscleOutputs, check_dl_mt, check_recruitment
 from .params import MuscleParams
 from .stimulus import DelayLine, activation_at, command_from_pulse_width, time_to_reach
 from .unit_pool import UnitPool
@@ -125,24 +125,27 @@ class FesMuscle(Muscle):
 
         :param recruitment: [-] command u in [0, 1]
         """
-        from .muscle import check_recruitment
-        self._give_command(check_recruitment(recruitment))
+        self.give_command(check_recruitment(recruitment))
 
     def set_pulse_width(self, pulse_width_s: float) -> None:
         """Give an FES pulse width now, through the recruitment curve.
 
         :param pulse_width_s: [s] stimulation pulse width (PW), >= 0
         """
-        self._give_command(command_from_pulse_width(pulse_width_s, self.params))
+        self.give_command(command_from_pulse_width(pulse_width_s, self.params))
 
-    def _give_command(self, u: float) -> None:
-        """Queue command ``u`` at the current instant and apply what is due now."""
+    def give_command(self, u: float) -> None:
+        """Queue command ``u`` at the current instant and apply what is due now
+        (validated by the caller; a limb gives each muscle's command this way).
+
+        :param u: [-] recruitment command in [0, 1]
+        """
         self.command = u
         self._delay.push(self.t_s, u)
         # A command due now (no delay) with an instantaneous activation acts now.
-        self._settle_now()
+        self.settle_now()
 
-    def _settle_now(self) -> None:
+    def settle_now(self) -> None:
         """Apply a delayed command due at the current instant, if the activation
         follows it at once; a release to zero frees the CE at once."""
         u_d = self._delay.settle(self.t_s)
@@ -471,7 +474,7 @@ class FesMuscle(Muscle):
         """One step: command ``u`` given at its start, dl_MT ramping to ``dl1``."""
         t0, dl0 = self.t_s, self.dl_mt_m
         t1 = t0 + dt
-        self._give_command(u)
+        self.give_command(u)
         rate = (dl1 - dl0) / dt
         s = t0
         for instant, action, value in self.plan(t0, t1):
@@ -483,7 +486,7 @@ class FesMuscle(Muscle):
         self.t_s = t1
         # A switch due exactly at the step's end acts in this sample already,
         # as a command given at t_k does in the paper's model.
-        self._settle_now()
+        self.settle_now()
         if self._pool is not None:
             self._pool.advance_to(t1)
 
@@ -513,7 +516,7 @@ class FesMuscle(Muscle):
         for k, dl1 in enumerate(dl_mt_end_m):
             self._advance(r_start[k], dl1, dt_s)
             if r_end is not None and r_end[k] != self.command:
-                self._give_command(r_end[k])
+                self.give_command(r_end[k])
             out = self.outputs()
             if columns is not None:
                 for column, value in zip(columns, out):
@@ -534,7 +537,6 @@ class FesMuscle(Muscle):
         :raises ValueError: on a NaN, infinite or out-of-range input; the state
             is unchanged
         """
-        from .muscle import check_dl_mt, check_recruitment
         u, dl = check_recruitment(recruitment), check_dl_mt(dl_mt_m)
         if not (math.isfinite(dt_s) and dt_s > 0.0):
             raise ValueError(f'`dt_s` must be positive and finite, got {dt_s!r}')

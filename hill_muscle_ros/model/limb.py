@@ -384,7 +384,7 @@ class Limb:
         timeline = []
         for i, (m, u) in enumerate(zip(self.muscles, us)):
             m.t_s = t0
-            m._give_command(u)
+            m.give_command(u)
             timeline.extend((instant, i, action, value)
                             for instant, action, value in m.plan(t0, t1))
         timeline.sort(key=lambda event: event[0])   # stable: each muscle keeps its order
@@ -400,7 +400,7 @@ class Limb:
         self.t_s = t1
         for m in self.muscles:
             m.t_s = t1
-            m._settle_now()
+            m.settle_now()
         for i, m in enumerate(self.muscles):
             dl = self._dl_mt(i, self.theta_rad)
             if not abs(dl) <= DL_MT_LIMIT_M:
@@ -570,13 +570,13 @@ def simulate_limb(plant: LimbPlant, protocol: LimbProtocol,
                                             out.dl_mt_m[i], out.l_ce_m[i], out.force_n[i])
 
     for i, m in enumerate(limb.muscles):
-        m._give_command(float(u[0, i]))
+        m.give_command(float(u[0, i]))
     record(0, limb.outputs())
     for k in range(len(t) - 1):
         limb.step(u[k], float(tau[k]), dt)
         for i, m in enumerate(limb.muscles):
             if u[k + 1, i] != m.command:   # the command of t_(k+1) shows in its sample
-                m._give_command(float(u[k + 1, i]))
+                m.give_command(float(u[k + 1, i]))
         record(k + 1, limb.outputs())
     rows[:, 0] = t
     return LimbResult(t, dict(zip(limb_columns(plant), rows.T)))

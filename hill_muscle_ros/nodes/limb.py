@@ -45,7 +45,6 @@ from std_srvs.srv import Trigger
 
 from ..model.limb import TORQUE_LIMIT_N_M, Limb, LimbPlant
 from ..model.muscle import check_recruitment
-from ..model.stimulus import command_from_pulse_width
 from ..timebase import NS_PER_S
 from ._common import (OTHER_NODE_PARAMETERS, OUTPUT_QOS, QOS_OVERRIDES_PREFIX, RELIABLE_QOS,
                       BadInputWarner, DiagnosticReport, NodeDiagnostics, StartupError,
@@ -54,8 +53,8 @@ from ._common import (OTHER_NODE_PARAMETERS, OUTPUT_QOS, QOS_OVERRIDES_PREFIX, R
                       run_node)
 from .simulator import (DEFAULT_INPUT_TIMEOUT_S, DEFAULT_RATE_HZ, DEFAULT_REAL_TIME_FACTOR,
                         ERROR_BEHIND_S, INPUT_TIMEOUT_RANGE_S, MAX_CATCH_UP_S,
-                        MIN_TICK_PERIOD_S, PULSE_WIDTH_UNIT_HINT_FACTOR, RATE_HZ_RANGE,
-                        RATE_WARN_FRACTION, REAL_TIME_FACTOR_RANGE)
+                        MIN_TICK_PERIOD_S, RATE_HZ_RANGE,
+                        RATE_WARN_FRACTION, REAL_TIME_FACTOR_RANGE, pulse_width_command)
 
 NODE_NAME = 'limb'
 
@@ -292,17 +291,8 @@ class LimbNode(Node):
 
     def _on_pulse_width(self, i: int, msg: Float64) -> None:
         topic = self._sub_pw[i].topic_name
-        params = self._plant.muscles[i].params
         try:
-            # Finite and non-negative first: only a finite width can be microseconds.
-            u = command_from_pulse_width(msg.data, params, topic)
-            limit_s = PULSE_WIDTH_UNIT_HINT_FACTOR * params.pw_max_s
-            if msg.data > limit_s:
-                raise ValueError(
-                    f'`{topic}` must be at most {PULSE_WIDTH_UNIT_HINT_FACTOR:g} x pw_max_s '
-                    f'({limit_s:g} s), got {msg.data!r}. It looks like microseconds: '
-                    f'pulse_width is in seconds (REP 103), e.g. {msg.data * 1e-6:g} for '
-                    f'{msg.data:g} us')
+            u = pulse_width_command(msg.data, self._plant.muscles[i].params, topic)
         except ValueError as err:
             self._reject(topic, msg.data, err, f'command {self._commands[i]:g}')
             return

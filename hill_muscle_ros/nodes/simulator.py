@@ -141,6 +141,29 @@ def default_publish_every_n_steps(rate_hz: float, real_time_factor: float) -> in
     return max(1, math.ceil(steps_per_output - _STEP_RATIO_ROUNDING))
 
 
+def pulse_width_command(pulse_width_s: float, params: MuscleParams, topic: str) -> float:
+    """The command of a ``pulse_width`` message: the muscle's recruitment curve,
+    and a width over :data:`PULSE_WIDTH_UNIT_HINT_FACTOR` x PW_max rejected
+    with a hint, since it is most likely microseconds sent for seconds.
+
+    :param pulse_width_s: [s] the message's pulse width
+    :param params: the muscle's parameters (curve, PW_max)
+    :param topic: the subscription's full topic name, for the error message
+    :return: [-] recruitment command u
+    :raises ValueError: naming the topic and the value
+    """
+    # Finite and non-negative first: only a finite width can be microseconds.
+    u = command_from_pulse_width(pulse_width_s, params, topic)
+    limit_s = PULSE_WIDTH_UNIT_HINT_FACTOR * params.pw_max_s
+    if pulse_width_s > limit_s:
+        raise ValueError(
+            f'`{topic}` must be at most {PULSE_WIDTH_UNIT_HINT_FACTOR:g} x pw_max_s '
+            f'({limit_s:g} s), got {pulse_width_s!r}. It looks like microseconds: '
+            f'pulse_width is in seconds (REP 103), e.g. {pulse_width_s * 1e-6:g} for '
+            f'{pulse_width_s:g} us')
+    return u
+
+
 def check_frame_id(frame_id: str) -> str:
     """Validate the ``frame_id`` parameter: a tf2 frame name.
 
@@ -418,17 +441,8 @@ class Simulator(Node):
 
     def _on_pulse_width(self, msg: Float64) -> None:
         topic = self._sub_pw.topic_name
-        pw_max_s = self._params.pw_max_s
         try:
-            # Finite and non-negative first: only a finite width can be microseconds.
-            r = command_from_pulse_width(msg.data, self._params, topic)
-            limit_s = PULSE_WIDTH_UNIT_HINT_FACTOR * pw_max_s
-            if msg.data > limit_s:
-                raise ValueError(
-                    f'`{topic}` must be at most {PULSE_WIDTH_UNIT_HINT_FACTOR:g} x pw_max_s '
-                    f'({limit_s:g} s), got {msg.data!r}. It looks like microseconds: '
-                    f'pulse_width is in seconds (REP 103), e.g. {msg.data * 1e-6:g} for '
-                    f'{msg.data:g} us')
+            r = pulse_width_command(msg.data, self._params, topic)
         except ValueError as err:
             self._reject(topic, msg.data, err)
             return
