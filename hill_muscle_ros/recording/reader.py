@@ -53,12 +53,15 @@ class TopicData:
         """The scalar each message carries.
 
         ``std_msgs/Float64``: ``data``; ``WrenchStamped``: ``wrench.force.x``
-        [N]; ``rosgraph_msgs/Clock``: the clock [s].
+        [N]; ``geometry_msgs/PointStamped`` (a length knot): ``point.x`` [m];
+        ``rosgraph_msgs/Clock``: the clock [s].
         """
         if self.type == 'std_msgs/msg/Float64':
             return np.array([m.data for m in self.messages], dtype=float)
         if self.type == 'geometry_msgs/msg/WrenchStamped':
             return np.array([m.wrench.force.x for m in self.messages], dtype=float)
+        if self.type == 'geometry_msgs/msg/PointStamped':
+            return np.array([m.point.x for m in self.messages], dtype=float)
         if self.type == 'rosgraph_msgs/msg/Clock':
             return np.array([m.clock.sec + m.clock.nanosec / NS_PER_S for m in self.messages],
                             dtype=float)
