@@ -32,10 +32,10 @@ from ..control import ControllerInputs, ControllerParams, ForceController, Impos
 from ..model import MuscleParams
 from ..model.muscle import check_dl_mt
 from ..timebase import NS_PER_S
-from ._common import (OUTPUT_QOS, RELIABLE_QOS, BadInputWarner, DiagnosticReport,
+from ._common import (FINAL_ACK_TIMEOUT_S, OUTPUT_QOS, RELIABLE_QOS, BadInputWarner, DiagnosticReport,
                       NodeDiagnostics, StartupError, declare_checked, field_descriptor,
                       number_descriptor, overridable_publisher, overridable_subscription,
-                      reject_unknown_overrides, run_node)
+                      publish_last, reject_unknown_overrides, run_node)
 
 NODE_NAME = 'force_controller'
 #: Longest time step, in control periods, that one update integrates over.
@@ -276,7 +276,10 @@ class ForceControllerNode(Node):
     def on_exit(self) -> None:
         """Leave the muscle unstimulated: a controller that stops must say 0."""
         try:
-            self._publish(0.0)
+            self.pulse_width_s = 0.0
+            if not publish_last([(self._pub, Float64(data=0.0))]):
+                self.get_logger().debug('zero stimulation on exit not acknowledged within '
+                                        f'{FINAL_ACK_TIMEOUT_S:g} s on {self._pub.topic_name}')
         except Exception as err:  # noqa: BLE001 - the context may already be down
             self.get_logger().warning(f'could not publish zero stimulation on exit: {err}')
 
