@@ -53,6 +53,7 @@ setup(
             'recorder = hill_muscle_ros.nodes.recorder:main',
             'force_controller = hill_muscle_ros.nodes.force_controller:main',
             'limb_simulator = hill_muscle_ros.nodes.limb:main',
+            'joint_controller = hill_muscle_ros.nodes.joint_controller:main',
         ],
     },
 )

@@ -74,6 +74,9 @@ NODE_COMMANDS = {
                               'run the force controller node (ROS 2)'),
     'limb': NodeCommand('hill_muscle_ros.nodes.limb', 'limb_simulator',
                         'run the limb simulator node (ROS 2)'),
+    'joint-controller': NodeCommand('hill_muscle_ros.nodes.joint_controller',
+                                    'joint_controller',
+                                    'run the joint-angle controller node (ROS 2)'),
 }
 _HELP_FLAGS = ('-h', '--help')
 _ROS_ARGS = '--ros-args'

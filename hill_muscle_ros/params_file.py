@@ -11,6 +11,7 @@ from typing import Any
 import yaml
 
 from .model import MuscleParams
+from .control.joint import JOINT_CONTROLLER_KEYS
 from .model.limb import LimbPlant
 from .model.protocol import safe_load_yaml
 
@@ -102,6 +103,8 @@ def load_plant(path: str | Path) -> tuple[LimbPlant, dict[str, Any]]:
     values = read_ros_parameters(path, 'limb')
     values = {k: v for k, v in values.items()
               if k != QOS_OVERRIDES_KEY and not str(k).startswith(QOS_OVERRIDES_KEY + '.')}
-    plant = LimbPlant.from_mapping(values, source=str(path), ignore=LIMB_NODE_KEYS)
+    # The joint controller's gains may share the plant file (one section for both nodes).
+    plant = LimbPlant.from_mapping(values, source=str(path),
+                                   ignore=LIMB_NODE_KEYS + JOINT_CONTROLLER_KEYS)
     node = {k: v for k, v in values.items() if k in LIMB_NODE_KEYS}
     return plant, node

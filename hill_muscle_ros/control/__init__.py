@@ -1,6 +1,11 @@
-"""An example FES force controller (pure Python; the ROS node wraps it)."""
+"""Example FES controllers (pure Python; the ROS nodes wrap them): force
+control of one muscle, and joint-angle control of a limb."""
+from .joint import (JOINT_CONTROLLER_KEYS, JointController, JointControllerParams, JointInputs,
+                    simulate_joint_control)
 from .pi import (FEEDFORWARD_CHOICES, ControllerInputs, ControllerParams, ForceController,
-                 ImposedLength, LengthRate)
+                 ImposedLength, LengthRate, pulse_width_within)
 
-__all__ = ['FEEDFORWARD_CHOICES', 'ControllerInputs', 'ControllerParams', 'ForceController',
-           'ImposedLength', 'LengthRate']
+__all__ = ['FEEDFORWARD_CHOICES', 'JOINT_CONTROLLER_KEYS', 'ControllerInputs',
+           'ControllerParams', 'ForceController', 'ImposedLength', 'JointController',
+           'JointControllerParams', 'JointInputs', 'LengthRate', 'pulse_width_within',
+           'simulate_joint_control']

@@ -251,6 +251,20 @@ class ImposedLength:
         return float(track.value_at(t)), float(after - before) / (2.0 * h)
 
 
+def pulse_width_within(command: float, params: MuscleParams, pw_max_s: float) -> float:
+    """[s] The pulse width that recruits ``command`` on a muscle's curve, at
+    most ``pw_max_s`` (the exponential curve reaches u = 1 only at an
+    infinite width, so a command beyond what ``pw_max_s`` gives is that width).
+
+    :param command: [-] recruitment command u in [0, 1]
+    :param params: the muscle (curve, PW_th, PW_scale, PW_max)
+    :param pw_max_s: [s] the widest pulse the stimulator sends
+    """
+    if command >= command_from_pulse_width(pw_max_s, params):
+        return pw_max_s
+    return min(pulse_width_for_command(command, params), pw_max_s)
+
+
 class ForceController:
     """PI force control with feedforward and conditional-integration anti-windup.
 
@@ -358,9 +372,7 @@ class ForceController:
         p, m = self.params, self.model
         if m.recruitment_curve == 'linear':
             return p.pw_max_s * command
-        if command >= command_from_pulse_width(p.pw_max_s, m):
-            return p.pw_max_s
-        return pulse_width_for_command(command, m)
+        return pulse_width_within(command, m, p.pw_max_s)
 
     def update(self, target_n: float, force_n: float, dt_s: float,
                dl_mt_m: float = 0.0, v_mt_m_per_s: float = 0.0) -> float:

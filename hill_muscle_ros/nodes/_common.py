@@ -23,6 +23,7 @@ import math
 import os
 import signal
 import time
+from array import array
 from typing import Any, Callable
 
 import rclpy
@@ -42,6 +43,7 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange,
 from rcl_interfaces.srv import ListParameters
 from rclpy.parameter import Parameter
 
+from ..control.joint import JOINT_CONTROLLER_KEYS
 from ..dds_transport import use_udp_transport
 from ..model import MuscleParams
 from ..model.params import CURVE_FIELDS, range_constraint
@@ -358,7 +360,45 @@ OTHER_NODE_PARAMETERS = frozenset((
     'protocol', 'output', 'wait_for_subscribers_s',         # protocol_player
     'lookahead_s', 'min_subscribers',
     'topics',                                               # recorder (and `output`)
+    *JOINT_CONTROLLER_KEYS,                                 # joint_controller
 ))
+
+
+def plant_values(overrides: dict[str, Parameter], own: tuple[str, ...] = ()
+                 ) -> dict[str, object]:
+    """The plant's entries among a node's parameter overrides, by dotted name.
+
+    The node's own parameters (``own``), the other nodes' of the package (one
+    ``/**`` section may configure them all) and QoS overrides are left out;
+    everything else belongs to the plant, which rejects what it does not know.
+
+    :param overrides: the node's overrides by name (:func:`parameter_overrides`)
+    :param own: the node's own parameter names
+    :return: name to Python value; ROS arrays as lists
+    """
+    values = {}
+    for name, param in overrides.items():
+        if (name in own or name in OTHER_NODE_PARAMETERS
+                or name.startswith(QOS_OVERRIDES_PREFIX)):
+            continue
+        value = param.value
+        values[name] = list(value) if isinstance(value, (array, tuple)) else value
+    return values
+
+
+def declare_plant(node: Node, values: dict[str, object]) -> None:
+    """Declare a plant's parameters read-only, so ``ros2 param`` shows them.
+
+    :raises StartupError: naming a parameter ROS cannot hold
+    """
+    for name in sorted(values):
+        try:
+            node.declare_parameter(name, values[name], ParameterDescriptor(
+                description='plant parameter (read-only)', read_only=True))
+        except (InvalidParameterTypeException, InvalidParameterValueException,
+                TypeError) as err:
+            raise StartupError(f'plant parameter `{name}` = {values[name]!r}: '
+                               f'{err}') from None
 
 
 def parameter_overrides(node: Node) -> dict[str, Parameter]:
@@ -422,14 +462,18 @@ def publish_last(publishers_and_messages, timeout_s: float = FINAL_ACK_TIMEOUT_S
     """Publish each message and wait until every subscriber acknowledged it.
 
     :param publishers_and_messages: (publisher, message) pairs
-    :param timeout_s: [s] longest wait per publisher
+    :param timeout_s: [s] longest wait, for all of them together
     :return: whether every publisher's messages were acknowledged in time
     """
     pairs = list(publishers_and_messages)
     for pub, msg in pairs:
         pub.publish(msg)
-    timeout = Duration(seconds=timeout_s)
-    return all([pub.wait_for_all_acked(timeout) for pub, _ in pairs])
+    deadline = time.monotonic() + timeout_s   # one wait for all, not one each
+    acked = True
+    for pub, _ in pairs:
+        left = max(deadline - time.monotonic(), 0.0)
+        acked = pub.wait_for_all_acked(Duration(seconds=left)) and acked
+    return acked
 
 
 # -- bad input ------------------------------------------------------------------

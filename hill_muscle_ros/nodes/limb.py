@@ -29,13 +29,11 @@ from __future__ import annotations
 
 import math
 import sys
-from array import array
 
 import rclpy
 from geometry_msgs.msg import WrenchStamped
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.clock import Clock, ClockType
-from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock as ClockMsg
@@ -46,11 +44,11 @@ from std_srvs.srv import Trigger
 from ..model.limb import TORQUE_LIMIT_N_M, Limb, LimbPlant
 from ..model.muscle import check_recruitment
 from ..timebase import NS_PER_S
-from ._common import (OTHER_NODE_PARAMETERS, OUTPUT_QOS, QOS_OVERRIDES_PREFIX, RELIABLE_QOS,
-                      BadInputWarner, DiagnosticReport, NodeDiagnostics, StartupError,
-                      StepSchedule, check_qos_overrides, declare_checked, number_descriptor,
+from ._common import (OUTPUT_QOS, QOS_OVERRIDES_PREFIX, RELIABLE_QOS, BadInputWarner,
+                      DiagnosticReport, NodeDiagnostics, StartupError, StepSchedule,
+                      check_qos_overrides, declare_checked, declare_plant, number_descriptor,
                       overridable_publisher, overridable_subscription, parameter_overrides,
-                      run_node)
+                      plant_values, run_node)
 from .simulator import (DEFAULT_INPUT_TIMEOUT_S, DEFAULT_RATE_HZ, DEFAULT_REAL_TIME_FACTOR,
                         ERROR_BEHIND_S, INPUT_TIMEOUT_RANGE_S, MAX_CATCH_UP_S,
                         MIN_TICK_PERIOD_S, RATE_HZ_RANGE,
@@ -62,26 +60,6 @@ NODE_NAME = 'limb'
 LIMB_NODE_PARAMETERS = ('rate_hz', 'real_time_factor', 'input_timeout_s', 'publish_clock')
 #: Slack, in steps, for the rounding of ``tick period x rate x real_time_factor``.
 _STEPS_PER_TICK_ROUNDING = 1e-9
-
-
-def plant_values(overrides: dict[str, Parameter]) -> dict[str, object]:
-    """The plant's entries among a node's parameter overrides, by dotted name.
-
-    This node's own parameters, the other nodes' of the package (one ``/**``
-    section may configure them all) and QoS overrides are left out; everything
-    else belongs to the plant, which rejects what it does not know.
-
-    :param overrides: the node's overrides by name (:func:`parameter_overrides`)
-    :return: name to Python value; ROS arrays as lists
-    """
-    values = {}
-    for name, param in overrides.items():
-        if (name in LIMB_NODE_PARAMETERS or name in OTHER_NODE_PARAMETERS
-                or name.startswith(QOS_OVERRIDES_PREFIX)):
-            continue
-        value = param.value
-        values[name] = list(value) if isinstance(value, (array, tuple)) else value
-    return values
 
 
 class LimbNode(Node):
@@ -113,12 +91,12 @@ class LimbNode(Node):
                 raise StartupError(f'parameter `{name}` must be finite, got {value!r}')
 
         overrides = parameter_overrides(self)
-        values = plant_values(overrides)
+        values = plant_values(overrides, LIMB_NODE_PARAMETERS)
         try:
             self._plant = LimbPlant.from_mapping(values, source='plant parameters')
         except ValueError as err:
             raise StartupError(str(err)) from None
-        self._declare_plant(values)
+        declare_plant(self, values)
         names = [m.name for m in self._plant.muscles]
         topics = ['external_torque', 'joint_states']
         for n in names:
@@ -184,17 +162,6 @@ class LimbNode(Node):
             f'{self._plant.joint.name} with {", ".join(names) or "no muscles"}, '
             f'{rate_hz:g} Hz, real_time_factor {rtf:g}, publish_clock {self._publish_clock}, '
             f'watchdog {self._input_timeout_s:g} s')
-
-    def _declare_plant(self, values: dict[str, object]) -> None:
-        """Declare the plant's parameters read-only, so ``ros2 param`` shows them."""
-        for name in sorted(values):
-            try:
-                self.declare_parameter(name, values[name], ParameterDescriptor(
-                    description='plant parameter (read-only)', read_only=True))
-            except (InvalidParameterTypeException, InvalidParameterValueException,
-                    TypeError) as err:
-                raise StartupError(f'plant parameter `{name}` = {values[name]!r}: '
-                                   f'{err}') from None
 
     # -- time and steps ---------------------------------------------------------
 
