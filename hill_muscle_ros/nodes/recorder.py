@@ -87,6 +87,8 @@ KNOWN_TYPES = {
     # for every run; add them to `topics` to record them).
     'recruitment_state': 'std_msgs/msg/Float64',
     'fitness': 'std_msgs/msg/Float64',
+    # The limb node's joint state (its muscles' topics sit under <muscle>/, so give their types).
+    'joint_states': 'sensor_msgs/msg/JointState',
     DIAGNOSTICS_TOPIC: 'diagnostic_msgs/msg/DiagnosticArray',
 }
 #: Where bags go by default, one directory per run named by its UTC start time.

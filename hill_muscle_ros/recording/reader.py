@@ -54,7 +54,8 @@ class TopicData:
 
         ``std_msgs/Float64``: ``data``; ``WrenchStamped``: ``wrench.force.x``
         [N]; ``geometry_msgs/PointStamped`` (a length knot): ``point.x`` [m];
-        ``rosgraph_msgs/Clock``: the clock [s].
+        ``sensor_msgs/JointState`` (the limb node's one joint): ``position[0]``
+        [rad]; ``rosgraph_msgs/Clock``: the clock [s].
         """
         if self.type == 'std_msgs/msg/Float64':
             return np.array([m.data for m in self.messages], dtype=float)
@@ -62,6 +63,11 @@ class TopicData:
             return np.array([m.wrench.force.x for m in self.messages], dtype=float)
         if self.type == 'geometry_msgs/msg/PointStamped':
             return np.array([m.point.x for m in self.messages], dtype=float)
+        if self.type == 'sensor_msgs/msg/JointState':
+            empty = next((k for k, m in enumerate(self.messages) if not len(m.position)), None)
+            if empty is not None:
+                raise ValueError(f'{self.name}: message {empty} has no position')
+            return np.array([m.position[0] for m in self.messages], dtype=float)
         if self.type == 'rosgraph_msgs/msg/Clock':
             return np.array([m.clock.sec + m.clock.nanosec / NS_PER_S for m in self.messages],
                             dtype=float)
