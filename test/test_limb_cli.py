@@ -60,9 +60,10 @@ def read_csv(path):
     return header, np.loadtxt(path, delimiter=',', skiprows=1, ndmin=2)
 
 
-@pytest.fixture
-def short_protocol(tmp_path):
-    path = tmp_path / 'short.yaml'
+@pytest.fixture(scope='module')
+def short_protocol(tmp_path_factory):
+    """The short protocol's file, written once: every test only reads it."""
+    path = tmp_path_factory.mktemp('protocol') / 'short.yaml'
     path.write_text(SHORT_PROTOCOL)
     return path
 
@@ -70,6 +71,23 @@ def short_protocol(tmp_path):
 def core(plant_path, protocol_path, rate_hz=1000.0):
     plant, _ = load_plant(plant_path)
     return simulate_limb(plant, LimbProtocol.from_yaml(protocol_path), rate_hz)
+
+
+@pytest.fixture(scope='module')
+def knee_core(short_protocol):
+    """The core's knee run on the short protocol at 1 kHz (1-2 s), computed once
+    for the tests that compare the command's output with it."""
+    return core(KNEE, short_protocol)
+
+
+@pytest.fixture(scope='module')
+def knee_csv(tmp_path_factory, short_protocol):
+    """``simulate --plant knee.yaml --csv`` on the short protocol at the default
+    rate, run once: header and data."""
+    out = tmp_path_factory.mktemp('knee_csv') / 'knee.csv'
+    assert cli.main(['simulate', '--plant', str(KNEE), '--protocol', str(short_protocol),
+                     '--csv', str(out)]) == 0
+    return read_csv(out)
 
 
 # --------------------------------------------------------------------------- CSV
@@ -81,11 +99,8 @@ def test_limb_csv_header_is_exact(tmp_path, short_protocol):
     assert read_csv(out)[0] == KNEE_CSV_HEADER
 
 
-def test_limb_csv_has_one_row_per_step_from_zero_to_the_end(tmp_path, short_protocol):
-    out = tmp_path / 'knee.csv'
-    assert cli.main(['simulate', '--plant', str(KNEE), '--protocol', str(short_protocol),
-                     '--csv', str(out)]) == 0
-    _, data = read_csv(out)
+def test_limb_csv_has_one_row_per_step_from_zero_to_the_end(knee_csv):
+    _, data = knee_csv
     assert data.shape == (2501, len(KNEE_CSV_HEADER.split(',')))
     assert data[0, 0] == 0.0 and data[-1, 0] == 2.5
 
@@ -99,12 +114,9 @@ def test_limb_rate_option_sets_the_step(tmp_path, short_protocol):
     np.testing.assert_allclose(np.diff(data[:, 0]), 0.0025, rtol=1e-9)
 
 
-def test_limb_csv_values_equal_simulate_limb_exactly(tmp_path, short_protocol):
-    out = tmp_path / 'knee.csv'
-    assert cli.main(['simulate', '--plant', str(KNEE), '--protocol', str(short_protocol),
-                     '--csv', str(out)]) == 0
-    header, data = read_csv(out)
-    expected = core(KNEE, short_protocol)
+def test_limb_csv_values_equal_simulate_limb_exactly(knee_csv, knee_core):
+    header, data = knee_csv
+    expected = knee_core
     for i, column in enumerate(header.split(',')):
         np.testing.assert_array_equal(data[:, i], expected[column], err_msg=column)
 
@@ -125,14 +137,14 @@ def test_limb_simulate_from_the_console_script_writes_the_ankle(tmp_path):
 # --------------------------------------------------------------------------- table
 
 def test_limb_table_prints_the_angle_in_degrees_and_each_force_each_second(
-        capsys, short_protocol):
+        capsys, short_protocol, knee_core):
     assert cli.main(['simulate', '--plant', str(KNEE), '--protocol',
                      str(short_protocol)]) == 0
     lines = capsys.readouterr().out.splitlines()
     header = lines[1].split()
     assert header == ['t_s', 'theta_deg', 'quadriceps_force_n', 'hamstrings_force_n']
     rows = [dict(zip(header, map(float, line.split()))) for line in lines[2:]]
-    expected = core(KNEE, short_protocol)
+    expected = knee_core
     assert [r['t_s'] for r in rows] == [1.0, 2.0, 2.5]
     for row in rows:
         k = int(round(row['t_s'] * 1000.0))
