@@ -79,14 +79,29 @@ def _intermittent_protocol():
 
 
 PROTOCOLS = {'varying': (_varying_protocol, 1e-5)}
+#: Every protocol by name, the long fatigue run included.
+MAKERS = {'varying': _varying_protocol, 'intermittent': _intermittent_protocol}
+
+#: (protocol, variant, dt_ref_s) -> reference run. The reference depends only
+#: on these (never on the production code), and a run takes 1-4 s: a test
+#: that needs the same one again reuses it.
+_REFERENCES = {}
 
 
-def _max_error(protocol, settings, dt_ref_s):
-    params = MuscleParams(**dict(BASE, **settings))
+def _reference(protocol_name, variant, dt_ref_s, protocol, params, t_s):
+    key = (protocol_name, variant, dt_ref_s)
+    if key not in _REFERENCES:
+        _REFERENCES[key] = fes_reference(dataclasses.asdict(params), t_s,
+                                         protocol.stimulation(t_s), protocol.stimulation_key,
+                                         protocol.dl_mt(t_s), dt_ref_s=dt_ref_s)
+    return _REFERENCES[key]
+
+
+def _max_error(protocol_name, variant, dt_ref_s):
+    protocol = MAKERS[protocol_name]()
+    params = MuscleParams(**dict(BASE, **VARIANTS[variant]))
     result = simulate(protocol, params)
-    ref = fes_reference(dataclasses.asdict(params), result.t_s,
-                        protocol.stimulation(result.t_s), protocol.stimulation_key,
-                        protocol.dl_mt(result.t_s), dt_ref_s=dt_ref_s)
+    ref = _reference(protocol_name, variant, dt_ref_s, protocol, params, result.t_s)
     np.testing.assert_allclose(result.recruitment, ref['recruitment'], rtol=0, atol=1e-9)
     # The reference places events on its grid (up to dt_ref / 2 off): 1e-5 covers that.
     np.testing.assert_allclose(result.mean_fitness, ref["mean_fitness"], rtol=0, atol=1e-5)
@@ -96,14 +111,14 @@ def _max_error(protocol, settings, dt_ref_s):
 @pytest.mark.parametrize('variant', VARIANTS)
 @pytest.mark.parametrize('protocol', PROTOCOLS)
 def test_force_at_1ms_is_within_0_05_newton_of_the_fine_step_reference(protocol, variant):
-    make, dt_ref_s = PROTOCOLS[protocol]
-    assert _max_error(make(), VARIANTS[variant], dt_ref_s) <= ACCURACY_N
+    _, dt_ref_s = PROTOCOLS[protocol]
+    assert _max_error(protocol, variant, dt_ref_s) <= ACCURACY_N
 
 
 @pytest.mark.parametrize('variant', ['fatigue', 'single-fatigue', 'types-random-spread-fatigue'])
 def test_long_intermittent_fatigue_run_stays_within_0_05_newton(variant):
     # 12 s: the reference at 0.1 ms (its own error there is about 2e-5 N on such runs).
-    assert _max_error(_intermittent_protocol(), VARIANTS[variant], 1e-4) <= ACCURACY_N
+    assert _max_error('intermittent', variant, 1e-4) <= ACCURACY_N
 
 
 def test_holding_r_over_each_step_would_miss_the_target():
@@ -117,7 +132,7 @@ def test_holding_r_over_each_step_would_miss_the_target():
         return [(s1, m) for _, m in original(self, s0, s1, *args)[-1:]]
     fes_muscle.FesMuscle._events = at_step_end
     try:
-        error = _max_error(_varying_protocol(), VARIANTS['multi-initial'], 1e-5)
+        error = _max_error('varying', 'multi-initial', 1e-5)
     finally:
         fes_muscle.FesMuscle._events = original
     # Measured 0.33 N on this protocol.
