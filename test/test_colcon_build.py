@@ -23,7 +23,7 @@ PACKAGE = 'hill_muscle_ros'
 SOURCE_ITEMS = ('package.xml', 'setup.py', 'setup.cfg', 'resource', 'config', PACKAGE)
 #: [s] a cold colcon build on a loaded 2-core machine
 BUILD_TIMEOUT_S = 300.0
-EXECUTABLES = ('simulator', 'protocol_player')
+EXECUTABLES = ('simulator', 'protocol_player', 'limb_simulator', 'joint_controller')
 
 
 @pytest.fixture(scope='module')
