@@ -64,5 +64,12 @@ bench: $(BENCH_STAMP)
 demo-closed-loop: $(STAMP)
 	$(BIN)/python -m hill_muscle_ros.demo_closed_loop $(if $(PROFILE),--profile $(PROFILE)) $(if $(OUT),--out $(OUT))
 
+# The joint controller moves the simulated knee (README "Limb"): limb node, joint
+# controller and recorder on config/knee.yaml; angle steps and a sine; a bag, a plot
+# and a stick-figure GIF. KNEE_PROFILE=short (8.5 s) for a quick look, OUT= a new directory.
+.PHONY: demo-knee
+demo-knee: $(STAMP)
+	$(BIN)/python -m hill_muscle_ros.demo_knee $(if $(KNEE_PROFILE),--profile $(KNEE_PROFILE)) $(if $(OUT),--out $(OUT))
+
 clean:
 	rm -rf $(VENV) build install log runs .pytest_cache .hypothesis *.egg-info
