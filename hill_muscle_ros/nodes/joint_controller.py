@@ -129,8 +129,11 @@ class JointControllerNode(Node):
             if self._joint not in msg.name:
                 raise ValueError(f'no joint {self._joint!r} in `name` {list(msg.name)!r}')
             i = list(msg.name).index(self._joint)
-            if len(msg.position) <= i or len(msg.velocity) <= i:
-                raise ValueError(f'{self._joint!r} needs a position and a velocity, got '
+            # JointState's arrays match its names (or are empty): with more
+            # positions than names, which one is the joint's is anyone's guess.
+            if not len(msg.name) == len(msg.position) == len(msg.velocity):
+                raise ValueError(f'{self._joint!r} needs a position and a velocity, one per '
+                                 f'name, got '
                                  f'{len(msg.position)} position(s) and {len(msg.velocity)} '
                                  f'velocity(ies) for {len(msg.name)} name(s)')
             theta = JointController.check_angle(msg.position[i], f'{topic}.position')
