@@ -149,6 +149,10 @@ def topic_names(entries: Sequence[str]) -> list[str]:
     return [e.partition(':')[0] for e in entries]
 
 
+def _never_called(_msg: Any) -> None:
+    """The limb-time subscription is read by taking, never by an executor."""
+
+
 # -- the run ------------------------------------------------------------------------
 
 
@@ -160,13 +164,20 @@ def run(profile: KneeProfile, plant: LimbPlant, out: Path, namespace: str) -> tu
     :raises hill_muscle_ros.supervisor.SupervisorError: if a node exits or a wait times out
     :raises RuntimeError: if the recorder does not stop cleanly
     """
+    import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64
 
     from .nodes._common import DIAGNOSTICS_TOPIC
     from .nodes.recorder import subscriptions_node_name
+    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+
     from .qos import RELIABLE_QOS
+
+    # Only the newest message, and none resent (matches the limb's reliable publisher).
+    newest_only_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                                 reliability=ReliabilityPolicy.BEST_EFFORT)
 
     bag = out / 'bag'
     muscles = [m.name for m in plant.muscles]
@@ -191,10 +202,16 @@ def run(profile: KneeProfile, plant: LimbPlant, out: Path, namespace: str) -> tu
             'recorder', ns=namespace, params={'output': str(bag), 'topics': entries},
             bin_dir=None))
         target_pub = probe.node.create_publisher(Float64, 'angle_target', RELIABLE_QOS)
+        # The limb's time, from the newest joint state. A callback per message
+        # would cost this process a wake-up every 1 ms on a 2-core machine that
+        # also runs the three nodes: the subscription keeps only the newest
+        # message, on a node the probe's executor does not spin, and is read
+        # once per profile tick.
+        clock_node = rclpy.create_node('knee_demo_clock', namespace=namespace,
+                                       context=probe.context, start_parameter_services=False)
+        joint_sub = clock_node.create_subscription(JointState, 'joint_states', _never_called,
+                                                   newest_only_qos)
         latest: dict[str, Any] = {}
-        probe.node.create_subscription(
-            JointState, 'joint_states', lambda m: latest.__setitem__('stamp', m.header.stamp),
-            RELIABLE_QOS)
 
         # What the recorder reports having received and what the controller
         # reports having heard (their /diagnostics): a subscription in the graph
@@ -217,6 +234,10 @@ def run(profile: KneeProfile, plant: LimbPlant, out: Path, namespace: str) -> tu
             return diagnosed.get(controller_fqn, {}).get('feedback_age_s', '') != ''
 
         def sim_now_s() -> float | None:
+            with joint_sub.handle:
+                taken = joint_sub.handle.take_message(JointState, False)
+            if taken is not None:
+                latest['stamp'] = taken[0].header.stamp
             stamp = latest.get('stamp')
             return None if stamp is None else stamp.sec + stamp.nanosec / NS_PER_S
 
@@ -266,6 +287,7 @@ def run(profile: KneeProfile, plant: LimbPlant, out: Path, namespace: str) -> tu
         status = recorder.stop(STOP_TIMEOUT_S)
         if status != 0:
             raise RuntimeError(f'recorder exited with status {status}; see {out}/recorder.log')
+        clock_node.destroy_node()
     return bag, round(t0 * NS_PER_S)
 
 
