@@ -284,6 +284,9 @@ def run(profile: KneeProfile, plant: LimbPlant, out: Path, namespace: str) -> tu
             while time.monotonic() < next_tick:
                 probe.spin_once(max(0.0, next_tick - time.monotonic()))
             procs.check_alive()
+        # Gone from the graph before the recorder stops: it then does not wait
+        # for more of the target (a publisher gone quiet) before closing the bag.
+        probe.node.destroy_publisher(target_pub)
         status = recorder.stop(STOP_TIMEOUT_S)
         if status != 0:
             raise RuntimeError(f'recorder exited with status {status}; see {out}/recorder.log')
@@ -307,7 +310,6 @@ class KneeRun:
     :param target_t_s: [s] when each target arrived
     :param target_rad: [rad] the targets sent
     :param pulse_width: per muscle, ([s] arrival times, [s] pulse widths)
-    :param counts: messages per topic in the bag
     """
 
     t_s: np.ndarray
@@ -315,7 +317,6 @@ class KneeRun:
     target_t_s: np.ndarray
     target_rad: np.ndarray
     pulse_width: dict[str, tuple[np.ndarray, np.ndarray]]
-    counts: dict[str, int]
 
     def target_at(self, t_s: np.ndarray) -> np.ndarray:
         """[rad] the target in force at ``t_s`` (zero-order hold, 0 before the first)."""
@@ -334,7 +335,9 @@ def read_run(bag_dir: Path, t0_ns: int, namespace: str, muscles: Sequence[str]) 
     from .recording.reader import read_bag
 
     ns = namespace.rstrip('/')
-    data = read_bag(bag_dir)
+    # Only what is plotted: the 1 kHz force and wrench streams would double the time.
+    data = read_bag(bag_dir, [f'{ns}/joint_states', f'{ns}/angle_target',
+                              *(f'{ns}/{m}/pulse_width' for m in muscles)])
     joint = data.topic(f'{ns}/joint_states')
     stamps_ns = joint.stamps_ns()
 
@@ -347,7 +350,7 @@ def read_run(bag_dir: Path, t0_ns: int, namespace: str, muscles: Sequence[str]) 
         pw = data.topic(f'{ns}/{m}/pulse_width')
         widths[m] = (on_limb_time(pw.log_time_ns), pw.values())
     return KneeRun((stamps_ns - t0_ns) / NS_PER_S, joint.values(),
-                   on_limb_time(target.log_time_ns), target.values(), widths, data.counts())
+                   on_limb_time(target.log_time_ns), target.values(), widths)
 
 
 def summarize(run_: KneeRun, profile: KneeProfile) -> dict[str, Any]:
