@@ -358,8 +358,12 @@ def fes_reference(params: dict, t_s: np.ndarray, stimulation: np.ndarray, stimul
     n_samples = t_s.size
     out = {name: np.empty(n_samples) for name in OUTPUTS}
     out['command'][:] = u
-    t_fat, t_rec = layout['tau_f'][0], layout['tau_r'][0]     # single: one type
-    mu_min_single = layout['mu_min'][0]
+    # The sub-step loop reads the inputs as Python floats: arithmetic on NumPy
+    # scalars gives the same IEEE results several times slower.
+    u, dl_mt = u.tolist(), dl_mt.tolist()
+    l_ce = float(l_ce)
+    t_fat, t_rec = float(layout['tau_f'][0]), float(layout['tau_r'][0])   # single: one type
+    mu_min_single = float(layout['mu_min'][0])
     for k in range(n_samples):
         last = k == n_samples - 1
         slope = 0.0 if last else (dl_mt[k + 1] - dl_mt[k]) / dt
