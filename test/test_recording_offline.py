@@ -10,6 +10,7 @@ from mcap_ros2.decoder import DecoderFactory
 from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import Reader
 
+from hill_muscle_ros import cli
 from hill_muscle_ros.model import MuscleParams, Protocol, simulate
 from hill_muscle_ros.recording import BagOutputError
 from hill_muscle_ros.recording.offline import write_simulation_bag
@@ -130,9 +131,10 @@ def test_cli_simulate_bag_writes_the_same_run(tmp_path, run):
                                   result.force_n)
 
 
-def test_cli_simulate_bag_refuses_a_non_empty_directory(tmp_path):
+def test_cli_simulate_bag_refuses_a_non_empty_directory(tmp_path, capsys):
+    # The command's entry function in this process: the test above runs it as
+    # ``python -m``; a second interpreter would only re-import numpy and the bag libraries.
     (tmp_path / 'old.txt').write_text('keep')
-    proc = _cli('simulate', '--protocol', 'II', '--bag', str(tmp_path))
-    assert proc.returncode != 0
-    assert 'not empty' in proc.stderr
+    assert cli.main(['simulate', '--protocol', 'II', '--bag', str(tmp_path)]) != 0
+    assert 'not empty' in capsys.readouterr().err
     assert [p.name for p in tmp_path.iterdir()] == ['old.txt']
