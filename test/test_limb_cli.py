@@ -231,6 +231,9 @@ def test_single_muscle_options_with_a_plant_exit_2_naming_the_option(
 
 # --------------------------------------------------------------------------- animate
 
+#: [Hz] step rate of the GIFs written here (a fifth of the knee's 1 kHz).
+ANIMATE_TEST_RATE_HZ = 200
+
 def test_animate_help_exits_zero():
     proc = run_cli('animate', '--help')
     assert proc.returncode == 0, proc.stderr
@@ -241,8 +244,11 @@ def test_animate_help_exits_zero():
 def test_animate_writes_a_gif_with_one_frame_per_1_over_fps(tmp_path, short_protocol, fps,
                                                             frames):
     out = tmp_path / 'sub' / 'leg.gif'
+    # At 200 Hz: the frames sample simulated time at 1 / fps whatever the step;
+    # the plant file's own rate (1 kHz) is the path the CSV tests above take.
     assert cli.main(['animate', '--plant', str(KNEE), '--protocol', str(short_protocol),
-                     '--out', str(out), '--fps', str(fps)]) == 0
+                     '--out', str(out), '--fps', str(fps),
+                     '--rate', str(ANIMATE_TEST_RATE_HZ)]) == 0
     with Image.open(out) as gif:
         assert gif.format == 'GIF'
         # 2.5 s: frames at 0, 1 / fps, ..., 2.5 s.
