@@ -160,17 +160,18 @@ class _Muscle:
         """
         if self.multi:
             m_new = math.floor(self.n * a_now + 0.5)
+            if m_new == self.n_rec:
+                return False    # nothing recruited or released: the sums stand
             lo, hi = sorted((self.n_rec, m_new))
             if m_new > self.n_rec:
                 self.l_o[lo:hi] = self.l_ce
                 self.f_stored[lo:hi] = self.f_max[lo:hi] * fl_array(
                     self.c[lo:hi] * self.l_ce / self.l_opt)
-            elif m_new < self.n_rec:
+            else:
                 self.l_o[lo:hi] = np.nan
                 self.f_stored[lo:hi] = 0.0
-            if m_new != self.n_rec:
-                for h, (decay, gain) in self._fitness_maps.items():
-                    self._fitness_map(h, lo, hi, m_new > self.n_rec, decay, gain)
+            for h, (decay, gain) in self._fitness_maps.items():
+                self._fitness_map(h, lo, hi, m_new > self.n_rec, decay, gain)
             self.n_rec = m_new
             # Without fatigue the sums over the recruited positions change only here.
             self._sum_stored = float(self.f_stored[:m_new].sum())
