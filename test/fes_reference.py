@@ -326,7 +326,9 @@ def fes_reference(params: dict, t_s: np.ndarray, stimulation: np.ndarray, stimul
         if no_spread:
             total = float(f_max[:n_rec] @ mu[:n_rec]) if fatigue else f_sum
             return total * fl_scalar(l_ce / l_opt)
-        return float((f_max[:n_rec] * mu[:n_rec]) @ fl_array(c[:n_rec] * l_ce / l_opt))
+        # Without fatigue every mu is exactly 1: f_max mu is f_max.
+        weights = f_max[:n_rec] * mu[:n_rec] if fatigue else f_max[:n_rec]
+        return float(weights @ fl_array(c[:n_rec] * l_ce / l_opt))
 
     def recruit_to(a_now: float, ud: float) -> bool:
         """Apply the recruitment events that activation ``a_now`` implies
