@@ -46,16 +46,19 @@ from .pi import ControllerInputs, pulse_width_within
 #: :func:`simulate_joint_control` (limb at 1 kHz, controller at 100 Hz), for
 #: robustness to the loop's delay rather than for the fastest step: on top of
 #: the ~60 ms from pulse to force (31 ms electromechanical delay, 25-28 ms
-#: activation), a 35 deg step overshoots 2.0 deg (initial length) and 3.3 deg
-#: (instantaneous) with 2 ms of feedback delay, 3.4 and 5.4 deg with 40 ms;
-#: 60 ms makes it ring. kp 60 with kd 3.5 rings already at 40 ms, and a
-#: faster reference (2.5 rad/s) overshoots 13 deg.
-DEFAULT_KP_N_M_PER_RAD = 40.0
-DEFAULT_KI_N_M_PER_RAD_S = 40.0
-DEFAULT_KD_N_M_S_PER_RAD = 4.0
-#: [rad/s] 86 deg/s: a 35 deg step becomes a 0.41 s ramp; a 0.2 Hz sine of
+#: activation), steps from hanging to 20, 35 and 45 deg overshoot at most
+#: 2.4 deg with 2 ms of feedback delay and 4.2 deg with 50 ms, and settle
+#: (swing below 1.4 deg after 3 s) at every one of those delays. Stiffer
+#: gains (kp 40, ki 40, kd 4, 1.5 rad/s) were quicker at 35 deg but
+#: overshot a 20 deg step by 8 deg and rang there with 30 ms of delay: at low
+#: recruitment the quadriceps is soft (its eccentric speed is bounded by
+#: F0 b' / a') and the knee swings through.
+DEFAULT_KP_N_M_PER_RAD = 25.0
+DEFAULT_KI_N_M_PER_RAD_S = 25.0
+DEFAULT_KD_N_M_S_PER_RAD = 3.0
+#: [rad/s] 46 deg/s: a 35 deg step becomes a 0.76 s ramp; a 0.2 Hz sine of
 #: 15 deg (at most 0.33 rad/s) is never limited.
-DEFAULT_REFERENCE_RATE_RAD_PER_S = 1.5
+DEFAULT_REFERENCE_RATE_RAD_PER_S = 0.8
 #: [s] joint state older than this stops stimulation: the limb node's
 #: stimulation watchdog (``input_timeout_s``, 0.5 s), so both ends of the
 #: loop give up on a silent peer after the same time.
