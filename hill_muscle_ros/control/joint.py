@@ -40,7 +40,7 @@ from ..model.curves import force_length, parallel_force
 from ..model.limb import ANGLE_LIMIT_RAD, Limb, LimbPlant
 from ..model.params import MuscleParams
 from ..model.stimulus import command_from_pulse_width
-from .pi import ControllerInputs, pulse_width_within
+from .pi import ControllerInputs, _spec, pulse_width_within
 
 #: Default gains and reference rate. Tuned offline on the knee preset with
 #: :func:`simulate_joint_control` (limb at 1 kHz, controller at 100 Hz), for
@@ -71,12 +71,6 @@ DEFAULT_RATE_HZ = 100.0
 FEEDFORWARD_CHOICES = ('model', 'none')
 #: [rad/s] |omega| beyond this is not a limb's (garbage or a unit error).
 VELOCITY_LIMIT_RAD_PER_S = 1.0e3
-
-
-def _spec(unit: str, description: str, low: float | None = None, high: float | None = None,
-          choices: tuple[str, ...] | None = None) -> dict:
-    return {'unit': unit, 'description': description, 'low': low, 'high': high,
-            'choices': choices}
 
 
 @dataclass(frozen=True)

@@ -364,6 +364,29 @@ OTHER_NODE_PARAMETERS = frozenset((
 ))
 
 
+def declare_spec_fields(node: Node, cls: type, read_only: tuple[str, ...] = ()) -> dict:
+    """Declare every field of a controller's parameter dataclass, with a
+    descriptor from its metadata (unit, range or choices), and return the values.
+
+    :param cls: a frozen dataclass whose fields carry ``_spec`` metadata
+    :param read_only: the fields that cannot change while the node runs
+    :raises StartupError: on a bad override (:func:`declare_checked`)
+    """
+    defaults = cls()
+    values = {}
+    for f in dataclasses.fields(cls):
+        spec = f.metadata
+        if spec['choices'] is not None:
+            descriptor = ParameterDescriptor(
+                description=spec['description'],
+                additional_constraints=f'one of: {", ".join(spec["choices"])}')
+        else:
+            descriptor = number_descriptor(spec['description'], spec['unit'], spec['low'],
+                                           spec['high'], read_only=f.name in read_only)
+        values[f.name] = declare_checked(node, f.name, getattr(defaults, f.name), descriptor)
+    return values
+
+
 def plant_values(overrides: dict[str, Parameter], own: tuple[str, ...] = ()
                  ) -> dict[str, object]:
     """The plant's entries among a node's parameter overrides, by dotted name.

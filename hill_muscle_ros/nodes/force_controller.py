@@ -23,7 +23,7 @@ from __future__ import annotations
 import dataclasses
 import sys
 
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from geometry_msgs.msg import PointStamped
 from std_msgs.msg import Float64
@@ -32,10 +32,10 @@ from ..control import ControllerInputs, ControllerParams, ForceController, Impos
 from ..model import MuscleParams
 from ..model.muscle import check_dl_mt
 from ..timebase import NS_PER_S
-from ._common import (FINAL_ACK_TIMEOUT_S, OUTPUT_QOS, RELIABLE_QOS, BadInputWarner, DiagnosticReport,
-                      NodeDiagnostics, StartupError, declare_checked, field_descriptor,
-                      number_descriptor, overridable_publisher, overridable_subscription,
-                      publish_last, reject_unknown_overrides, run_node)
+from ._common import (FINAL_ACK_TIMEOUT_S, OUTPUT_QOS, RELIABLE_QOS, BadInputWarner,
+                      DiagnosticReport, NodeDiagnostics, StartupError, declare_checked,
+                      declare_spec_fields, field_descriptor, overridable_publisher,
+                      overridable_subscription, publish_last, reject_unknown_overrides, run_node)
 
 NODE_NAME = 'force_controller'
 #: Longest time step, in control periods, that one update integrates over.
@@ -47,18 +47,7 @@ class ForceControllerNode(Node):
 
     def __init__(self) -> None:
         super().__init__(NODE_NAME)
-        defaults = ControllerParams()
-        values = {}
-        for f in dataclasses.fields(ControllerParams):
-            spec = f.metadata
-            if spec['choices'] is not None:
-                descriptor = ParameterDescriptor(
-                    description=spec['description'],
-                    additional_constraints=f'one of: {", ".join(spec["choices"])}')
-            else:
-                descriptor = number_descriptor(spec['description'], spec['unit'], spec['low'],
-                                               spec['high'], read_only=f.name == 'rate_hz')
-            values[f.name] = declare_checked(self, f.name, getattr(defaults, f.name), descriptor)
+        values = declare_spec_fields(self, ControllerParams, read_only=('rate_hz',))
         # The nominal muscle of the model feedforward, under the simulator's
         # names; pw_max_s is the controller's own (the same stimulator).
         model_defaults, model_values = MuscleParams(), {}

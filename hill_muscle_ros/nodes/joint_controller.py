@@ -25,7 +25,7 @@ from __future__ import annotations
 import dataclasses
 import sys
 
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
@@ -35,7 +35,7 @@ from ..model.limb import LimbPlant
 from ..timebase import NS_PER_S
 from ._common import (FINAL_ACK_TIMEOUT_S, OUTPUT_QOS, QOS_OVERRIDES_PREFIX, RELIABLE_QOS,
                       BadInputWarner, DiagnosticReport, NodeDiagnostics, StartupError,
-                      check_qos_overrides, declare_checked, declare_plant, number_descriptor,
+                      check_qos_overrides, declare_plant, declare_spec_fields,
                       overridable_publisher, overridable_subscription, parameter_overrides,
                       plant_values, publish_last, run_node)
 from .limb import LIMB_NODE_PARAMETERS   # a shared plant file carries them
@@ -55,19 +55,7 @@ class JointControllerNode(Node):
 
     def __init__(self) -> None:
         super().__init__(NODE_NAME)
-        defaults = JointControllerParams()
-        values = {}
-        for f in dataclasses.fields(JointControllerParams):
-            spec = f.metadata
-            if spec['choices'] is not None:
-                descriptor = ParameterDescriptor(
-                    description=spec['description'],
-                    additional_constraints=f'one of: {", ".join(spec["choices"])}')
-            else:
-                descriptor = number_descriptor(spec['description'], spec['unit'], spec['low'],
-                                               spec['high'],
-                                               read_only=f.name == 'control_rate_hz')
-            values[f.name] = declare_checked(self, f.name, getattr(defaults, f.name), descriptor)
+        values = declare_spec_fields(self, JointControllerParams, read_only=('control_rate_hz',))
         overrides = parameter_overrides(self)
         plant = plant_values(overrides, tuple(values) + LIMB_NODE_PARAMETERS)
         try:
