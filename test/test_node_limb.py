@@ -159,6 +159,7 @@ GARBAGE = {
 }
 
 
+@pytest.mark.faults
 def test_garbage_on_every_input_is_ignored_keeping_the_last_good_value(leg):
     good = {'command[quadriceps]': f'{command_from_pulse_width(GOOD_PW_S, QUAD):.6g}',
             'command[hamstrings]': f'{GOOD_RECRUITMENT:.6g}',
@@ -189,6 +190,7 @@ def test_garbage_on_every_input_is_ignored_keeping_the_last_good_value(leg):
     assert math.isfinite(msg.position[0])
 
 
+@pytest.mark.faults
 @pytest.mark.parametrize('case, key', [
     ('unknown muscle', 'vastus'),
     ('missing moment arm', 'quadriceps.moment_arm_m'),
@@ -226,6 +228,7 @@ FLOOD_LAST_N_M = 3.0
 FLOOD_AFTER_STEPS = 20
 
 
+@pytest.mark.faults
 def test_external_torque_flood_breaks_nothing(leg):
     probe, rec = leg['probe'], leg['recs']['joint']
     pub = probe.publisher(f'{NS}/external_torque', Float64)
