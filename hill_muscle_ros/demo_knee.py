@@ -452,6 +452,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     def on_sigterm(signum, frame):
         raise KeyboardInterrupt  # the same clean-up as Ctrl-C
 
+    # SIGINT even if inherited ignored (a parent started in the background
+    # ignores it, and Python then keeps it ignored): Ctrl-C and kill -INT stop
+    # the demo and its nodes wherever it was started from.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     signal.signal(signal.SIGTERM, on_sigterm)
     started = time.monotonic()
     try:
