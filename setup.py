@@ -38,6 +38,9 @@ setup(
     ],
     extras_require={
         'test': ['pytest', 'hypothesis', 'scipy', 'rosbags'],
+        # `hill-muscle sweep` only; every other command runs without them.
+        'sweep': ['dask[distributed]>=2026.8.0', 'distributed>=2026.8.0',
+                  'pyarrow>=26.0.1', 'scipy'],
     },
     zip_safe=True,
     maintainer='hill_muscle_ros maintainers',
