@@ -38,6 +38,8 @@ setup(
     ],
     extras_require={
         'test': ['pytest', 'hypothesis', 'scipy', 'rosbags'],
+        # hill_muscle_ros.gym only (the Gymnasium environments); tested with 1.4.0.
+        'gym': ['gymnasium>=1.4.0'],
         # `hill-muscle sweep` only; every other command runs without them.
         'sweep': ['dask[distributed]>=2026.8.0', 'distributed>=2026.8.0',
                   'pyarrow>=26.0.1', 'scipy'],
