@@ -183,6 +183,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help='step rate of the simulations behind the figures '
                           '(default: 1000 Hz, the figures of this README)')
     limb_cli.add_animate_parser(sub)
+    from . import sweep
+    sweep.add_parser(sub)
 
     for name, node in NODE_COMMANDS.items():
         # Listed for the help text only: main() dispatches node commands before
@@ -355,7 +357,13 @@ def cmd_animate(args: argparse.Namespace) -> int:
     return animate(args)
 
 
-_COMMANDS = {'simulate': cmd_simulate, 'figures': cmd_figures, 'animate': cmd_animate}
+def cmd_sweep(args: argparse.Namespace) -> int:
+    from .sweep import cmd_sweep as sweep   # Dask and pyarrow load only here
+    return sweep(args)
+
+
+_COMMANDS = {'simulate': cmd_simulate, 'figures': cmd_figures, 'animate': cmd_animate,
+             'sweep': cmd_sweep}
 
 
 def _error(message: str) -> int:

@@ -1,0 +1,611 @@
+"""``hill-muscle sweep``: simulate one protocol over many muscle parameter sets.
+
+A sweep spec (YAML) names a protocol, optional base parameters, the
+parameters to vary and the instants to sample. The parameter sets are cut
+into chunks; each chunk is simulated at once by the batch engine
+(:class:`~hill_muscle_ros.model.batch.MuscleBatch`) on a Dask worker, either
+of a local cluster started for the sweep or of an existing one given by its
+scheduler address. The result is a tidy Parquet table: one row per parameter
+set and sample time.
+
+Spec keys::
+
+    protocol: II                 # I, II or a protocol YAML (relative to the spec)
+    params: muscle.yaml          # optional base parameters file (same rules)
+    rate_hz: 1000                # optional step rate [Hz] (else the file's, else 1000)
+    sample_times_s: [1.0, 6.0]   # [s] instants to sample, multiples of 1 / rate_hz
+    vary:                        # a grid of every combination ...
+      f_iso_max_n: [30, 45, 60]                      # listed values
+      k_se_n_per_m: {low: 5e3, high: 2e4, n: 4, log: true}   # or a range of n
+    samples: 64                  # ... or, with ranges only (no n), a Latin
+    seed: 0                      # hypercube of this many sets (seed default 0)
+
+Dask, SciPy and pyarrow are imported only by the functions that need them:
+the rest of the package runs without them. This module has no rclpy.
+"""
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import math
+import os
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+import yaml
+
+from . import resources
+from .model import MuscleBatch, MuscleParams, Protocol
+from .model.protocol import safe_load_yaml
+from .model.simulate import sample_times
+from .params_file import load_muscle_params
+
+#: [Hz] step rate when neither the spec nor its parameters file gives one
+#: (the same default as ``hill-muscle simulate``).
+DEFAULT_RATE_HZ = 1000.0
+#: Keys a sweep spec may hold.
+SPEC_KEYS = ('protocol', 'params', 'plant', 'rate_hz', 'sample_times_s', 'vary',
+             'samples', 'seed')
+#: Keys of a range in ``vary``.
+RANGE_KEYS = ('low', 'high', 'n', 'log')
+#: Default seed of the Latin hypercube, so that a spec without one is reproducible.
+DEFAULT_SEED = 0
+#: A sample time closer than this many steps to a step instant is that instant
+#: (times like 0.3 s are not exact multiples of 1 / 1000 Hz in binary).
+STEP_TOLERANCE = 1e-6
+#: Chunks per worker when the chunk size is chosen automatically: several, so
+#: that the progress bar moves and a fast worker takes more of the work.
+CHUNKS_PER_WORKER = 4
+#: Largest automatic chunk: the batch engine's step costs little more at a
+#: few hundred muscles than at one, and an interrupted sweep loses at most a chunk.
+MAX_AUTO_CHUNK = 256
+#: Value of the ``worker`` column for rows computed in this process (no Dask).
+LOCAL_WORKER = 'local'
+#: [s] how long to wait for an existing scheduler to answer.
+CONNECT_TIMEOUT_S = 10.0
+#: Width of the text progress bar, in characters.
+PROGRESS_WIDTH = 30
+
+
+class SweepError(ValueError):
+    """An error in the sweep spec or its files: one line naming the key and value."""
+
+
+@dataclass(frozen=True)
+class SweepSpec:
+    """A validated sweep.
+
+    :param protocol: the protocol every set replays
+    :param rate_hz: [Hz] step rate, 1 / dt
+    :param sample_times_s: [s] sample instants, on the step grid, ascending
+    :param names: the varied parameters, in spec order
+    :param sets: one validated :class:`MuscleParams` per parameter set
+    :param values: per set, the values of ``names``
+    """
+
+    protocol: Protocol
+    rate_hz: float
+    sample_times_s: tuple[float, ...]
+    names: tuple[str, ...]
+    sets: tuple[MuscleParams, ...]
+    values: tuple[tuple[Any, ...], ...]
+
+    @property
+    def sample_indices(self) -> tuple[int, ...]:
+        """Step indices of the sample times."""
+        return tuple(int(round(t * self.rate_hz)) for t in self.sample_times_s)
+
+
+# --------------------------------------------------------------------------- spec
+
+_FIELDS = {f.name: f for f in dataclasses.fields(MuscleParams)}
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _finite_number(source: str, key: str, value: Any) -> float:
+    if not _is_number(value) or not math.isfinite(value):
+        raise SweepError(f'{source}: `{key}` must be a finite number, got {value!r}')
+    return float(value)
+
+
+def _resolve(base: Path, text: Any, key: str, source: str) -> Path:
+    if not isinstance(text, str) or not text:
+        raise SweepError(f'{source}: `{key}` must be a file path, got {text!r}')
+    path = Path(text).expanduser()
+    return path if path.is_absolute() else base / path
+
+
+def _range_axis(source: str, name: str, spec: Mapping[str, Any], lhs: bool) -> dict:
+    """Validate a ``{low, high, n, log}`` range; returns its fields."""
+    key = f'vary.{name}'
+    unknown = sorted(str(k) for k in spec if k not in RANGE_KEYS)
+    if unknown:
+        raise SweepError(f'{source}: unknown key `{key}.{unknown[0]}` '
+                         f'(a range has {", ".join(RANGE_KEYS)})')
+    if _FIELDS[name].type != 'float':
+        raise SweepError(f'{source}: `{key}` is not a real-valued parameter, so it '
+                         f'takes a list of values, not a range; got {dict(spec)!r}')
+    for bound in ('low', 'high'):
+        if bound not in spec:
+            raise SweepError(f'{source}: `{key}` needs `{bound}`, got {dict(spec)!r}')
+    low = _finite_number(source, f'{key}.low', spec['low'])
+    high = _finite_number(source, f'{key}.high', spec['high'])
+    if not low < high:
+        raise SweepError(f'{source}: `{key}.low` must be below `{key}.high`, '
+                         f'got low={spec["low"]!r}, high={spec["high"]!r}')
+    log = spec.get('log', False)
+    if not isinstance(log, bool):
+        raise SweepError(f'{source}: `{key}.log` must be true or false, got {log!r}')
+    if log and low <= 0.0:
+        raise SweepError(f'{source}: `{key}.low` must be positive for a log range, '
+                         f'got {spec["low"]!r}')
+    n = spec.get('n')
+    if lhs:
+        if n is not None:
+            raise SweepError(f'{source}: `{key}.n` is not used with `samples` '
+                             f'(the Latin hypercube draws `samples` sets), got {n!r}')
+    elif isinstance(n, bool) or not isinstance(n, int) or n < 2:
+        raise SweepError(f'{source}: `{key}.n` must be an integer >= 2 for a grid, '
+                         f'got {n!r}')
+    return {'low': low, 'high': high, 'n': n, 'log': log}
+
+
+def _grid_values(axis: dict) -> list[float]:
+    if axis['log']:
+        return [float(v) for v in np.geomspace(axis['low'], axis['high'], axis['n'])]
+    return [float(v) for v in np.linspace(axis['low'], axis['high'], axis['n'])]
+
+
+def _lhs_values(axes: Sequence[dict], samples: int, seed: int) -> list[tuple[float, ...]]:
+    """``samples`` points of a seeded Latin hypercube over the ranges ``axes``."""
+    from scipy.stats import qmc   # the sweep's own dependency, not the package's
+
+    unit = qmc.LatinHypercube(d=len(axes), rng=seed).random(samples)
+    columns = []
+    for j, axis in enumerate(axes):
+        u = unit[:, j]
+        if axis['log']:
+            lo, hi = math.log(axis['low']), math.log(axis['high'])
+            columns.append(np.exp(lo + u * (hi - lo)))
+        else:
+            columns.append(axis['low'] + u * (axis['high'] - axis['low']))
+    return [tuple(float(c[i]) for c in columns) for i in range(samples)]
+
+
+def _sample_times(source: str, value: Any, duration_s: float, rate_hz: float
+                  ) -> tuple[float, ...]:
+    key = 'sample_times_s'
+    if not isinstance(value, list) or not value:
+        raise SweepError(f'{source}: `{key}` must be a non-empty list of times in '
+                         f'seconds, got {value!r}')
+    times = []
+    for i, t in enumerate(value):
+        t = _finite_number(source, f'{key}[{i}]', t)
+        if not 0.0 <= t <= duration_s:
+            raise SweepError(f'{source}: `{key}[{i}]` must be within the protocol, '
+                             f'0..{duration_s:g} s, got {value[i]!r}')
+        steps = t * rate_hz
+        if abs(steps - round(steps)) > STEP_TOLERANCE:
+            raise SweepError(f'{source}: `{key}[{i}]` must be a multiple of the step '
+                             f'1/{rate_hz:g} s, got {value[i]!r}')
+        times.append(round(steps) / rate_hz)
+    if len(set(times)) != len(times) or times != sorted(times):
+        raise SweepError(f'{source}: `{key}` must be ascending without repeats, '
+                         f'got {value!r}')
+    return tuple(times)
+
+
+def parse_spec(doc: Any, source: str = '<spec>', base_dir: Path | None = None) -> SweepSpec:
+    """Validate a sweep spec (a parsed YAML mapping) and build every parameter set.
+
+    :param doc: the spec mapping
+    :param source: what it came from, for error messages
+    :param base_dir: directory relative paths are resolved against (default: cwd)
+    :raises SweepError: naming the key and the value of the first problem
+    """
+    base_dir = Path('.') if base_dir is None else base_dir
+    if not isinstance(doc, dict):
+        raise SweepError(f'{source}: expected a mapping with `protocol`, `vary` and '
+                         f'`sample_times_s`, got {type(doc).__name__}')
+    unknown = sorted(str(k) for k in doc if k not in SPEC_KEYS)
+    if unknown:
+        raise SweepError(f'{source}: unknown key `{unknown[0]}` '
+                         f'(known: {", ".join(SPEC_KEYS)})')
+    if doc.get('plant') is not None:
+        raise SweepError(f'{source}: `plant` sweeps (the limb) are not supported yet; '
+                         f'sweep the muscle alone, got plant={doc["plant"]!r}')
+    for key in ('protocol', 'vary', 'sample_times_s'):
+        if key not in doc:
+            raise SweepError(f'{source}: missing key `{key}`')
+
+    name = doc['protocol']
+    if not isinstance(name, str) or not name:
+        raise SweepError(f'{source}: `protocol` must be I, II or a path, got {name!r}')
+    path = (resources.protocol_path(name) if name in resources.BUILTIN_PROTOCOLS
+            else _resolve(base_dir, name, 'protocol', source))
+    params_path = (resources.default_params_file() if doc.get('params') is None
+                   else _resolve(base_dir, doc['params'], 'params', source))
+    try:
+        protocol = Protocol.from_yaml(path)
+        base, node = load_muscle_params(params_path)
+    except ValueError as err:   # ProtocolError is a ValueError; both name the file
+        raise SweepError(str(err)) from None
+
+    rate = doc.get('rate_hz', node.get('rate_hz', DEFAULT_RATE_HZ))
+    if not _is_number(rate) or not math.isfinite(rate) or rate <= 0.0:
+        raise SweepError(f'{source}: `rate_hz` must be positive and finite, got {rate!r}')
+    rate = float(rate)
+    times = _sample_times(source, doc['sample_times_s'], protocol.duration_s, rate)
+
+    vary = doc['vary']
+    if not isinstance(vary, dict) or not vary:
+        raise SweepError(f'{source}: `vary` must map parameter names to a list of values '
+                         f'or a range {{low, high, n, log}}, got {vary!r}')
+    for key in vary:
+        if key not in _FIELDS:
+            raise SweepError(f'{source}: unknown parameter `vary.{key}` '
+                             f'(known: {", ".join(_FIELDS)})')
+    samples = doc.get('samples')
+    lhs = samples is not None
+    if lhs and (isinstance(samples, bool) or not isinstance(samples, int) or samples < 1):
+        raise SweepError(f'{source}: `samples` must be a positive integer, got {samples!r}')
+    seed = doc.get('seed', DEFAULT_SEED)
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise SweepError(f'{source}: `seed` must be a non-negative integer, got {seed!r}')
+    if 'seed' in doc and not lhs:
+        raise SweepError(f'{source}: `seed` is used only with `samples`, got seed={seed!r}')
+
+    names = tuple(str(k) for k in vary)
+    axes = []
+    for key, spec in vary.items():
+        if isinstance(spec, dict):
+            axes.append(_range_axis(source, key, spec, lhs))
+        elif isinstance(spec, list) and spec:
+            if lhs:
+                raise SweepError(f'{source}: with `samples`, `vary.{key}` must be a range '
+                                 f'{{low, high, log}}, got {spec!r}')
+            axes.append(spec)
+        else:
+            raise SweepError(f'{source}: `vary.{key}` must be a non-empty list of values '
+                             f'or a range {{low, high, n, log}}, got {spec!r}')
+    if lhs:
+        combos = _lhs_values(axes, samples, seed)
+    else:
+        combos = list(itertools.product(
+            *(_grid_values(a) if isinstance(a, dict) else a for a in axes)))
+
+    sets, values = [], []
+    for i, combo in enumerate(combos):
+        try:
+            p = dataclasses.replace(base, **dict(zip(names, combo)))
+        except (ValueError, TypeError) as err:
+            shown = ', '.join(f'{n}={v!r}' for n, v in zip(names, combo))
+            raise SweepError(f'{source}: parameter set {i} ({shown}): {err}') from None
+        sets.append(p)
+        values.append(tuple(getattr(p, n) for n in names))
+    return SweepSpec(protocol, rate, times, names, tuple(sets), tuple(values))
+
+
+def load_spec(path: str | Path) -> SweepSpec:
+    """Read and validate a sweep spec file (:func:`parse_spec`)."""
+    path = Path(path)
+    try:
+        doc = safe_load_yaml(path.read_text(encoding='utf-8'))
+    except (OSError, UnicodeDecodeError) as err:
+        raise SweepError(f'{path}: cannot read sweep spec: {err}') from None
+    except yaml.YAMLError as err:
+        raise SweepError(f'{path}: not valid YAML: {err}') from None
+    return parse_spec(doc, str(path), path.parent)
+
+
+# --------------------------------------------------------------------------- simulation
+
+def simulate_forces(protocol: Protocol, params: Sequence[MuscleParams], rate_hz: float,
+                    sample_indices: Sequence[int]) -> np.ndarray:
+    """[N] MTU force of many muscles at some steps of one protocol, all at once.
+
+    Muscle i follows :func:`~hill_muscle_ros.model.simulate.simulate` with
+    ``params[i]``: the sample of step k shows the state at t_k with the command
+    of t_k applied; the step from t_k to t_(k+1) holds u(t_k) and ramps dl_MT.
+    The run stops at the last sample.
+
+    :param protocol: the protocol every muscle replays
+    :param params: the muscles' parameters (K >= 1)
+    :param rate_hz: [Hz] step rate, 1 / dt
+    :param sample_indices: step indices to sample, ascending
+    :return: [N] force, shape (K, len(sample_indices))
+    """
+    last = max(sample_indices)
+    t = sample_times(protocol.duration_s, rate_hz)[:last + 1]
+    dl = np.asarray(protocol.dl_mt(t), dtype=float)
+    # Pulse widths map through each muscle's own recruitment curve.
+    r = np.column_stack([np.asarray(protocol.command(t, p), dtype=float) for p in params])
+    batch = MuscleBatch(params)
+    dt = 1.0 / rate_hz
+    wanted = {k: j for j, k in enumerate(sample_indices)}
+    force = np.empty((len(params), len(sample_indices)))
+    batch.set_recruitment(r[0])
+    if 0 in wanted:
+        force[:, wanted[0]] = batch.outputs().force_n
+    for k in range(last):
+        batch.step(r[k], dl[k + 1], dt)
+        if k + 1 in wanted:
+            batch.set_recruitment(r[k + 1])
+            force[:, wanted[k + 1]] = batch.outputs().force_n
+    return force
+
+
+def run_chunk(set_ids: Sequence[int], params: Sequence[MuscleParams], protocol: Protocol,
+              rate_hz: float, sample_indices: Sequence[int]) -> dict:
+    """One task: simulate a chunk of parameter sets; runs on a Dask worker or here.
+
+    :return: ``set_ids``, ``force_n`` (K, S) and ``worker`` (the address of the
+        Dask worker that ran it, or ``local``)
+    """
+    force = simulate_forces(protocol, params, rate_hz, sample_indices)
+    try:
+        from distributed import get_worker
+        worker = get_worker().address
+    except (ImportError, ValueError):   # not inside a Dask worker
+        worker = LOCAL_WORKER
+    return {'set_ids': list(set_ids), 'force_n': force, 'worker': worker}
+
+
+def chunk_ranges(n_sets: int, n_workers: int, chunk: int | None = None) -> list[range]:
+    """Consecutive ranges of set indices, one per task.
+
+    :param chunk: sets per task (default: about :data:`CHUNKS_PER_WORKER` tasks
+        per worker, at most :data:`MAX_AUTO_CHUNK` sets each)
+    """
+    if chunk is None:
+        chunk = min(MAX_AUTO_CHUNK,
+                    max(1, math.ceil(n_sets / (CHUNKS_PER_WORKER * max(n_workers, 1)))))
+    return [range(i, min(i + chunk, n_sets)) for i in range(0, n_sets, chunk)]
+
+
+# --------------------------------------------------------------------------- output
+
+def to_table(spec: SweepSpec, results: Sequence[dict], complete: bool):
+    """The tidy pyarrow table: one row per set and sample time, ordered by set.
+
+    Columns: ``set_id``, the varied parameters, ``t_s``, ``force_n``, ``worker``.
+    """
+    import pyarrow as pa
+
+    results = sorted(results, key=lambda r: r['set_ids'][0])
+    columns: dict[str, list] = {'set_id': []}
+    columns.update({n: [] for n in spec.names})
+    columns.update({'t_s': [], 'force_n': [], 'worker': []})
+    for res in results:
+        for row, set_id in enumerate(res['set_ids']):
+            values = spec.values[set_id]
+            for j, t in enumerate(spec.sample_times_s):
+                columns['set_id'].append(set_id)
+                for n, v in zip(spec.names, values):
+                    columns[n].append(list(v) if isinstance(v, tuple) else v)
+                columns['t_s'].append(t)
+                columns['force_n'].append(float(res['force_n'][row, j]))
+                columns['worker'].append(res['worker'])
+    metadata = {'hill_muscle_ros.protocol': spec.protocol.name,
+                'hill_muscle_ros.rate_hz': repr(spec.rate_hz),
+                'hill_muscle_ros.n_sets': str(len(spec.sets)),
+                'hill_muscle_ros.complete': 'true' if complete else 'false'}
+    return pa.table(columns).replace_schema_metadata(metadata)
+
+
+def write_parquet(path: Path, table) -> None:
+    """Write the table; a failure to write names the file."""
+    import pyarrow.parquet as pq
+
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        pq.write_table(table, path)
+    except OSError as err:
+        raise SweepError(f'{path}: cannot write Parquet: {err.strerror or err}') from None
+
+
+# --------------------------------------------------------------------------- execution
+
+class Progress:
+    """A one-line text progress bar on a stream (no tqdm)."""
+
+    def __init__(self, total_sets: int, stream=None) -> None:
+        self.total = total_sets
+        self.done = 0
+        self.stream = sys.stderr if stream is None else stream
+        self.start = time.perf_counter()
+
+    def advance(self, n_sets: int) -> None:
+        self.done += n_sets
+        filled = PROGRESS_WIDTH * self.done // max(self.total, 1)
+        elapsed = time.perf_counter() - self.start
+        end = '\n' if self.done >= self.total else ''
+        self.stream.write(f'\r[{"#" * filled}{"." * (PROGRESS_WIDTH - filled)}] '
+                          f'{self.done}/{self.total} sets, {elapsed:.1f} s{end}')
+        self.stream.flush()
+
+
+@dataclass
+class SweepResult:
+    """What :func:`run_sweep` computed.
+
+    :param results: the finished chunks (see :func:`run_chunk`)
+    :param complete: False if the sweep was interrupted
+    :param elapsed_s: [s] wall time of the simulation, cluster start-up excluded
+    """
+
+    results: list
+    complete: bool
+    elapsed_s: float
+
+    @property
+    def n_sets(self) -> int:
+        return sum(len(r['set_ids']) for r in self.results)
+
+
+def run_local(spec: SweepSpec, chunk: int | None = None,
+              on_chunk: Callable[[int], None] | None = None) -> SweepResult:
+    """Run every chunk in this process, without Dask (a reference and a fallback)."""
+    results = []
+    start = time.perf_counter()
+    try:
+        for ids in chunk_ranges(len(spec.sets), 1, chunk):
+            results.append(run_chunk(list(ids), [spec.sets[i] for i in ids], spec.protocol,
+                                     spec.rate_hz, spec.sample_indices))
+            if on_chunk:
+                on_chunk(len(ids))
+    except KeyboardInterrupt:
+        return SweepResult(results, False, time.perf_counter() - start)
+    return SweepResult(results, True, time.perf_counter() - start)
+
+
+def run_on_client(spec: SweepSpec, client, chunk: int | None = None,
+                  on_chunk: Callable[[int], None] | None = None) -> SweepResult:
+    """Run the chunks as tasks on a Dask client's cluster.
+
+    On Ctrl-C the unfinished tasks are cancelled and the finished ones kept.
+    """
+    from distributed import as_completed
+
+    n_workers = max(len(client.scheduler_info(n_workers=-1)['workers']), 1)
+    start = time.perf_counter()
+    # The protocol goes to every worker once rather than with each task.
+    [protocol] = client.scatter([spec.protocol], broadcast=True)
+    futures = [client.submit(run_chunk, list(ids), [spec.sets[i] for i in ids], protocol,
+                             spec.rate_hz, spec.sample_indices, pure=False)
+               for ids in chunk_ranges(len(spec.sets), n_workers, chunk)]
+    results = []
+    try:
+        for _, res in as_completed(futures, with_results=True):
+            results.append(res)
+            if on_chunk:
+                on_chunk(len(res['set_ids']))
+    except KeyboardInterrupt:
+        client.cancel(futures)
+        return SweepResult(results, False, time.perf_counter() - start)
+    return SweepResult(results, True, time.perf_counter() - start)
+
+
+def run_sweep(spec: SweepSpec, scheduler: str | None = None, workers: int | None = None,
+              chunk: int | None = None, progress: Progress | None = None) -> SweepResult:
+    """Run a sweep: here (``workers == 0``), on a new LocalCluster of ``workers``
+    processes (default: the core count), or on the cluster at ``scheduler``.
+
+    :raises SweepError: if Dask is missing or the scheduler does not answer
+    """
+    on_chunk = progress.advance if progress else None
+    if workers == 0 and scheduler is None:
+        return run_local(spec, chunk, on_chunk)
+    try:
+        from distributed import Client, LocalCluster
+    except ImportError as err:
+        raise SweepError(f'sweeps on Dask need the `sweep` extra (pip install '
+                         f'dask distributed pyarrow): {err}') from None
+    if scheduler is not None:
+        try:
+            client = Client(scheduler, timeout=f'{CONNECT_TIMEOUT_S}s')
+        except (OSError, TimeoutError, ValueError) as err:
+            raise SweepError(f'--scheduler {scheduler}: cannot connect: {err}') from None
+        with client:
+            return run_on_client(spec, client, chunk, on_chunk)
+    n = workers if workers is not None else (os.cpu_count() or 1)
+    # One thread per worker process: the batch engine holds the GIL.
+    with LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                      dashboard_address=None) as cluster, Client(cluster) as client:
+        return run_on_client(spec, client, chunk, on_chunk)
+
+
+# --------------------------------------------------------------------------- command line
+
+#: Exit status of a sweep stopped by Ctrl-C (128 + SIGINT, as shells report it).
+EXIT_INTERRUPTED = 130
+
+
+def _workers(text: str) -> int:
+    import argparse
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'must be an integer, got {text!r}') from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f'must be 0 (no Dask) or more, got {text!r}')
+    return value
+
+
+def _chunk(text: str) -> int:
+    import argparse
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'must be an integer, got {text!r}') from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f'must be at least 1, got {text!r}')
+    return value
+
+
+def add_parser(sub) -> None:
+    """The ``sweep`` subcommand's parser, on ``hill-muscle``'s subparsers."""
+    import argparse
+    p = sub.add_parser(
+        'sweep', help='simulate a protocol over many parameter sets on Dask (Parquet out)',
+        description='Simulate one protocol for every parameter set of a sweep spec (a grid '
+                    'or a Latin hypercube) on a Dask cluster, and write the force at the '
+                    'sample times as a Parquet table: one row per set and time.',
+        epilog='examples:\n'
+               '  hill-muscle sweep config/sweep_example.yaml --out sweep.parquet\n'
+               '  hill-muscle sweep spec.yaml --out sweep.parquet --workers 2\n'
+               '  hill-muscle sweep spec.yaml --out sweep.parquet '
+               '--scheduler tcp://10.0.0.5:8786',
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument('spec', type=Path, metavar='SPEC.yaml', help='the sweep spec')
+    p.add_argument('--out', required=True, type=Path, metavar='PARQUET',
+                   help='the Parquet file to write (also written on Ctrl-C, with the '
+                        'sets finished so far)')
+    where = p.add_mutually_exclusive_group()
+    where.add_argument('--scheduler', metavar='ADDRESS',
+                       help='use the running Dask cluster at this scheduler address '
+                            '(tcp://host:port); its workers need hill_muscle_ros installed')
+    where.add_argument('--workers', type=_workers, metavar='N',
+                       help='start a local Dask cluster of N worker processes (default: '
+                            'the number of cores); 0 runs here without Dask')
+    p.add_argument('--chunk', type=_chunk, metavar='SETS',
+                   help=f'parameter sets per task (default: about {CHUNKS_PER_WORKER} '
+                        f'tasks per worker, at most {MAX_AUTO_CHUNK} sets)')
+
+
+def cmd_sweep(args) -> int:
+    """Run ``hill-muscle sweep``; user errors become the CLI's one-line errors."""
+    from .cli import UserError
+    try:
+        spec = load_spec(args.spec)
+        try:
+            import pyarrow  # noqa: F401 - fail before simulating, not after
+        except ImportError as err:
+            raise SweepError(f'sweeps need the `sweep` extra (pip install dask '
+                             f'distributed pyarrow): {err}') from None
+        where = ('this process (no Dask)' if args.workers == 0 and not args.scheduler
+                 else args.scheduler or
+                 f'a local Dask cluster of {args.workers or os.cpu_count() or 1} workers')
+        print(f'{len(spec.sets)} parameter sets x {len(spec.sample_times_s)} sample times, '
+              f'{spec.protocol.name} at {spec.rate_hz:g} Hz, on {where}', flush=True)
+        result = run_sweep(spec, args.scheduler, args.workers, args.chunk,
+                           Progress(len(spec.sets)))
+        write_parquet(args.out, to_table(spec, result.results, result.complete))
+    except SweepError as err:
+        raise UserError(str(err)) from None
+    rate = result.n_sets / result.elapsed_s if result.elapsed_s > 0 else float('inf')
+    rows = result.n_sets * len(spec.sample_times_s)
+    if not result.complete:
+        print(f'\ninterrupted: wrote {rows} rows ({result.n_sets} of {len(spec.sets)} '
+              f'sets) to {args.out}', file=sys.stderr)
+        return EXIT_INTERRUPTED
+    print(f'wrote {rows} rows to {args.out} ({result.n_sets} sets in '
+          f'{result.elapsed_s:.2f} s, {rate:.1f} sets/s)')
+    return 0
