@@ -232,4 +232,5 @@ class ForceTrackingEnv(gym.Env):
         return {'t_s': self._k * self.control_period_s, 'pulse_width_s': pw,
                 'target_n': float(self._targets[min(self._k, self.n_periods - 1)]),
                 'force_n': float(self._history.newest[0]),
+                'dl_mt_m': float(self._history.newest[3]),
                 'tracking_cost': tracking, 'stimulation_cost': stimulation}

@@ -1,0 +1,269 @@
+"""The Gymnasium environments (hill_muscle_ros.gym): API, determinism, action
+bounds, reward, and that the options reach the model. Offline, no ROS."""
+import dataclasses
+
+import numpy as np
+import pytest
+
+gym = pytest.importorskip('gymnasium')
+from gymnasium.utils.env_checker import check_env  # noqa: E402
+from gymnasium.wrappers import ClipAction  # noqa: E402
+
+from hill_muscle_ros.gym import (FORCE_TRACKING_ID, KNEE_ANGLE_ID, ForceTrackingEnv,  # noqa: E402
+                                 KneeAngleEnv)
+from hill_muscle_ros.model import Muscle, MuscleParams  # noqa: E402
+from hill_muscle_ros.model.fes_muscle import FesMuscle  # noqa: E402
+from hill_muscle_ros.model.limb import Limb  # noqa: E402
+from hill_muscle_ros.params_file import load_plant  # noqa: E402
+from hill_muscle_ros.resources import config_dir  # noqa: E402
+
+#: [s] the model step inside a control period (1 kHz)
+DT_S = 1e-3
+FES_QUADRICEPS = config_dir() / 'fes_quadriceps.yaml'
+#: Control periods of the knee tests: short, the limb is the slow engine.
+KNEE_STEPS = 10
+
+
+def _rollout(env, seed, n_steps, action_seed=0):
+    """Observations, rewards and flags of ``n_steps`` seeded random actions."""
+    rng = np.random.default_rng(action_seed)
+    obs, _ = env.reset(seed=seed)
+    out = [obs]
+    low, high = env.action_space.low, env.action_space.high
+    for _ in range(n_steps):
+        action = rng.uniform(low, high).astype(np.float32)
+        obs, reward, terminated, truncated, _ = env.step(action)
+        out.append((obs, reward, terminated, truncated))
+    return out
+
+
+def _same(a, b):
+    """Exactly equal nested rollouts (arrays bit for bit)."""
+    assert len(a) == len(b)
+    for x, y in zip(a, b):
+        if isinstance(x, tuple):
+            np.testing.assert_array_equal(x[0], y[0])
+            assert x[1:] == y[1:]
+        else:
+            np.testing.assert_array_equal(x, y)
+
+
+def test_import_registers_both_ids():
+    assert FORCE_TRACKING_ID == 'hill_muscle_ros/ForceTracking-v0'
+    assert KNEE_ANGLE_ID == 'hill_muscle_ros/KneeAngle-v0'
+    assert isinstance(gym.make(FORCE_TRACKING_ID).unwrapped, ForceTrackingEnv)
+    assert isinstance(gym.make(KNEE_ANGLE_ID).unwrapped, KneeAngleEnv)
+
+
+def test_force_tracking_passes_check_env():
+    check_env(gym.make(FORCE_TRACKING_ID, disable_env_checker=True).unwrapped)
+
+
+def test_force_tracking_with_fatigue_passes_check_env():
+    check_env(ForceTrackingEnv(FES_QUADRICEPS))
+
+
+def test_knee_angle_passes_check_env():
+    check_env(gym.make(KNEE_ANGLE_ID, disable_env_checker=True).unwrapped)
+
+
+def test_force_tracking_same_seed_gives_identical_trajectories():
+    a = _rollout(ForceTrackingEnv(), seed=7, n_steps=250)   # a whole 5 s episode
+    b = _rollout(ForceTrackingEnv(), seed=7, n_steps=250)
+    _same(a, b)
+    assert a[-1][3] is True   # truncated at the episode's end
+
+
+def test_force_tracking_reset_with_the_seed_again_repeats_the_episode():
+    env = ForceTrackingEnv(FES_QUADRICEPS)   # fatigue and activation state must reset too
+    a = _rollout(env, seed=3, n_steps=60)
+    b = _rollout(env, seed=3, n_steps=60)
+    _same(a, b)
+
+
+def test_force_tracking_different_seeds_draw_different_targets():
+    env = ForceTrackingEnv()
+    env.reset(seed=1)
+    t1 = env._targets.copy()
+    env.reset(seed=2)
+    assert not np.array_equal(t1, env._targets)
+
+
+def test_knee_angle_same_seed_gives_identical_trajectories():
+    _same(_rollout(KneeAngleEnv(), seed=5, n_steps=KNEE_STEPS),
+          _rollout(KneeAngleEnv(), seed=5, n_steps=KNEE_STEPS))
+
+
+@pytest.mark.parametrize('bad', [np.nan, -1e-6, 0.0005 * 1.01, np.inf])
+def test_force_tracking_action_outside_the_box_raises_and_changes_nothing(bad):
+    env, fresh = ForceTrackingEnv(), ForceTrackingEnv()
+    env.reset(seed=0)
+    fresh.reset(seed=0)
+    with pytest.raises(ValueError, match=r'`action` \(pulse width\) must be in \[0, 0.0005\] s'):
+        env.step(np.array([bad], dtype=np.float64))
+    good = np.array([0.0002], dtype=np.float32)
+    np.testing.assert_array_equal(env.step(good)[0], fresh.step(good)[0])
+
+
+def test_force_tracking_box_edge_pw_max_is_accepted():
+    env = ForceTrackingEnv()
+    env.reset(seed=0)
+    env.step(env.action_space.high)   # the float32 bound, a hair above 0.0005 s
+
+
+def test_force_tracking_clip_action_wrapper_clips_to_the_box():
+    clipped = ClipAction(ForceTrackingEnv())
+    plain = ForceTrackingEnv()
+    clipped.reset(seed=0)
+    plain.reset(seed=0)
+    a = clipped.step(np.array([1.0], dtype=np.float32))      # 1 s: far above PW_max
+    b = plain.step(plain.action_space.high)
+    np.testing.assert_array_equal(a[0], b[0])
+    assert a[1] == b[1]
+
+
+def test_knee_angle_action_outside_the_box_raises_naming_the_muscle():
+    env = KneeAngleEnv()
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=r'`action\[1\]` \(hamstrings pulse width\)'):
+        env.step(np.array([0.0, np.nan]))
+    with pytest.raises(ValueError, match='must hold 2 pulse widths'):
+        env.step(np.array([0.0002]))
+
+
+def test_force_tracking_reward_without_stimulation_is_minus_the_normalised_target_squared():
+    # Isometric, nothing recruited: F = 0 at every millisecond, so the
+    # tracking term is (F* / f_iso_max)^2 exactly and the stimulation term 0.
+    env = ForceTrackingEnv(length_max_m=0.0, stim_cost=0.5)
+    env.reset(seed=0, options={'target_n': 9.0})
+    _, reward, _, _, info = env.step(np.array([0.0], dtype=np.float32))
+    assert reward == -(9.0 / 45.0) ** 2
+    assert info['stimulation_cost'] == 0.0
+
+
+def test_force_tracking_reward_is_mean_squared_error_plus_stimulation_cost():
+    # Full stimulation on the paper's muscle, isometric, 20 ms: the tracking
+    # term from an independently stepped Muscle, the stimulation term w * 1.
+    w, target = 0.25, 20.0
+    env = ForceTrackingEnv(length_max_m=0.0, stim_cost=w, control_period_s=0.02)
+    env.reset(seed=0, options={'target_n': target})
+    _, reward, _, _, info = env.step(np.array([0.0005], dtype=np.float32))
+    muscle = Muscle(MuscleParams())   # the float32 width is above PW_max: R = 1
+    forces = [muscle.step(1.0, 0.0, DT_S).force_n for _ in range(20)]
+    tracking = np.mean([((f - target) / 45.0) ** 2 for f in forces])
+    assert info['tracking_cost'] == pytest.approx(tracking, rel=1e-12)
+    assert info['stimulation_cost'] == pytest.approx(w * (float(np.float32(0.0005)) / 0.0005) ** 2,
+                                                     rel=1e-15)
+    assert reward == -info['tracking_cost'] - info['stimulation_cost']
+    assert reward < 0.0
+
+
+def test_knee_angle_reward_is_mean_squared_angle_error_plus_mean_stimulation_cost():
+    w, target = 0.1, np.radians(30.0)
+    env = KneeAngleEnv(stim_cost=w, control_period_s=0.02)
+    env.reset(seed=0, options={'target_rad': target})
+    pw = np.array([0.0003, 0.0], dtype=np.float32)
+    _, reward, _, _, info = env.step(pw)
+    plant, _ = load_plant(config_dir() / 'knee.yaml')
+    limb = Limb(plant)
+    from hill_muscle_ros.model.stimulus import command_from_pulse_width
+    us = [command_from_pulse_width(float(pw[i]), m.params) for i, m in enumerate(plant.muscles)]
+    thetas = [limb.step(us, 0.0, DT_S).theta_rad for _ in range(20)]
+    assert info['tracking_cost'] == pytest.approx(np.mean((np.array(thetas) - target) ** 2),
+                                                  rel=1e-12)
+    assert info['stimulation_cost'] == pytest.approx(
+        w * ((float(pw[0]) / 0.0006) ** 2 + 0.0) / 2.0, rel=1e-12)
+    assert reward == -info['tracking_cost'] - info['stimulation_cost']
+
+
+def test_force_tracking_zero_stimulation_gives_zero_force_isometric():
+    env = ForceTrackingEnv(length_max_m=0.0)
+    obs, _ = env.reset(seed=4)
+    forces = [obs[0]]
+    truncated = False
+    while not truncated:
+        obs, _, _, truncated, info = env.step(np.zeros(1, dtype=np.float32))
+        forces.append(obs[0])
+        assert info['force_n'] == 0.0
+    assert np.all(np.array(forces) == 0.0)
+
+
+def test_force_tracking_zero_stimulation_force_is_the_parallel_spring_alone():
+    # Nothing recruited: the free CE leaves the SE slack, F = k_PE max(dl_MT, 0).
+    env = ForceTrackingEnv(length_max_m=0.01)
+    env.reset(seed=4)
+    truncated = False
+    while not truncated:
+        _, _, _, truncated, info = env.step(np.zeros(1, dtype=np.float32))
+        assert info['force_n'] == pytest.approx(1000.0 * max(info['dl_mt_m'], 0.0),
+                                                rel=1e-12, abs=1e-12)
+    assert env._dl.max() > 0.0   # the profile did stretch the muscle
+
+
+def test_force_tracking_params_and_variant_reach_the_muscle():
+    params = MuscleParams(f_iso_max_n=90.0, pw_max_s=0.0004)
+    env = ForceTrackingEnv(params, units='single', length='instantaneous', length_max_m=0.0)
+    assert env.muscle.params == dataclasses.replace(params, units='single',
+                                                    length='instantaneous')
+    assert env.action_space.high[0] == np.float32(0.0004)
+    env.reset(seed=0)
+    _, _, _, _, info = env.step(np.array([0.0002], dtype=np.float32))
+    reference = Muscle(env.muscle.params)
+    r = float(np.float32(0.0002)) / 0.0004   # the linear curve, at the float32 width
+    for _ in range(20):
+        out = reference.step(r, 0.0, DT_S)
+    assert info['force_n'] == pytest.approx(out.force_n, rel=1e-12)
+    default = ForceTrackingEnv(length_max_m=0.0)
+    default.reset(seed=0)
+    assert default.step(np.array([0.0002], dtype=np.float32))[4]['force_n'] != info['force_n']
+
+
+def test_force_tracking_yaml_with_fatigue_uses_the_fes_engine_and_observes_fitness():
+    env = ForceTrackingEnv(str(FES_QUADRICEPS))
+    assert isinstance(env.muscle, FesMuscle)
+    assert env.observation_space.shape == (4 * 5 + 1,)
+    obs, _ = env.reset(seed=0)
+    assert obs[-1] == 1.0   # a fresh muscle
+    for _ in range(25):
+        obs, *_ = env.step(env.action_space.high)
+    assert 0.2 < obs[-1] < 1.0   # fatigued a little, above fatigue_min
+
+
+def test_force_tracking_history_length_sets_the_observation_and_shifts_newest_first():
+    env = ForceTrackingEnv(history_length=3, length_max_m=0.0)
+    assert env.observation_space.shape == (12,)
+    obs0, _ = env.reset(seed=0)
+    obs1, *_ = env.step(np.array([0.0003], dtype=np.float32))
+    obs2, *_ = env.step(np.array([0.0003], dtype=np.float32))
+    np.testing.assert_array_equal(obs2[4:8], obs1[0:4])
+    np.testing.assert_array_equal(obs2[8:12], obs0[0:4])
+
+
+@pytest.mark.parametrize('period, message', [
+    (0.005, r'`control_period_s` must be in \[0.01, 0.05\] s'),
+    (0.0155, '`control_period_s` must be a whole number of model steps'),
+    (np.nan, '`control_period_s` must be positive and finite'),
+])
+def test_bad_control_period_raises_naming_it(period, message):
+    with pytest.raises(ValueError, match=message):
+        ForceTrackingEnv(control_period_s=period)
+    with pytest.raises(ValueError, match=message):
+        KneeAngleEnv(control_period_s=period)
+
+
+def test_control_period_sets_the_model_steps_per_env_step():
+    env = ForceTrackingEnv(control_period_s=0.05, episode_duration_s=1.0)
+    env.reset(seed=0)
+    _, _, _, _, info = env.step(np.zeros(1, dtype=np.float32))
+    assert env.muscle.t_s == pytest.approx(0.05, abs=1e-12)
+    assert info['t_s'] == pytest.approx(0.05, abs=1e-15)
+    assert env.n_periods == 20
+
+
+def test_step_after_the_episode_end_raises():
+    env = ForceTrackingEnv(episode_duration_s=0.04)
+    env.reset(seed=0)
+    env.step(np.zeros(1, dtype=np.float32))
+    assert env.step(np.zeros(1, dtype=np.float32))[3] is True
+    with pytest.raises(ValueError, match='the episode is over'):
+        env.step(np.zeros(1, dtype=np.float32))
