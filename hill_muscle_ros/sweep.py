@@ -25,11 +25,15 @@ the rest of the package runs without them. This module has no rclpy.
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import itertools
+import logging
 import math
 import os
+import signal
 import sys
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -517,9 +521,28 @@ def run_sweep(spec: SweepSpec, scheduler: str | None = None, workers: int | None
             return run_on_client(spec, client, chunk, on_chunk)
     n = workers if workers is not None else (os.cpu_count() or 1)
     # One thread per worker process: the batch engine holds the GIL.
-    with LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                      dashboard_address=None) as cluster, Client(cluster) as client:
+    with _sigint_ignored():
+        # The worker processes inherit the ignored Ctrl-C (and Python leaves an
+        # ignored SIGINT ignored): a terminal's Ctrl-C reaches the whole process
+        # group, and only this process should act on it, cancelling the tasks
+        # and closing the cluster in order, not the workers dying mid-task.
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                               dashboard_address=None, silence_logs=logging.ERROR)
+    with cluster, Client(cluster) as client:
         return run_on_client(spec, client, chunk, on_chunk)
+
+
+@contextlib.contextmanager
+def _sigint_ignored():
+    """Ignore SIGINT in this block (only the main thread can set handlers)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 # --------------------------------------------------------------------------- command line
