@@ -185,6 +185,8 @@ def build_parser() -> argparse.ArgumentParser:
     limb_cli.add_animate_parser(sub)
     from . import sweep
     sweep.add_parser(sub)
+    from . import fit   # the fit itself (scipy, the bag reader) loads on use
+    fit.add_fit_parser(sub)
 
     for name, node in NODE_COMMANDS.items():
         # Listed for the help text only: main() dispatches node commands before
@@ -357,13 +359,18 @@ def cmd_animate(args: argparse.Namespace) -> int:
     return animate(args)
 
 
+def cmd_fit(args: argparse.Namespace) -> int:
+    from .fit import cmd_fit as fit
+    return fit(args)
+
+
 def cmd_sweep(args: argparse.Namespace) -> int:
     from .sweep import cmd_sweep as sweep   # Dask and pyarrow load only here
     return sweep(args)
 
 
 _COMMANDS = {'simulate': cmd_simulate, 'figures': cmd_figures, 'animate': cmd_animate,
-             'sweep': cmd_sweep}
+             'sweep': cmd_sweep, 'fit': cmd_fit}
 
 
 def _error(message: str) -> int:

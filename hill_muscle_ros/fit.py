@@ -1,0 +1,787 @@
+"""``hill-muscle fit``: estimate muscle parameters from a recorded bag by least squares.
+
+The recorded inputs (stimulation and MTU length) are replayed through the
+model from rest, on the time grid of the recorded force, and the named
+:class:`~hill_muscle_ros.model.params.MuscleParams` fields are moved by
+:func:`scipy.optimize.least_squares` until the simulated force matches the
+recorded one. The rest of the parameters stay as the start file gives them.
+
+The pieces are kept apart so that another plant (the limb) can be fitted the
+same way later: :func:`load_muscle_recording` turns a bag into arrays,
+:class:`MuscleReplay` predicts the force of several parameter sets at once
+(its ``predict`` is all :func:`fit_parameters` asks of a model), and
+:func:`fit_parameters` runs the optimiser, checks identifiability and computes
+the standard errors. The CLI glue (:func:`cmd_fit`) writes the parameters file
+and the report.
+
+Replaying: the force samples define the grid (step dt = their median
+spacing). The stimulation holds its last message (zero before the first),
+as the simulator node does; a plain ``length_command`` holds too and the step
+ramps linearly to it, a ``length_command_stamped`` knot track is linear
+between its stamps. Each step holds the command of its start and the force
+sample is taken at its end, as in the simulator node: a bag written by
+``simulate --bag`` is reproduced to the last bit by its own parameters,
+except for the sample at which the stimulation drops to zero, which
+``simulate`` shows released one sample earlier (its final zero message does
+not count: no sample follows it). The muscle is taken to be at rest at the
+first instant where every input and the force have a message.
+
+Cost: each evaluation runs the nominal parameters and one forward-difference
+perturbation per fitted parameter (K = n + 1 runs) and hands scipy the
+residual and the Jacobian together (``jac=``). The runs use the scalar hot
+loop of :class:`~hill_muscle_ros.model.muscle.Muscle`, the one ``simulate``
+uses: on Protocol II at 1 kHz one run takes about 12 ms, where
+:class:`~hill_muscle_ros.model.batch.MuscleBatch` takes about 0.5 s for K = 4
+(its per-step NumPy overhead only pays off for hundreds of muscles). Muscles
+with FES extensions on run :class:`~hill_muscle_ros.model.fes_muscle.FesMuscle`,
+which is several times slower per step.
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Protocol as TypingProtocol, Sequence
+
+import numpy as np
+import yaml
+
+from .model import Muscle, MuscleParams
+from .model.fes_muscle import FesMuscle
+from .model.muscle import DL_MT_LIMIT_M
+from .model.stimulus import command_from_pulse_width
+from .timebase import NS_PER_S
+
+#: Default topics, each list in order of preference: the first with messages is used.
+PULSE_WIDTH_TOPIC = 'pulse_width'
+RECRUITMENT_TOPIC = 'recruitment'
+#: Stamped knots first: their stamps are the instants the length is to be reached.
+LENGTH_TOPICS = ('length_command_stamped', 'length_command')
+#: The wrench first: its header stamp is the simulated time of the step.
+FORCE_TOPICS = ('wrench', 'force')
+#: Message type of the knot track (``point.x`` at ``header.stamp``).
+POINT_STAMPED = 'geometry_msgs/msg/PointStamped'
+
+#: Relative forward-difference step, as scipy's '2-point' scheme:
+#: h = sqrt(eps) max(1, |x|) balances truncation and rounding error.
+FD_RELATIVE_STEP = math.sqrt(np.finfo(float).eps)
+#: A parameter whose relative sensitivity |dF/dx| |x| / |F| (norms over the
+#: samples) is below this does not act on the force: the forward difference
+#: itself carries a relative rounding error of about eps / FD_RELATIVE_STEP
+#: = 1.5e-8, so anything within 100 times that is indistinguishable from zero.
+MIN_RELATIVE_SENSITIVITY = 1e-6
+#: Largest condition index s_max / s_k of the Jacobian with unit-length columns
+#: accepted (Belsley, Kuh and Welsch 1980, Regression Diagnostics, ch. 3:
+#: above 30 the columns are strongly, above 100 seriously, linearly
+#: dependent). Above it J^T J is near-singular: the force determines a
+#: combination of some parameters far better than each one, and their
+#: standard errors are at least 100 times those of independent columns.
+#: Protocol II gives 2.0 for f_iso_max_n, k_se_n_per_m and fv_a_n, and 139 for
+#: the Riener fatigue constants tau_fatigue_s and fatigue_min of a 6 s run.
+MAX_CONDITION_INDEX = 100.0
+#: A parameter takes part in a near-singular direction when at least this
+#: share of its estimate's variance comes from that direction (Belsley, Kuh
+#: and Welsch's variance-decomposition proportion, their threshold).
+VARIANCE_PROPORTION = 0.5
+#: Tolerances of least_squares on the cost, the step and the gradient: far
+#: below any force noise, yet above the simulation's rounding.
+FIT_TOLERANCE = 1e-10
+#: Most evaluations (each one K = n + 1 simulations).
+MAX_EVALUATIONS = 100
+#: Output file names in --report DIR.
+REPORT_MARKDOWN = 'fit_report.md'
+REPORT_YAML = 'fit_report.yaml'
+REPORT_PNG = 'fit_force.png'
+
+
+class FitError(ValueError):
+    """A user error of a fit (bag, topic, parameter name): the message names it."""
+
+
+class NotIdentifiableError(FitError):
+    """The force does not determine some of the fitted parameters.
+
+    :param names: the parameters concerned
+    :param message: why, in words
+    """
+
+    def __init__(self, names: Sequence[str], message: str) -> None:
+        super().__init__(message)
+        self.names = tuple(names)
+
+
+# --------------------------------------------------------------------------- parameters
+
+@dataclass(frozen=True)
+class FitParameter:
+    """One fitted quantity: a float field of the parameters, or one entry of a
+    per-fibre-type list (``tau_fatigue_s`` for a list of one, ``tau_fatigue_s[1]``).
+
+    :param field: the dataclass field name
+    :param index: the list entry, or ``None`` for a float field
+    :param unit: the field's unit
+    :param low: lower bound of the field's range
+    :param high: upper bound of the field's range
+    :param named_by_index: the user wrote ``field[i]`` (else a list of one: ``field``)
+    """
+
+    field: str
+    index: int | None
+    unit: str
+    low: float
+    high: float
+    named_by_index: bool = False
+
+    @property
+    def name(self) -> str:
+        """The name as the user writes it in ``--fit``."""
+        return f'{self.field}[{self.index}]' if self.named_by_index else self.field
+
+    def get(self, params: Any) -> float:
+        value = getattr(params, self.field)
+        return float(value if self.index is None else value[self.index])
+
+    def set(self, params: Any, value: float) -> Any:
+        """A copy of ``params`` with this quantity set (validated on construction)."""
+        if self.index is None:
+            return params.replace(**{self.field: float(value)})
+        values = list(getattr(params, self.field))
+        values[self.index] = float(value)
+        return params.replace(**{self.field: tuple(values)})
+
+
+def parse_fit_names(text: str, params: MuscleParams) -> list[FitParameter]:
+    """The fitted quantities that ``--fit NAME[,NAME...]`` names.
+
+    :param text: comma-separated field names, optionally ``name[i]`` for a list entry
+    :param params: the start parameters (for list lengths)
+    :raises FitError: naming an unknown, repeated or non-float name
+    """
+    fields = {f.name: f for f in dataclasses.fields(MuscleParams)}
+    out: list[FitParameter] = []
+    for raw in text.split(','):
+        name = raw.strip()
+        if not name:
+            raise FitError(f'--fit: empty parameter name in {text!r}')
+        field_name, index = name, None
+        if name.endswith(']') and '[' in name:
+            field_name, _, rest = name[:-1].partition('[')
+            try:
+                index = int(rest)
+            except ValueError:
+                raise FitError(f'--fit: `{name}`: the index must be an integer') from None
+        f = fields.get(field_name)
+        if f is None:
+            raise FitError(f'--fit: unknown parameter `{name}` (fittable: '
+                           f'{", ".join(fittable_names())})')
+        spec = f.metadata
+        if spec['choices'] is not None or f.type == 'int':
+            raise FitError(f'--fit: `{name}` cannot be fitted: it is not a real number '
+                           f'({"a choice" if spec["choices"] else "an integer"})')
+        is_list = f.type.startswith('tuple')
+        if is_list:
+            n = len(getattr(params, field_name))
+            if index is None:
+                if n != 1:
+                    raise FitError(f'--fit: `{name}` has {n} entries: name one, e.g. '
+                                   f'`{field_name}[0]`')
+                index = 0
+            elif not 0 <= index < n:
+                raise FitError(f'--fit: `{name}`: index out of range, the start '
+                               f'parameters give {n} entries')
+        elif index is not None:
+            raise FitError(f'--fit: `{name}`: `{field_name}` is not a list')
+        param = FitParameter(field_name, index if is_list else None, spec['unit'],
+                             float(spec['low']), float(spec['high']), name != field_name)
+        if any(p.name == param.name for p in out):
+            raise FitError(f'--fit: `{param.name}` is named twice')
+        out.append(param)
+    return out
+
+
+def fittable_names() -> list[str]:
+    """Names of the fields that can be fitted (real numbers and lists of them)."""
+    return [f.name for f in dataclasses.fields(MuscleParams)
+            if f.metadata['choices'] is None and f.type != 'int']
+
+
+# --------------------------------------------------------------------------- the bag
+
+@dataclass(frozen=True)
+class MuscleRecording:
+    """A single muscle's recorded inputs and force, on one uniform time grid.
+
+    :param bag: the bag directory
+    :param rate_hz: [Hz] 1 / dt of the grid (the force's median sample spacing)
+    :param t0_ns: [ns] the grid's first instant, in the bag's stamp clock
+    :param stimulation: per grid instant, the pulse width [s] or recruitment [-] held then
+    :param stimulation_kind: ``pulse_width`` or ``recruitment``
+    :param dl_mt_m: [m] per grid instant, the MTU length change
+    :param sample_index: grid index of each measured force sample used
+    :param force_n: [N] the measured force at those samples
+    :param topics: the topics read, by role (``stimulation``, ``length``, ``force``)
+    """
+
+    bag: Path
+    rate_hz: float
+    t0_ns: int
+    stimulation: np.ndarray
+    stimulation_kind: str
+    dl_mt_m: np.ndarray
+    sample_index: np.ndarray
+    force_n: np.ndarray
+    topics: dict[str, str]
+
+    @property
+    def t_s(self) -> np.ndarray:
+        """[s] the grid, from 0 at its first instant."""
+        return np.arange(len(self.dl_mt_m)) / self.rate_hz
+
+    @property
+    def sample_t_s(self) -> np.ndarray:
+        """[s] the times of the measured force samples on the grid."""
+        return self.sample_index / self.rate_hz
+
+
+def _pick_topic(bag, candidates: Sequence[str], role: str, option: str):
+    """The first candidate topic with messages, or a FitError naming them all."""
+    for name in candidates:
+        if bag.has_topic(name) and bag.topic(name).count:
+            return bag.topic(name)
+    listed = ' or '.join(f'`{c}`' for c in candidates)
+    counts = ', '.join(f'{n} ({c})' for n, c in bag.counts().items()) or 'no topics'
+    raise FitError(f'{bag.path}: no messages on {listed} ({role}; {option} names another '
+                   f'topic); the bag has: {counts}')
+
+
+def _span(stamps_ns: np.ndarray, origin_ns: int) -> str:
+    return (f't = {(stamps_ns[0] - origin_ns) / NS_PER_S:.3f}..'
+            f'{(stamps_ns[-1] - origin_ns) / NS_PER_S:.3f} s')
+
+
+def _held(stamps_ns: np.ndarray, values: np.ndarray, grid_ns: np.ndarray) -> np.ndarray:
+    """The last value at or before each grid instant; 0 (rest) before the first."""
+    idx = np.searchsorted(stamps_ns, grid_ns, side='right') - 1
+    return np.where(idx >= 0, values[np.maximum(idx, 0)], 0.0)
+
+
+def load_muscle_recording(bag_dir: str | Path, *, pulse_width_topic: str | None = None,
+                          recruitment_topic: str | None = None,
+                          length_topic: str | None = None,
+                          force_topic: str | None = None) -> MuscleRecording:
+    """Read a bag's stimulation, length and force onto one time grid.
+
+    Without topic options, the stimulation is ``pulse_width`` or else
+    ``recruitment``, the length ``length_command_stamped`` or else
+    ``length_command``, the force ``wrench`` or else ``force`` (each the first
+    with messages; relative names find the topic in any one namespace).
+
+    :raises FitError: naming the bag and the topic if a topic is missing, a value
+        is out of range, or the inputs and the force do not overlap in time
+    """
+    from .recording.reader import read_bag   # mcap: imported only when reading a bag
+    bag_dir = Path(bag_dir)
+    try:
+        bag = read_bag(bag_dir)
+    except (FileNotFoundError, OSError, ValueError) as err:
+        raise FitError(f'{bag_dir}: cannot read the bag: {err}') from None
+    if pulse_width_topic is not None and recruitment_topic is not None:
+        raise FitError('give --pulse-width-topic or --recruitment-topic, not both')
+    if pulse_width_topic is not None:
+        stim = _pick_topic(bag, [pulse_width_topic], 'the stimulation', '--pulse-width-topic')
+        kind = 'pulse_width'
+    elif recruitment_topic is not None:
+        stim = _pick_topic(bag, [recruitment_topic], 'the stimulation', '--recruitment-topic')
+        kind = 'recruitment'
+    else:
+        stim = _pick_topic(bag, [PULSE_WIDTH_TOPIC, RECRUITMENT_TOPIC], 'the stimulation',
+                           '--pulse-width-topic or --recruitment-topic')
+        kind = 'pulse_width' if stim.name.endswith(PULSE_WIDTH_TOPIC) else 'recruitment'
+    length = _pick_topic(bag, [length_topic] if length_topic else LENGTH_TOPICS,
+                         'the MTU length', '--length-topic')
+    force = _pick_topic(bag, [force_topic] if force_topic else FORCE_TOPICS,
+                        'the measured force', '--force-topic')
+    try:
+        stim_v, length_v, force_v = stim.values(), length.values(), force.values()
+    except ValueError as err:
+        raise FitError(f'{bag_dir}: {err}') from None
+    stim_t, length_t, force_t = stim.stamps_ns(), length.stamps_ns(), force.stamps_ns()
+    for topic, t in ((stim, stim_t), (length, length_t), (force, force_t)):
+        if np.any(np.diff(t) < 0):
+            raise FitError(f'{bag_dir}: the stamps of `{topic.name}` go back in time')
+    _check_values(bag_dir, stim.name, kind, stim_v)
+    bad = ~(np.abs(length_v) <= DL_MT_LIMIT_M)
+    if bad.any():
+        raise FitError(f'{bag_dir}: `{length.name}` must be within ±{DL_MT_LIMIT_M:g} m of '
+                       f'rest, got {length_v[bad][0]!r}')
+    keep = np.isfinite(force_v)
+    force_t, force_v = force_t[keep], force_v[keep]
+    if len(force_t) < 2:
+        raise FitError(f'{bag_dir}: `{force.name}` has {len(force_t)} finite samples: '
+                       'too few to fit')
+    origin = int(force_t[0])
+    for topic, t in ((stim, stim_t), (length, length_t)):
+        if t[0] > force_t[-1] or t[-1] < force_t[0]:
+            raise FitError(f'{bag_dir}: the messages on `{topic.name}` ({_span(t, origin)}) '
+                           f'and the force on `{force.name}` ({_span(force_t, origin)}) do '
+                           'not overlap in time')
+    dt_ns = float(np.median(np.diff(force_t)))
+    if not dt_ns > 0:
+        raise FitError(f'{bag_dir}: the samples of `{force.name}` share one stamp')
+    # The muscle is at rest where every input has started; the grid starts at
+    # the force sample at or just before that instant.
+    start_ns = max(int(stim_t[0]), int(length_t[0]))
+    first = max(int(np.searchsorted(force_t, start_ns, side='right')) - 1, 0)
+    force_t, force_v = force_t[first:], force_v[first:]
+    t0 = int(force_t[0])
+    sample_index = np.rint((force_t - t0) / dt_ns).astype(np.int64)
+    if np.any(np.diff(sample_index) <= 0):
+        raise FitError(f'{bag_dir}: the samples of `{force.name}` are not on a uniform '
+                       'time grid (two fall on one step)')
+    grid_ns = t0 + np.rint(np.arange(sample_index[-1] + 1) * dt_ns).astype(np.int64)
+    if length.type == POINT_STAMPED:
+        # A knot track: linear between the instants its stamps name, the ends held.
+        dl = np.interp(grid_ns.astype(float), length_t.astype(float), length_v)
+    else:
+        dl = _held(length_t, length_v, grid_ns)
+    return MuscleRecording(bag_dir, NS_PER_S / dt_ns, t0, _held(stim_t, stim_v, grid_ns),
+                           kind, dl, sample_index, force_v,
+                           {'stimulation': stim.name, 'length': length.name,
+                            'force': force.name})
+
+
+def _check_values(bag_dir: Path, topic: str, kind: str, values: np.ndarray) -> None:
+    if kind == 'recruitment':
+        bad = ~((values >= 0.0) & (values <= 1.0))
+        what = 'in [0, 1]'
+    else:
+        bad = ~((values >= 0.0) & np.isfinite(values))
+        what = 'finite and non-negative (seconds)'
+    if bad.any():
+        raise FitError(f'{bag_dir}: `{topic}` must be {what}, got {values[bad][0]!r}')
+
+
+# --------------------------------------------------------------------------- replay
+
+class ForceModel(TypingProtocol):
+    """What :func:`fit_parameters` needs of a model: predictions for parameter sets."""
+
+    def predict(self, params: Sequence[Any]) -> np.ndarray:
+        """The predicted measurements, one row per parameter set."""
+
+
+class MuscleReplay:
+    """The recorded inputs replayed through the muscle, for any parameters.
+
+    :param recording: the inputs and the force samples to predict
+    """
+
+    def __init__(self, recording: MuscleRecording) -> None:
+        self.recording = recording
+        self.dt_s = 1.0 / recording.rate_hz
+        self._dl_end = recording.dl_mt_m[1:].tolist()
+        values, self._inverse = np.unique(recording.stimulation, return_inverse=True)
+        self._stim_values = values.tolist()
+
+    def commands(self, params: MuscleParams) -> np.ndarray:
+        """[-] the command u at each grid instant: the recruitment itself, or the
+        pulse width through the muscle's recruitment curve."""
+        if self.recording.stimulation_kind == 'recruitment':
+            return self.recording.stimulation
+        # A recording holds few distinct widths: the curve is applied once to each.
+        u = np.array([command_from_pulse_width(pw, params) for pw in self._stim_values])
+        return u[self._inverse]
+
+    def force(self, params: MuscleParams, fes: bool = False) -> np.ndarray:
+        """[N] the force at every grid instant, from rest.
+
+        :param fes: run the FES engine even if every FES extension is off
+        """
+        u = self.commands(params).tolist()
+        muscle = FesMuscle(params) if fes else Muscle(params)
+        muscle.set_recruitment(u[0])
+        first = muscle.outputs()
+        n_steps = len(u) - 1
+        columns = [[0.0] * n_steps for _ in first]
+        # As the simulator node: a command acts from the step after it, so a
+        # release to zero shows one sample later than in `simulate`'s own table.
+        muscle.run(u[:-1], self._dl_end, self.dt_s, columns=columns)
+        force = np.empty(n_steps + 1)
+        force[0] = first.force_n
+        force[1:] = columns[first._fields.index('force_n')]
+        return force
+
+    def predict(self, params: Sequence[MuscleParams]) -> np.ndarray:
+        """[N] the force at the recorded samples, one row per parameter set."""
+        index = self.recording.sample_index
+        # One engine for all: the paper's loop and the FES engine agree to about
+        # 1e-9 N, not to the bit, and a forward difference across the two (an FES
+        # constant moved off its default) would turn that into a false slope.
+        fes = not all(p.fes_defaults for p in params)
+        return np.array([self.force(p, fes)[index] for p in params])
+
+
+# --------------------------------------------------------------------------- fitting
+
+@dataclass(frozen=True)
+class FitResult:
+    """The outcome of a fit.
+
+    :param parameters: the fitted quantities
+    :param start: the start parameters
+    :param params: the fitted parameters (the rest unchanged)
+    :param start_values: the fitted quantities' start values
+    :param estimates: their estimates
+    :param std_errors: their standard errors, sqrt(diag(sigma^2 (J^T J)^-1))
+    :param correlation: the correlation matrix of the estimates
+    :param rms_n: [N] residual RMS at the estimate
+    :param start_rms_n: [N] residual RMS at the start
+    :param n_samples: number of force samples fitted
+    :param n_evaluations: evaluations of residual and Jacobian together
+    :param message: the optimiser's reason to stop
+    :param fitted: the predicted force at the samples, at the estimate
+    """
+
+    parameters: tuple[FitParameter, ...]
+    start: Any
+    params: Any
+    start_values: np.ndarray
+    estimates: np.ndarray
+    std_errors: np.ndarray
+    correlation: np.ndarray
+    rms_n: float
+    start_rms_n: float
+    n_samples: int
+    n_evaluations: int
+    message: str
+    fitted: np.ndarray
+
+
+def _perturbed(parameters: Sequence[FitParameter], start: Any,
+               x: np.ndarray) -> tuple[list[Any], np.ndarray]:
+    """The parameter sets of one evaluation: x itself, then x with each entry moved
+    by its forward-difference step (backwards at an upper bound), and the steps."""
+    base = start
+    for p, v in zip(parameters, x):
+        base = p.set(base, v)
+    sets, steps = [base], np.empty(len(x))
+    for j, p in enumerate(parameters):
+        h = FD_RELATIVE_STEP * max(1.0, abs(x[j]))
+        moved = x[j] + h if x[j] + h <= p.high else x[j] - h
+        steps[j] = moved - x[j]   # the step actually taken, after rounding
+        sets.append(p.set(base, moved))
+    return sets, steps
+
+
+def _and(names: Sequence[str]) -> str:
+    quoted = [f'`{n}`' for n in names]
+    return quoted[0] if len(quoted) == 1 else ', '.join(quoted[:-1]) + ' and ' + quoted[-1]
+
+
+def check_identifiable(parameters: Sequence[FitParameter], x: np.ndarray,
+                       jac: np.ndarray, force: np.ndarray) -> None:
+    """Raise if the Jacobian shows fitted quantities the force does not determine.
+
+    :param x: the values at which ``jac`` was taken
+    :param jac: [N per unit] d force / d x, one column per quantity
+    :param force: [N] the predicted force there (its norm sets the scale)
+    :raises NotIdentifiableError: naming the quantities, with the reason
+    """
+    norms = np.linalg.norm(jac, axis=0)
+    scale = max(float(np.linalg.norm(force)), np.finfo(float).tiny)
+    sensitivity = norms * np.maximum(np.abs(x), np.finfo(float).tiny) / scale
+    dead = [p.name for p, s in zip(parameters, sensitivity) if not s >= MIN_RELATIVE_SENSITIVITY]
+    if dead:
+        listed = _and(dead)
+        raise NotIdentifiableError(dead, f'not identifiable from this recording: {listed} '
+                                         '(the force does not depend on '
+                                         f'{"it" if len(dead) == 1 else "them"})')
+    if len(parameters) < 2:
+        return
+    _, sv, vt = np.linalg.svd(jac / norms, full_matrices=False)
+    weak = sv * MAX_CONDITION_INDEX < sv[0]
+    if weak.any():
+        # Variance-decomposition proportions: the share of each estimate's
+        # variance sum_k v_jk^2 / s_k^2 that each singular direction k carries.
+        phi = (vt.T / sv) ** 2
+        share = phi[:, weak].max(axis=1) / phi.sum(axis=1)
+        names = [p.name for p, w in zip(parameters, share) if w >= VARIANCE_PROPORTION]
+        listed = _and(names)
+        raise NotIdentifiableError(names, f'not identifiable from this recording: {listed} '
+                                          '(J^T J is near-singular: the force determines only '
+                                          'a combination of them; fit fewer of them or use a '
+                                          'recording that separates them)')
+
+
+def fit_parameters(model: ForceModel, measured: np.ndarray, start: Any,
+                   parameters: Sequence[FitParameter],
+                   progress: Callable[[str], None] | None = None) -> FitResult:
+    """Least-squares estimate of ``parameters``, the rest of ``start`` held.
+
+    Each evaluation predicts K = n + 1 parameter sets at once: the residual at
+    x and the forward-difference Jacobian columns, handed to
+    :func:`scipy.optimize.least_squares` (trust region reflective, within the
+    fields' ranges) as ``fun`` and ``jac``.
+
+    :param model: predicts the measurements for parameter sets (:class:`MuscleReplay`)
+    :param measured: the measurements, in the order ``model.predict`` returns them
+    :param start: the start parameters (their ``replace`` makes the others)
+    :param parameters: the quantities to fit
+    :param progress: called with one line per evaluation (cost, RMS)
+    :raises NotIdentifiableError: at the start or at the estimate
+    :raises FitError: if a parameter set on the way is invalid
+    """
+    from scipy.optimize import least_squares
+    parameters = tuple(parameters)
+    n = len(parameters)
+    m = len(measured)
+    if m <= n:
+        raise FitError(f'{m} force samples for {n} parameters: too few to fit')
+    x0 = np.array([p.get(start) for p in parameters])
+    cache: dict[str, Any] = {}
+
+    def evaluate(x: np.ndarray) -> None:
+        if cache.get('x') is not None and np.array_equal(cache['x'], x):
+            return
+        try:
+            sets, steps = _perturbed(parameters, start, x)
+        except ValueError as err:
+            raise FitError(f'the fit reached invalid parameters: {err}') from None
+        forces = model.predict(sets)
+        residual = forces[0] - measured
+        cache.update(x=x.copy(), residual=residual, force=forces[0],
+                     jac=(forces[1:] - forces[0]).T / steps)
+        cache['n'] = cache.get('n', 0) + 1
+        if progress is not None:
+            cost = 0.5 * float(residual @ residual)
+            progress(f'evaluation {cache["n"]:3d}: cost {cost:.6g} N^2, RMS '
+                     f'{math.sqrt(2.0 * cost / m):.6g} N  ' + ', '.join(
+                         f'{p.name}={v:.8g}' for p, v in zip(parameters, x)))
+
+    def fun(x: np.ndarray) -> np.ndarray:
+        evaluate(x)
+        return cache['residual']
+
+    def jac(x: np.ndarray) -> np.ndarray:
+        evaluate(x)
+        return cache['jac']
+
+    evaluate(x0)
+    start_rms = float(np.sqrt(np.mean(cache['residual'] ** 2)))
+    check_identifiable(parameters, x0, cache['jac'], cache['force'])
+    lower = np.array([p.low for p in parameters])
+    upper = np.array([p.high for p in parameters])
+    result = least_squares(fun, x0, jac=jac, bounds=(lower, upper), method='trf',
+                           x_scale='jac', ftol=FIT_TOLERANCE, xtol=FIT_TOLERANCE,
+                           gtol=FIT_TOLERANCE, max_nfev=MAX_EVALUATIONS)
+    x = result.x
+    evaluate(x)
+    J, residual = cache['jac'], cache['residual']
+    check_identifiable(parameters, x, J, cache['force'])
+    # sigma^2 (J^T J)^-1 through the column-normalised J: same result, better conditioned.
+    norms = np.linalg.norm(J, axis=0)
+    inv = np.linalg.inv((J / norms).T @ (J / norms)) / np.outer(norms, norms)
+    sigma2 = float(residual @ residual) / (m - n)
+    cov = sigma2 * inv
+    d = np.sqrt(np.diag(inv))
+    fitted = start
+    for p, v in zip(parameters, x):
+        fitted = p.set(fitted, v)
+    return FitResult(parameters, start, fitted, x0, x.copy(), np.sqrt(np.diag(cov)),
+                     inv / np.outer(d, d), float(np.sqrt(np.mean(residual ** 2))),
+                     start_rms, m, cache['n'], str(result.message), cache['force'])
+
+
+# --------------------------------------------------------------------------- outputs
+
+def _yaml_value(value: Any) -> str:
+    """A parameter value as one line of YAML, floats with a point (ROS types them)."""
+    if isinstance(value, tuple):
+        return '[' + ', '.join(_yaml_value(v) for v in value) + ']'
+    if isinstance(value, float):
+        return repr(value)   # shortest round-trip form, always with '.' or 'e'
+    return yaml.safe_dump(value, default_flow_style=True).strip().removesuffix('...').strip()
+
+
+def params_file_text(result: FitResult, node_settings: dict[str, Any], source: str) -> str:
+    """The fitted parameters as a ROS 2 parameters file (``/**: ros__parameters:``)."""
+    fitted = {p.field for p in result.parameters}
+    errors = {p.name: (v, se) for p, v, se in zip(result.parameters, result.estimates,
+                                                   result.std_errors)}
+    lines = [f'# Muscle parameters fitted by `hill-muscle fit` to {source}.',
+             '# Load with:  hill-muscle simulate --params THIS_FILE ...',
+             '# or:         ros2 run hill_muscle_ros simulator --ros-args --params-file THIS_FILE',
+             '/**:', '  ros__parameters:']
+    for f in dataclasses.fields(MuscleParams):
+        value = getattr(result.params, f.name)
+        line = f'    {f.name}: {_yaml_value(value)}'
+        if f.name in fitted:
+            notes = [f'{name} fitted, std error {se:.3g} {f.metadata["unit"]}'
+                     for name, (_, se) in errors.items()
+                     if name == f.name or name.startswith(f.name + '[')]
+            line += '  # ' + '; '.join(notes)
+        lines.append(line)
+    for key, value in node_settings.items():
+        lines.append(f'    {key}: {_yaml_value(value)}')
+    return '\n'.join(lines) + '\n'
+
+
+def format_report(result: FitResult, recording: MuscleRecording, start_source: str) -> str:
+    """The fit in words and tables (Markdown; also what stdout shows)."""
+    r = recording
+    names = [p.name for p in result.parameters]
+    width = max(len(n) for n in names + ['parameter'])
+    lines = [f'# Fit of {", ".join(names)}', '',
+             f'- bag: {r.bag}',
+             f'- force: `{r.topics["force"]}`, {result.n_samples} samples at '
+             f'{r.rate_hz:g} Hz over {r.sample_t_s[-1] - r.sample_t_s[0]:.3f} s',
+             f'- inputs: `{r.topics["stimulation"]}` ({r.stimulation_kind}), '
+             f'`{r.topics["length"]}`',
+             f'- start: {start_source}',
+             f'- least squares: {result.n_evaluations} evaluations; {result.message}',
+             f'- residual RMS: {result.rms_n:.6g} N (at the start: {result.start_rms_n:.6g} N)',
+             '', f'| {"parameter":<{width}} | {"start":>12} | {"estimate":>14} | '
+                 f'{"std error":>10} | unit |',
+             f'|{"-" * (width + 2)}|{"-" * 14}|{"-" * 16}|{"-" * 12}|------|']
+    for p, x0, x, se in zip(result.parameters, result.start_values, result.estimates,
+                            result.std_errors):
+        lines.append(f'| {p.name:<{width}} | {x0:12.6g} | {x:14.8g} | {se:10.3g} | '
+                     f'{p.unit} |')
+    lines += ['', 'Correlation of the estimates:', '',
+              '| ' + ' | '.join([' ' * width] + [f'{n:>12}' for n in names]) + ' |',
+              '|' + '|'.join(['-' * (width + 2)] + ['-' * 14] * len(names)) + '|']
+    for name, row in zip(names, result.correlation):
+        lines.append('| ' + ' | '.join([f'{name:<{width}}'] + [f'{c:12.4f}' for c in row])
+                     + ' |')
+    lines += ['', 'Standard errors: sigma^2 (J^T J)^-1 at the estimate, sigma^2 = the sum of '
+                  'squared residuals / (samples - parameters); they assume independent '
+                  'force errors of equal variance.']
+    return '\n'.join(lines)
+
+
+def report_data(result: FitResult, recording: MuscleRecording) -> dict[str, Any]:
+    """The report as plain data (for ``fit_report.yaml``)."""
+    return {
+        'bag': str(recording.bag), 'topics': dict(recording.topics),
+        'rate_hz': float(recording.rate_hz), 'n_samples': result.n_samples,
+        'n_evaluations': result.n_evaluations, 'message': result.message,
+        'residual_rms_n': result.rms_n, 'start_residual_rms_n': result.start_rms_n,
+        'parameters': {p.name: {'unit': p.unit, 'start': float(x0), 'estimate': float(x),
+                                'std_error': float(se)}
+                       for p, x0, x, se in zip(result.parameters, result.start_values,
+                                               result.estimates, result.std_errors)},
+        'correlation': {'names': [p.name for p in result.parameters],
+                        'matrix': [[float(c) for c in row] for row in result.correlation]},
+    }
+
+
+def plot_fit(path: Path, result: FitResult, recording: MuscleRecording) -> None:
+    """PNG of the measured and the fitted force, and their difference."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    t = recording.sample_t_s
+    fig, (ax_f, ax_r) = plt.subplots(2, 1, sharex=True, figsize=(8, 6),
+                                     gridspec_kw={'height_ratios': [3, 1]})
+    ax_f.plot(t, recording.force_n, color='0.6', lw=2, label=f'measured ({recording.topics["force"]})')
+    ax_f.plot(t, result.fitted, color='C0', lw=1, label='fitted model')
+    ax_f.set_ylabel('force [N]')
+    ax_f.set_title(f'hill-muscle fit: {", ".join(p.name for p in result.parameters)}')
+    ax_f.legend(loc='best')
+    ax_r.plot(t, recording.force_n - result.fitted, color='C3', lw=0.8)
+    ax_r.set_ylabel('measured - fitted [N]')
+    ax_r.set_xlabel('time [s]')
+    for ax in (ax_f, ax_r):
+        ax.grid(True, alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+# --------------------------------------------------------------------------- CLI
+
+def add_fit_parser(sub: argparse._SubParsersAction) -> None:
+    """The ``fit`` subcommand's parser."""
+    from .cli import PROG
+    fit = sub.add_parser(
+        'fit', help='estimate muscle parameters from a recorded bag (least squares)',
+        description='Replay the stimulation and length recorded in a rosbag2 MCAP bag '
+                    'through the model and fit the named parameters to the recorded '
+                    'force by least squares. Writes a parameters file that simulate and '
+                    'the simulator node load, and reports each estimate with its standard '
+                    'error and the correlations.',
+        epilog='example:\n'
+               f'  {PROG} simulate --protocol II --params truth.yaml --bag run_bag\n'
+               f'  {PROG} fit --bag run_bag --fit f_iso_max_n,k_se_n_per_m,fv_a_n '
+               '--out fitted.yaml --report fit_report',
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    fit.add_argument('--bag', required=True, type=Path, metavar='DIR',
+                     help='the rosbag2 MCAP bag (a directory)')
+    fit.add_argument('--fit', required=True, metavar='NAME[,NAME...]', dest='fit_names',
+                     help='parameters to estimate, e.g. f_iso_max_n,k_se_n_per_m '
+                          '(a list entry as tau_fatigue_s[0])')
+    fit.add_argument('--params', type=Path, metavar='YAML',
+                     help='start values and every parameter not fitted (default: the '
+                          "package's config/muscle.yaml)")
+    fit.add_argument('--out', required=True, type=Path, metavar='YAML',
+                     help='write the fitted parameters file here')
+    fit.add_argument('--report', type=Path, metavar='DIR',
+                     help=f'also write {REPORT_MARKDOWN}, {REPORT_YAML} and {REPORT_PNG} here')
+    stim = fit.add_mutually_exclusive_group()
+    stim.add_argument('--pulse-width-topic', metavar='TOPIC',
+                      help=f'stimulation as pulse widths [s] (default: `{PULSE_WIDTH_TOPIC}`, '
+                           f'else `{RECRUITMENT_TOPIC}`)')
+    stim.add_argument('--recruitment-topic', metavar='TOPIC',
+                      help='stimulation as recruitment [-]')
+    fit.add_argument('--length-topic', metavar='TOPIC',
+                     help='MTU length change [m], Float64 or PointStamped knots (default: '
+                          f'`{LENGTH_TOPICS[0]}`, else `{LENGTH_TOPICS[1]}`)')
+    fit.add_argument('--force-topic', metavar='TOPIC',
+                     help='measured force [N], Float64 or WrenchStamped force.x (default: '
+                          f'`{FORCE_TOPICS[0]}`, else `{FORCE_TOPICS[1]}`)')
+
+
+def cmd_fit(args: argparse.Namespace) -> int:
+    """Run ``hill-muscle fit``; user errors raise :class:`~hill_muscle_ros.cli.UserError`."""
+    from . import resources
+    from .cli import UserError
+    from .params_file import load_muscle_params
+    params_path = args.params if args.params is not None else resources.default_params_file()
+    try:
+        start, node_settings = load_muscle_params(params_path)
+        parameters = parse_fit_names(args.fit_names, start)
+        recording = load_muscle_recording(
+            args.bag, pulse_width_topic=args.pulse_width_topic,
+            recruitment_topic=args.recruitment_topic, length_topic=args.length_topic,
+            force_topic=args.force_topic)
+        print(f'fitting {", ".join(p.name for p in parameters)} to '
+              f'{recording.topics["force"]} ({len(recording.force_n)} samples at '
+              f'{recording.rate_hz:g} Hz); each evaluation runs {len(parameters) + 1} '
+              'simulations', file=sys.stderr)
+        result = fit_parameters(MuscleReplay(recording), recording.force_n, start, parameters,
+                                progress=lambda line: print(line, file=sys.stderr, flush=True))
+    except ValueError as err:   # FitError, and the params file's own errors
+        raise UserError(str(err)) from None
+    report = format_report(result, recording, str(params_path))
+    try:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(params_file_text(result, node_settings, str(args.bag)),
+                            encoding='utf-8')
+        if args.report is not None:
+            args.report.mkdir(parents=True, exist_ok=True)
+            (args.report / REPORT_MARKDOWN).write_text(report + '\n', encoding='utf-8')
+            (args.report / REPORT_YAML).write_text(
+                yaml.safe_dump(report_data(result, recording), sort_keys=False),
+                encoding='utf-8')
+            plot_fit(args.report / REPORT_PNG, result, recording)
+    except OSError as err:
+        raise UserError(f'{err.filename}: cannot write: {err.strerror or err}') from None
+    print(report)
+    print(f'wrote {args.out}')
+    if args.report is not None:
+        print(f'wrote {args.report / REPORT_MARKDOWN}, {args.report / REPORT_YAML}, '
+              f'{args.report / REPORT_PNG}')
+    return 0
