@@ -1,0 +1,351 @@
+"""``hill-muscle sweep``: spec parsing, the numbers, and the runs on Dask.
+
+The reference for every force is :func:`hill_muscle_ros.model.simulate.simulate`,
+one parameter set at a time on the scalar engine; the sweep computes them in
+batches (:class:`~hill_muscle_ros.model.batch.MuscleBatch`), here, on a local
+Dask cluster and on a scheduler and workers started as separate processes.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from hill_muscle_ros import cli
+from hill_muscle_ros.model import MuscleParams, Protocol, simulate
+from hill_muscle_ros.resources import protocol_path
+from hill_muscle_ros.sweep import SweepError, parse_spec, run_sweep, simulate_forces
+
+pq = pytest.importorskip('pyarrow.parquet')
+
+REPO = Path(__file__).resolve().parents[1]
+VENV_BIN = Path(sys.executable).parent
+#: [N] bound on sweep vs separate runs (the batch engine follows the scalar one to 1e-9).
+ATOL_N = 1e-9
+#: [s] deadline for a cluster to start, a worker to register or a process to exit.
+DEADLINE_S = 60.0
+#: [s] polling period while waiting on a condition.
+POLL_S = 0.05
+#: A small sweep: 2 x 2 x 2 = 8 sets, the four model variants, Protocol II to 2 s.
+SMALL = {'protocol': 'II', 'sample_times_s': [0.0, 1.0, 1.5, 2.0],
+         'vary': {'f_iso_max_n': [30.0, 60.0], 'units': ['multi', 'single'],
+                  'length': ['initial', 'instantaneous']}}
+COLUMNS = ['set_id', 'f_iso_max_n', 'units', 'length', 't_s', 'force_n', 'worker']
+
+
+def reference_forces(spec) -> np.ndarray:
+    """[N] force of each set at each sample time, one ``simulate`` run per set."""
+    out = np.empty((len(spec.sets), len(spec.sample_times_s)))
+    for i, params in enumerate(spec.sets):
+        result = simulate(spec.protocol, params, spec.rate_hz)
+        out[i] = [result.force_n[round(t * spec.rate_hz)] for t in spec.sample_times_s]
+    return out
+
+
+def write_spec(tmp_path: Path, doc: dict, name: str = 'spec.yaml') -> Path:
+    path = tmp_path / name
+    path.write_text(yaml.safe_dump(doc, sort_keys=False), encoding='utf-8')
+    return path
+
+
+def forces_of(table, spec) -> np.ndarray:
+    """The table's force column as (sets, times), checking its tidy layout."""
+    n_sets, n_times = len(spec.sets), len(spec.sample_times_s)
+    assert table.num_rows == n_sets * n_times
+    assert table.column('set_id').to_pylist() == [i for i in range(n_sets)
+                                                  for _ in range(n_times)]
+    assert table.column('t_s').to_pylist() == list(spec.sample_times_s) * n_sets
+    return np.asarray(table.column('force_n')).reshape(n_sets, n_times)
+
+
+# --------------------------------------------------------------------------- spec
+
+def test_grid_is_every_combination_of_lists_and_ranges():
+    spec = parse_spec({'protocol': 'I', 'sample_times_s': [1.0],
+                       'vary': {'k_se_n_per_m': {'low': 5e3, 'high': 2e4, 'n': 3, 'log': True},
+                                'f_iso_max_n': {'low': 30.0, 'high': 60.0, 'n': 4},
+                                'units': ['multi', 'single']}})
+    k_se = [5e3, 1e4, 2e4]   # log-spaced: each a factor 2 from the last
+    f_iso = [30.0, 40.0, 50.0, 60.0]
+    expected = [(k, f, u) for k in k_se for f in f_iso for u in ('multi', 'single')]
+    assert spec.names == ('k_se_n_per_m', 'f_iso_max_n', 'units')
+    assert len(spec.values) == len(expected)
+    for got, want in zip(spec.values, expected):
+        assert got[2] == want[2]
+        np.testing.assert_allclose(got[:2], want[:2], rtol=1e-12)
+    assert [(p.k_se_n_per_m, p.f_iso_max_n, p.units) for p in spec.sets] == list(spec.values)
+    # Parameters not varied keep the base file's values (the paper's defaults).
+    assert all(p.l_opt_m == MuscleParams().l_opt_m for p in spec.sets)
+
+
+LHS = {'protocol': 'I', 'sample_times_s': [1.0], 'samples': 20, 'seed': 7,
+       'vary': {'f_iso_max_n': {'low': 30.0, 'high': 60.0},
+                'k_se_n_per_m': {'low': 1e3, 'high': 1e5, 'log': True}}}
+
+
+def test_latin_hypercube_puts_one_sample_in_each_stratum_of_each_parameter():
+    spec = parse_spec(LHS)
+    f_iso = np.array([v[0] for v in spec.values])
+    k_se = np.array([v[1] for v in spec.values])
+    # Latin hypercube: the 20 samples fall one in each 20th of each range
+    # (of its logarithm for a log range).
+    strata_f = np.floor((f_iso - 30.0) / 30.0 * 20).astype(int)
+    strata_k = np.floor(np.log10(k_se / 1e3) / 2.0 * 20).astype(int)
+    assert sorted(strata_f) == list(range(20))
+    assert sorted(strata_k) == list(range(20))
+
+
+def test_latin_hypercube_repeats_with_its_seed_and_changes_with_another():
+    assert parse_spec(LHS).values == parse_spec(LHS).values
+    assert parse_spec(LHS).values != parse_spec({**LHS, 'seed': 8}).values
+
+
+@pytest.mark.parametrize('change, message', [
+    ({'vary': {'f_iso_max': [30.0]}}, 'unknown parameter `vary.f_iso_max`'),
+    ({'vary': {'f_iso_max_n': {'low': 60.0, 'high': 30.0, 'n': 3}}},
+     '`vary.f_iso_max_n.low` must be below `vary.f_iso_max_n.high`, got low=60.0, high=30.0'),
+    ({'vary': {'f_iso_max_n': {'low': 30.0, 'high': 60.0, 'n': 1}}},
+     '`vary.f_iso_max_n.n` must be an integer >= 2 for a grid, got 1'),
+    ({'vary': {'f_iso_max_n': {'low': 0.0, 'high': 60.0, 'n': 3, 'log': True}}},
+     '`vary.f_iso_max_n.low` must be positive for a log range, got 0.0'),
+    ({'vary': {'f_iso_max_n': {'low': 30.0, 'hi': 60.0, 'n': 3}}},
+     'unknown key `vary.f_iso_max_n.hi`'),
+    ({'vary': {'n_units': {'low': 10, 'high': 100, 'n': 3}}},
+     '`vary.n_units` is not a real-valued parameter'),
+    ({'vary': {'f_iso_max_n': [30.0, -3.0]}},
+     'parameter set 1 (f_iso_max_n=-3.0): `f_iso_max_n` must be positive'),
+    ({'samples': 4, 'vary': {'f_iso_max_n': [30.0, 60.0]}},
+     'with `samples`, `vary.f_iso_max_n` must be a range'),
+    ({'samples': 0}, '`samples` must be a positive integer, got 0'),
+    ({'sample_times_s': [1.0005]}, '`sample_times_s[0]` must be a multiple of the step'),
+    ({'sample_times_s': [7.0]}, '`sample_times_s[0]` must be within the protocol, 0..6 s'),
+    ({'plant': 'knee.yaml'}, '`plant` sweeps (the limb) are not supported yet'),
+    ({'vari': {}}, 'unknown key `vari`'),
+])
+def test_bad_spec_is_an_error_naming_the_key_and_value(change, message):
+    doc = {'protocol': 'II', 'sample_times_s': [1.0], 'vary': {'f_iso_max_n': [30.0]}}
+    with pytest.raises(SweepError) as err:
+        parse_spec({**doc, **change}, 'spec.yaml')
+    assert message in str(err.value)
+
+
+def test_cli_reports_a_bad_spec_in_one_line_with_status_2(tmp_path, capsys):
+    spec = write_spec(tmp_path, {**SMALL, 'vary': {'f_iso_max': [30.0]}})
+    status = cli.main(['sweep', str(spec), '--out', str(tmp_path / 'out.parquet'),
+                       '--workers', '0'])
+    err = capsys.readouterr().err
+    assert status == cli.EXIT_USAGE
+    assert err.startswith(f'hill-muscle: error: {spec}: unknown parameter `vary.f_iso_max`')
+    assert 'Traceback' not in err and not (tmp_path / 'out.parquet').exists()
+
+
+# --------------------------------------------------------------------------- numbers
+
+def test_batch_forces_equal_separate_simulate_runs_to_1e_9_newton():
+    # The four variants, an FES muscle (activation, delay, fatigue: the scalar
+    # engine inside the batch) and pulse widths through a threshold curve.
+    protocol = Protocol.from_yaml(protocol_path('I'))
+    params = [MuscleParams(units=u, length=ln, f_iso_max_n=f)
+              for u in ('multi', 'single') for ln in ('initial', 'instantaneous')
+              for f in (35.0, 55.0)]
+    params.append(MuscleParams(tau_act_s=0.05, tau_deact_s=0.08, emd_s=0.02,
+                               fatigue='riener', recruitment_curve='threshold_linear',
+                               pw_threshold_s=5e-5))
+    indices = [0, 250, 1000, 1999, 3000]
+    got = simulate_forces(protocol, params, 1000.0, indices)
+    for i, p in enumerate(params):
+        want = simulate(protocol, p, 1000.0).force_n[indices]
+        np.testing.assert_allclose(got[i], want, rtol=0, atol=ATOL_N)
+
+
+def test_local_run_writes_the_tidy_table_of_the_reference_forces(tmp_path, capsys):
+    spec_path = write_spec(tmp_path, SMALL)
+    out = tmp_path / 'out.parquet'
+    assert cli.main(['sweep', str(spec_path), '--out', str(out), '--workers', '0']) == 0
+    spec = parse_spec(SMALL)
+    table = pq.read_table(out)
+    assert table.column_names == COLUMNS
+    np.testing.assert_allclose(forces_of(table, spec), reference_forces(spec),
+                               rtol=0, atol=ATOL_N)
+    assert set(table.column('worker').to_pylist()) == {'local'}
+    assert table.column('units').to_pylist()[::4] == [v[1] for v in spec.values]
+    assert table.schema.metadata[b'hill_muscle_ros.complete'] == b'true'
+    assert f'wrote 32 rows to {out}' in capsys.readouterr().out
+
+
+def test_other_commands_import_no_dask_or_pyarrow():
+    code = ('import sys; from hill_muscle_ros import cli; cli.build_parser(); '
+            'import hill_muscle_ros.sweep; '
+            'print(sorted(m for m in ("dask", "distributed", "pyarrow", "scipy") '
+            'if m in sys.modules))')
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                         check=True).stdout
+    assert out.strip() == '[]'
+
+
+# --------------------------------------------------------------------------- Dask
+
+def throughput(n_sets: int, elapsed_s: float) -> str:
+    return f'{n_sets / elapsed_s:.1f} sets/s ({n_sets} sets in {elapsed_s:.2f} s)'
+
+
+#: A sweep big enough to time: 32 sets of Protocol II to 2 s.
+TIMED = {'protocol': 'II', 'sample_times_s': [1.0, 2.0],
+         'vary': {'f_iso_max_n': {'low': 30.0, 'high': 60.0, 'n': 16},
+                  'units': ['multi', 'single']}}
+#: Sets per task in the timed runs: 4 tasks per worker of a 2-worker cluster.
+TIMED_CHUNK = 4
+
+
+@pytest.mark.slow
+def test_local_cluster_of_two_worker_processes_gives_the_local_numbers(tmp_path, capsys):
+    spec = parse_spec(TIMED)
+    local = run_sweep(spec, workers=0, chunk=TIMED_CHUNK)
+    out = tmp_path / 'out.parquet'
+    args = ['sweep', str(write_spec(tmp_path, TIMED)), '--out', str(out),
+            '--workers', '2', '--chunk', str(TIMED_CHUNK)]
+    start = time.perf_counter()
+    assert cli.main(args) == 0
+    wall = time.perf_counter() - start
+    table = pq.read_table(out)
+    local_forces = np.empty((len(spec.sets), 2))
+    for res in local.results:
+        local_forces[res['set_ids']] = res['force_n']
+    np.testing.assert_allclose(forces_of(table, spec), local_forces, rtol=0, atol=ATOL_N)
+    workers = set(table.column('worker').to_pylist())
+    # Computed in worker processes (their TCP addresses), never in this one.
+    assert 1 <= len(workers) <= 2 and all(w.startswith('tcp://127.0.0.1:') for w in workers)
+    line = capsys.readouterr().out
+    with capsys.disabled():
+        print(f'\nsweep throughput, in-process: {throughput(local.n_sets, local.elapsed_s)}; '
+              f'LocalCluster of 2: {line.strip().splitlines()[-1]}; '
+              f'with cluster start-up {len(spec.sets) / wall:.1f} sets/s')
+
+
+def wait_for(condition, what: str, deadline_s: float = DEADLINE_S):
+    end = time.monotonic() + deadline_s
+    while time.monotonic() < end:
+        value = condition()
+        if value:
+            return value
+        time.sleep(POLL_S)
+    raise AssertionError(f'timed out after {deadline_s} s waiting for {what}')
+
+
+def stop_group(proc: subprocess.Popen) -> None:
+    """Stop a process started in its own session, and everything it started."""
+    if proc.poll() is None:
+        os.killpg(proc.pid, signal.SIGTERM)
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+
+
+def group_gone(pgid: int) -> bool:
+    try:
+        os.killpg(pgid, 0)
+    except ProcessLookupError:
+        return True
+    return False
+
+
+@pytest.mark.slow
+def test_scheduler_and_workers_started_as_processes_compute_the_sweep(tmp_path, capsys):
+    from distributed import Client
+
+    scheduler_file = tmp_path / 'scheduler.json'
+    logs = [open(tmp_path / f'{name}.log', 'wb') for name in ('scheduler', 'w1', 'w2')]
+    procs = []
+    try:
+        procs.append(subprocess.Popen(
+            [str(VENV_BIN / 'dask'), 'scheduler', '--port', '0', '--no-dashboard',
+             '--scheduler-file', str(scheduler_file)],
+            stdout=logs[0], stderr=subprocess.STDOUT, start_new_session=True))
+        address = wait_for(lambda: scheduler_file.exists() and scheduler_file.stat().st_size
+                           and json.loads(scheduler_file.read_text())['address'],
+                           'the scheduler file')
+        for log in logs[1:]:
+            procs.append(subprocess.Popen(
+                [str(VENV_BIN / 'dask'), 'worker', address, '--nthreads', '1',
+                 '--no-dashboard'],
+                stdout=log, stderr=subprocess.STDOUT, start_new_session=True, cwd=tmp_path))
+        with Client(address, timeout='30s') as client:
+            client.wait_for_workers(2, timeout=DEADLINE_S)
+            registered = set(client.scheduler_info(n_workers=-1)['workers'])
+        assert len(registered) == 2
+
+        out = tmp_path / 'out.parquet'
+        args = ['sweep', str(write_spec(tmp_path, TIMED)), '--out', str(out),
+                '--scheduler', address, '--chunk', str(TIMED_CHUNK)]
+        assert cli.main(args) == 0
+        spec = parse_spec(TIMED)
+        table = pq.read_table(out)
+        np.testing.assert_allclose(forces_of(table, spec), reference_forces(spec),
+                                   rtol=0, atol=ATOL_N)
+        assert set(table.column('worker').to_pylist()) <= registered
+        line = capsys.readouterr().out.strip().splitlines()[-1]
+        with capsys.disabled():
+            print(f'\nsweep throughput, dask scheduler + 2 dask workers: {line}')
+    finally:
+        for proc in reversed(procs):
+            stop_group(proc)
+        for log in logs:
+            log.close()
+    for proc in procs:
+        wait_for(lambda: group_gone(proc.pid), f'process group {proc.pid} to exit')
+
+
+@pytest.mark.slow
+def test_ctrl_c_stops_the_sweep_and_keeps_the_finished_sets(tmp_path):
+    doc = {'protocol': 'II', 'sample_times_s': [1.0, 6.0],
+           'vary': {'f_iso_max_n': {'low': 30.0, 'high': 60.0, 'n': 40}}}
+    out = tmp_path / 'out.parquet'
+    # As a user would: its own session, and Ctrl-C to the whole process group.
+    proc = subprocess.Popen(
+        [str(VENV_BIN / 'hill-muscle'), 'sweep', str(write_spec(tmp_path, doc)),
+         '--out', str(out), '--workers', '2', '--chunk', '1'],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+    try:
+        os.set_blocking(proc.stderr.fileno(), False)
+        progress = bytearray()
+
+        def two_sets_done():
+            try:
+                progress.extend(os.read(proc.stderr.fileno(), 4096))
+            except BlockingIOError:
+                pass
+            return b' 2/40 sets' in progress or proc.poll() is not None
+
+        wait_for(two_sets_done, 'two finished sets')
+        assert proc.poll() is None, 'the sweep ended before it could be interrupted'
+        os.killpg(proc.pid, signal.SIGINT)
+        os.set_blocking(proc.stderr.fileno(), True)
+        _, err = proc.communicate(timeout=DEADLINE_S)
+    finally:
+        stop_group(proc)
+    wait_for(lambda: group_gone(proc.pid), 'the workers to exit')
+    assert proc.returncode == 130, err.decode()
+    assert 'Traceback' not in err.decode()
+    table = pq.read_table(out)
+    assert table.schema.metadata[b'hill_muscle_ros.complete'] == b'false'
+    ids = sorted(set(table.column('set_id').to_pylist()))
+    assert 2 <= len(ids) < 40
+    spec = parse_spec(doc)
+    protocol = spec.protocol
+    got = {(r['set_id'], r['t_s']): r['force_n'] for r in table.to_pylist()}
+    for i in ids:
+        want = simulate(protocol, spec.sets[i]).force_n
+        for t in (1.0, 6.0):
+            assert math.isclose(got[(i, t)], want[round(t * 1000)], rel_tol=0,
+                                abs_tol=ATOL_N)
