@@ -279,3 +279,47 @@ def test_readme_gym_example_prints_the_output_the_readme_shows(capsys):
     shown = section.split('```text\n', 1)[1].split('```\n', 1)[0]
     exec(compile(code, 'README.md (gym example)', 'exec'), {})
     assert capsys.readouterr().out == shown
+
+
+def _vector_against_singles(k, n_steps, **kwargs):
+    """Step make_vec and K single envs (seeds 11 + i) with the same actions,
+    through the end of the episode and the autoreset step after it."""
+    vec = gym.make_vec(FORCE_TRACKING_ID, num_envs=k, **kwargs)
+    singles = [ForceTrackingEnv(**kwargs) for _ in range(k)]
+    obs_v, _ = vec.reset(seed=11)
+    obs_s = np.stack([env.reset(seed=11 + i)[0] for i, env in enumerate(singles)])
+    np.testing.assert_array_equal(obs_v, obs_s)
+    rng = np.random.default_rng(1)
+    high = singles[0].action_space.high
+    for _ in range(n_steps):
+        actions = rng.uniform(0.0, high, size=(k, 1)).astype(np.float32)
+        obs_v, rew_v, term_v, trunc_v, _ = vec.step(actions)
+        steps = [env.step(a) for env, a in zip(singles, actions)]
+        # The batch engine agrees with the scalar muscle to 1e-9 N, not bit for bit.
+        np.testing.assert_allclose(obs_v, np.stack([s[0] for s in steps]), rtol=1e-6, atol=1e-9)
+        np.testing.assert_allclose(rew_v, [s[1] for s in steps], rtol=1e-9, atol=1e-12)
+        assert list(term_v) == [s[2] for s in steps]
+        assert list(trunc_v) == [s[3] for s in steps]
+    assert trunc_v.all()
+    # NEXT_STEP autoreset: the step after the end ignores the actions and returns
+    # the next episode's first observation, drawn from each sub-env's generator.
+    obs_v, rew_v, term_v, trunc_v, _ = vec.step(actions)
+    np.testing.assert_array_equal(obs_v, np.stack([env.reset()[0] for env in singles]))
+    assert not rew_v.any() and not term_v.any() and not trunc_v.any()
+    return vec
+
+
+def test_make_vec_uses_the_native_vector_env_and_equals_k_single_envs():
+    vec = _vector_against_singles(4, 25, episode_duration_s=0.5)
+    assert type(vec.unwrapped).__name__ == 'ForceTrackingVectorEnv'
+
+
+def test_make_vec_with_fatigue_equals_k_single_envs():
+    _vector_against_singles(3, 10, params=str(FES_QUADRICEPS), episode_duration_s=0.2)
+
+
+def test_vector_env_action_outside_the_box_raises_naming_the_env():
+    vec = gym.make_vec(FORCE_TRACKING_ID, num_envs=2)
+    vec.reset(seed=0)
+    with pytest.raises(ValueError, match=r'`actions\[1\]` \(pulse width\) must be in'):
+        vec.step(np.array([[0.0001], [np.nan]]))

@@ -33,6 +33,31 @@ _FITNESS_COLUMN = 11
 _N_COLUMNS = 12
 
 
+def draw_profiles(rng: np.random.Generator, env: 'ForceTrackingEnv',
+                  target_n: float | None) -> tuple[np.ndarray, np.ndarray]:
+    """One episode's profiles (see :class:`ForceTrackingEnv`, *Episode*).
+
+    :param rng: the episode's generator (the environment's ``np_random``)
+    :param env: the environment whose settings (periods, holds, ranges) apply
+    :param target_n: [N] a fixed target for the whole episode, or ``None``
+    :return: [N] the target of every control period and [m] dl_MT at every
+        model step boundary (``n_periods * n_steps + 1`` values, 0 first)
+    """
+    n_periods, n_steps = env.n_periods, env.n_steps
+    starts = hold_lengths(rng, n_periods, *env._hold)
+    targets = rng.uniform(0.0, env.target_max_n, size=len(starts))
+    knots = rng.uniform(0.0, env.length_max_m, size=len(starts))
+    per_period = piecewise_constant(starts, targets, n_periods)
+    if target_n is not None:
+        per_period[:] = target_n
+    # dl_MT: 0 at t = 0, then knot i at the start of hold i + 1, the last knot
+    # at the episode's end; linear in between, sampled every model step.
+    knot_steps = np.append(starts[1:], n_periods) * n_steps
+    dl = np.interp(np.arange(n_periods * n_steps + 1), np.append(0, knot_steps),
+                   np.append(0.0, knots))
+    return per_period, dl
+
+
 class ForceTrackingEnv(gym.Env):
     """Track a piecewise-constant force target by choosing the pulse width.
 
@@ -143,18 +168,18 @@ class ForceTrackingEnv(gym.Env):
 
     def _draw_profiles(self, target_n: float | None) -> None:
         """Targets per period and dl_MT per model step, from ``self.np_random``."""
-        rng = self.np_random
-        starts = hold_lengths(rng, self.n_periods, *self._hold)
-        targets = rng.uniform(0.0, self.target_max_n, size=len(starts))
-        knots = rng.uniform(0.0, self.length_max_m, size=len(starts))
-        self._targets = piecewise_constant(starts, targets, self.n_periods)
-        if target_n is not None:
-            self._targets[:] = target_n
-        # dl_MT: 0 at t = 0, then knot i at the start of hold i + 1, the last
-        # knot at the episode's end; linear in between, sampled every model step.
-        knot_steps = np.append(starts[1:], self.n_periods) * self.n_steps
-        self._dl = np.interp(np.arange(self.n_periods * self.n_steps + 1),
-                             np.append(0, knot_steps), np.append(0.0, knots))
+        self._targets, self._dl = draw_profiles(self.np_random, self, target_n)
+
+    def check_target(self, target_n: Any) -> float:
+        """A fixed target from ``reset`` options, validated.
+
+        :param target_n: [N] in [0, target_max_fraction f_iso_max]
+        """
+        t = check_positive('target_n', target_n, allow_zero=True)
+        if t > self.target_max_n:
+            raise ValueError(f'`target_n` must be at most {self.target_max_n:g} N '
+                             f'(target_max_fraction f_iso_max), got {target_n!r}')
+        return t
 
     def reset(self, *, seed: int | None = None,
               options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
@@ -170,11 +195,7 @@ class ForceTrackingEnv(gym.Env):
         if options:
             raise ValueError(f'unknown reset options {sorted(options)}; known: target_n')
         if target_n is not None:
-            t = check_positive('target_n', target_n, allow_zero=True)
-            if t > self.target_max_n:
-                raise ValueError(f'`target_n` must be at most {self.target_max_n:g} N '
-                                 f'(target_max_fraction f_iso_max), got {target_n!r}')
-            target_n = t
+            target_n = self.check_target(target_n)
         self._draw_profiles(target_n)
         self.muscle.reset()
         self._k = 0
