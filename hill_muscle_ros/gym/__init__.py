@@ -34,4 +34,5 @@ if KNEE_ANGLE_ID not in gymnasium.registry:
     gymnasium.register(id=KNEE_ANGLE_ID,
                        entry_point='hill_muscle_ros.gym.knee_angle:KneeAngleEnv')
 
-__all__ = ['FORCE_TRACKING_ID', 'ForceTrackingEnv', 'ForceTrackingVectorEnv', 'KNEE_ANGLE_ID', 'KneeAngleEnv']
+__all__ = ['FORCE_TRACKING_ID', 'ForceTrackingEnv', 'ForceTrackingVectorEnv', 'KNEE_ANGLE_ID',
+           'KneeAngleEnv']

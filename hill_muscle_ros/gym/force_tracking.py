@@ -137,7 +137,8 @@ class ForceTrackingEnv(gym.Env):
         self.stim_cost = check_positive('stim_cost', stim_cost, allow_zero=True)
         frac = check_positive('target_max_fraction', target_max_fraction)
         if frac > 1.0:
-            raise ValueError(f'`target_max_fraction` must be in (0, 1], got {target_max_fraction!r}')
+            raise ValueError(f'`target_max_fraction` must be in (0, 1], '
+                             f'got {target_max_fraction!r}')
         self.target_max_n = frac * p.f_iso_max_n
         self.length_max_m = check_positive('length_max_m', length_max_m, allow_zero=True)
         if self.length_max_m > DL_MT_LIMIT_M:

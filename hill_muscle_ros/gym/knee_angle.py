@@ -25,8 +25,8 @@ from ._common import (MODEL_DT_S, History, check_count, check_hold_range, check_
 #: Signals of one history sample, in order: [rad] angle, [rad/s] angular
 #: velocity, [rad] target angle.
 SAMPLE_FIELDS = ('theta_rad', 'omega_rad_per_s', 'target_rad')
-#: [rad] Default target range, 10 to 55 deg from hanging: the knee preset's
-#: quadriceps holds 45 deg at about 300 us and the joint-angle demo uses 20-45 deg.
+#: [rad] Default target range, 10 to 55 deg from hanging: around the 20-45 deg
+#: targets that the joint-angle controller's tests and demo hold on this preset.
 DEFAULT_ANGLE_MIN_RAD = math.radians(10.0)
 DEFAULT_ANGLE_MAX_RAD = math.radians(55.0)
 
