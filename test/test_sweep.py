@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -349,3 +350,32 @@ def test_ctrl_c_stops_the_sweep_and_keeps_the_finished_sets(tmp_path):
         for t in (1.0, 6.0):
             assert math.isclose(got[(i, t)], want[round(t * 1000)], rel_tol=0,
                                 abs_tol=ATOL_N)
+
+
+# --------------------------------------------------------------------------- README
+
+def readme_sweep_section() -> str:
+    text = (REPO / 'README.md').read_text(encoding='utf-8')
+    start = text.index('## Parameter sweeps')
+    return text[start:text.index('\n## ', start + 1)]
+
+
+def test_readme_spec_is_the_shipped_example_spec():
+    section = readme_sweep_section()
+    shown = section.split('```yaml\n', 1)[1].split('```', 1)[0]
+    shipped = REPO / 'config' / 'sweep_example.yaml'
+    assert yaml.safe_load(shown) == yaml.safe_load(shipped.read_text(encoding='utf-8'))
+
+
+def test_readme_forces_are_those_of_simulate():
+    rows = re.findall(r'^ *([\d.]+) N +([\d.]+) N/m +(multi|single) +([\d.]+) N +tcp://',
+                      readme_sweep_section(), flags=re.MULTILINE)
+    assert len(rows) == 6
+    protocol = Protocol.from_yaml(protocol_path('II'))
+    spec = parse_spec(yaml.safe_load((REPO / 'config' / 'sweep_example.yaml').read_text()))
+    for f_iso, k_se, units, force in rows:
+        # The README rounds k_se to 0.1 N/m: find the set it shows.
+        [params] = [p for p in spec.sets if p.f_iso_max_n == float(f_iso)
+                    and abs(p.k_se_n_per_m - float(k_se)) < 0.05 and p.units == units]
+        want = simulate(protocol, params).force_n[4000]   # t = 4 s at 1 kHz
+        assert f'{want:.3f}' == force
