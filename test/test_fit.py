@@ -193,10 +193,11 @@ def test_standard_errors_match_the_spread_over_noise_seeds(truth_run):
         estimates.append(result.estimates)
         errors.append(result.std_errors)
     spread = np.std(estimates, axis=0, ddof=1)
-    # 16 draws: the sample sd is within a factor 0.6..1.5 of the true one except
-    # with probability below 1e-3 (chi-square, 15 degrees of freedom).
+    # 16 draws: the sample sd of correct errors falls outside 0.5..1.6 times the
+    # true sd with probability 0.23 % per parameter (chi-square, 15 degrees of
+    # freedom); this seed gives 0.83..1.00, so errors off by a factor 2 fail.
     ratio = spread / np.mean(errors, axis=0)
-    assert np.all((ratio > 0.6) & (ratio < 1.5)), ratio
+    assert np.all((ratio > 0.5) & (ratio < 1.6)), ratio
 
 
 def test_three_parameter_fit_meets_the_speed_goal(truth_run):
