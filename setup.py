@@ -35,6 +35,8 @@ setup(
         'matplotlib>=3.6',
         'mcap>=1.6.0',
         'mcap-ros2-support>=0.6.0',
+        # `hill-muscle fit` (scipy.optimize.least_squares); Ubuntu 24.04 has 1.11.4.
+        'scipy>=1.11',
     ],
     extras_require={
         'test': ['pytest', 'hypothesis', 'scipy', 'rosbags'],
