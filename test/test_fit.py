@@ -250,6 +250,19 @@ def test_parameter_the_force_does_not_depend_on_is_named(truth_run, tmp_path, ca
             in err.strip().splitlines()[-1])
 
 
+def test_rest_and_optimal_length_with_the_force_are_named_not_identifiable(truth_run,
+                                                                         tmp_path, capsys):
+    # With the length at recruitment (multi/initial) the three reach the force only
+    # through Eff.f_iso, which Protocol II sets twice (units recruited at 0 s and
+    # at 3 s): two numbers for three parameters (the CE moves with l_ce - l_rest).
+    bag, _ = truth_run
+    status, _, err = _fit(capsys, '--bag', bag, '--fit', 'l_rest_m,l_opt_m,f_iso_max_n',
+                          '--out', tmp_path / 'fitted.yaml')
+    assert status == cli.EXIT_USAGE
+    assert ('not identifiable from this recording: `l_rest_m`, `l_opt_m` and '
+            '`f_iso_max_n`' in err)
+
+
 def test_check_identifiable_names_both_columns_of_a_dependent_pair():
     # An exact analytic case: the second column is twice the first.
     parameters = [fit.FitParameter('a', None, '-', 0.0, 1.0),
