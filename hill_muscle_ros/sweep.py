@@ -480,14 +480,22 @@ def run_on_client(spec: SweepSpec, client, chunk: int | None = None,
 
     n_workers = max(len(client.scheduler_info(n_workers=-1)['workers']), 1)
     start = time.perf_counter()
-    # The protocol goes to every worker once rather than with each task.
-    [protocol] = client.scatter([spec.protocol], broadcast=True)
+    # The protocol goes to every worker once rather than with each task. A key
+    # of its own (hash=False): a content-hashed key is shared with an earlier
+    # sweep's copy, which the scheduler may be releasing just then, and the
+    # tasks that need it would be cancelled.
+    [protocol] = client.scatter([spec.protocol], broadcast=True, hash=False)
     futures = [client.submit(run_chunk, list(ids), [spec.sets[i] for i in ids], protocol,
                              spec.rate_hz, spec.sample_indices, pure=False)
                for ids in chunk_ranges(len(spec.sets), n_workers, chunk)]
     results = []
     try:
-        for _, res in as_completed(futures, with_results=True):
+        for future in as_completed(futures):
+            if future.status != 'finished':
+                client.cancel(futures)
+                raise SweepError(f'a sweep task {future.status} on the cluster: '
+                                 f'{_task_error(future)}')
+            res = future.result()
             results.append(res)
             if on_chunk:
                 on_chunk(len(res['set_ids']))
@@ -495,6 +503,15 @@ def run_on_client(spec: SweepSpec, client, chunk: int | None = None,
         client.cancel(futures)
         return SweepResult(results, False, time.perf_counter() - start)
     return SweepResult(results, True, time.perf_counter() - start)
+
+
+def _task_error(future) -> str:
+    """What went wrong with a task that did not finish, in one line."""
+    try:
+        err = future.exception(timeout=CONNECT_TIMEOUT_S)
+    except Exception as cancelled:   # a cancelled future raises instead
+        err = cancelled
+    return f'{type(err).__name__}: {err}'
 
 
 def run_sweep(spec: SweepSpec, scheduler: str | None = None, workers: int | None = None,

@@ -24,7 +24,8 @@ import yaml
 from hill_muscle_ros import cli
 from hill_muscle_ros.model import MuscleParams, Protocol, simulate
 from hill_muscle_ros.resources import protocol_path
-from hill_muscle_ros.sweep import SweepError, parse_spec, run_sweep, simulate_forces
+from hill_muscle_ros.sweep import (SweepError, parse_spec, run_on_client, run_sweep,
+                                   simulate_forces)
 
 pq = pytest.importorskip('pyarrow.parquet')
 
@@ -230,6 +231,20 @@ def test_local_cluster_of_two_worker_processes_gives_the_local_numbers(tmp_path,
         print(f'\nsweep throughput, in-process: {throughput(local.n_sets, local.elapsed_s)}; '
               f'LocalCluster of 2: {line.strip().splitlines()[-1]}; '
               f'with cluster start-up {len(spec.sets) / wall:.1f} sets/s')
+
+
+@pytest.mark.slow
+def test_sweeps_back_to_back_on_one_cluster_all_complete():
+    # The second sweep's copy of the same protocol must not share a key with
+    # the first's, which the scheduler is releasing (its tasks were cancelled).
+    from distributed import Client, LocalCluster
+
+    spec = parse_spec({**TIMED, 'sample_times_s': [0.2]})
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                      dashboard_address=None) as cluster, Client(cluster) as client:
+        for _ in range(3):
+            result = run_on_client(spec, client, chunk=TIMED_CHUNK)
+            assert result.complete and result.n_sets == len(spec.sets)
 
 
 def wait_for(condition, what: str, deadline_s: float = DEADLINE_S):
