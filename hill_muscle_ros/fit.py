@@ -686,7 +686,8 @@ def plot_fit(path: Path, result: FitResult, recording: MuscleRecording) -> None:
     t = recording.sample_t_s
     fig, (ax_f, ax_r) = plt.subplots(2, 1, sharex=True, figsize=(8, 6),
                                      gridspec_kw={'height_ratios': [3, 1]})
-    ax_f.plot(t, recording.force_n, color='0.6', lw=2, label=f'measured ({recording.topics["force"]})')
+    ax_f.plot(t, recording.force_n, color='0.6', lw=2,
+              label=f'measured ({recording.topics["force"]})')
     ax_f.plot(t, result.fitted, color='C0', lw=1, label='fitted model')
     ax_f.set_ylabel('force [N]')
     ax_f.set_title(f'hill-muscle fit: {", ".join(p.name for p in result.parameters)}')

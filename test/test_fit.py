@@ -334,6 +334,14 @@ def test_inputs_and_force_apart_in_time_name_the_topic(tmp_path, capsys):
 
 # --------------------------------------------------------------------------- the command
 
+def test_help_lists_the_options(capsys):
+    assert cli.main(['fit', '--help']) == 0
+    out = capsys.readouterr().out
+    assert out.startswith('usage: hill-muscle fit')
+    assert all(option in out for option in ('--bag', '--fit', '--params', '--out', '--report',
+                                            '--force-topic', '--length-topic'))
+
+
 def test_console_script_fits_and_writes_the_report(truth_run, tmp_path):
     bag, _ = truth_run
     report_dir = tmp_path / 'report'
