@@ -45,8 +45,6 @@ setup(
         # `hill-muscle sweep` only; every other command runs without them.
         'sweep': ['dask[distributed]>=2026.8.0', 'distributed>=2026.8.0',
                   'pyarrow>=26.0.1', 'scipy'],
-        # `hill-muscle fit` only (scipy.optimize.least_squares); tested with 1.17.1.
-        'fit': ['scipy>=1.17.1'],
     },
     zip_safe=True,
     maintainer='hill_muscle_ros maintainers',

@@ -766,10 +766,6 @@ def cmd_fit(args: argparse.Namespace) -> int:
                                 progress=lambda line: print(line, file=sys.stderr, flush=True))
     except ValueError as err:   # FitError, and the params file's own errors
         raise UserError(str(err)) from None
-    except ModuleNotFoundError as err:
-        if err.name != 'scipy' and not str(err.name).startswith('scipy.'):
-            raise
-        raise UserError('`fit` needs scipy: pip install "hill_muscle_ros[fit]"') from None
     report = format_report(result, recording, str(params_path))
     try:
         args.out.parent.mkdir(parents=True, exist_ok=True)
