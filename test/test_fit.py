@@ -89,6 +89,18 @@ def test_replay_reproduces_the_simulated_force_exactly(truth_run, protocol_paths
     np.testing.assert_array_equal(predicted, reference.force_n)
 
 
+def test_recruitment_topic_replays_the_same_force(tmp_path, protocol_paths):
+    # The player's other output: R itself, no recruitment curve in between.
+    protocol = Protocol.from_yaml(protocol_paths['II'])
+    truth = MuscleParams(**TRUTH)
+    result = simulate(protocol, truth, RATE_HZ)
+    write_simulation_bag(tmp_path / 'bag', result, truth, protocol, output='recruitment')
+    recording = fit.load_muscle_recording(tmp_path / 'bag')
+    assert recording.stimulation_kind == 'recruitment'
+    np.testing.assert_array_equal(fit.MuscleReplay(recording).predict([truth])[0],
+                                  result.force_n)
+
+
 def _sparse_bag(path, protocol, result, params):
     """The same run as another recorder might store it: the pulse width only when it
     changes, the length as its protocol knots on ``length_command_stamped``, the
