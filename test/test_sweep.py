@@ -204,8 +204,8 @@ def throughput(n_sets: int, elapsed_s: float) -> str:
 TIMED = {'protocol': 'II', 'sample_times_s': [1.0, 2.0],
          'vary': {'f_iso_max_n': {'low': 30.0, 'high': 60.0, 'n': 16},
                   'units': ['multi', 'single']}}
-#: Sets per task in the timed runs: 4 tasks per worker of a 2-worker cluster.
-TIMED_CHUNK = 4
+#: Sets per task in the timed runs: 2 tasks per worker of a 2-worker cluster.
+TIMED_CHUNK = 8
 
 
 @pytest.mark.slow
