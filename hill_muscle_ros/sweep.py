@@ -61,17 +61,12 @@ DEFAULT_SEED = 0
 #: A sample time closer than this many steps to a step instant is that instant
 #: (times like 0.3 s are not exact multiples of 1 / 1000 Hz in binary).
 STEP_TOLERANCE = 1e-6
-#: Chunks per worker when the chunk size is chosen automatically: several, so
-#: that the progress bar moves and a fast worker takes more of the work.
-CHUNKS_PER_WORKER = 4
-#: Largest automatic chunk: the batch engine's step costs little more at a
-#: few hundred muscles than at one, and an interrupted sweep loses at most a chunk.
-MAX_AUTO_CHUNK = 256
-#: Smallest automatic chunk while every worker still gets one: the cost of a
-#: batch step is mostly fixed (measured 70-100 us for 1 to 256 muscles), so
-#: in-process throughput grew about tenfold from chunks of 8 sets to chunks
-#: of 64 (Protocol II, 2-core machine).
-MIN_AUTO_CHUNK = 16
+#: Largest automatic chunk (sets per task). A batch step's cost is mostly
+#: fixed (measured 70-100 us for 1 to 256 muscles), so the fewer and larger
+#: the chunks the faster: on 2 cores, 1024 sets of Protocol II ran at 650
+#: sets/s in chunks of 256 and 900 in chunks of 512, but 80-100 sets/s for
+#: 256 sets in chunks of 32. Ctrl-C loses at most the chunks running.
+MAX_AUTO_CHUNK = 512
 #: Value of the ``worker`` column for rows computed in this process (no Dask).
 LOCAL_WORKER = 'local'
 #: [s] how long to wait for an existing scheduler to answer.
@@ -371,19 +366,11 @@ def chunk_ranges(n_sets: int, n_workers: int, chunk: int | None = None) -> list[
     """Consecutive ranges of set indices, one per task.
 
     :param n_workers: workers that share the tasks (0: this process alone)
-    :param chunk: sets per task (default: in this process, :data:`MAX_AUTO_CHUNK`;
-        on workers, about :data:`CHUNKS_PER_WORKER` tasks per worker but no
-        fewer than :data:`MIN_AUTO_CHUNK` sets unless a worker would go idle,
-        and at most :data:`MAX_AUTO_CHUNK`)
+    :param chunk: sets per task (default: an equal share per worker, at most
+        :data:`MAX_AUTO_CHUNK`)
     """
     if chunk is None:
-        if n_workers <= 0:
-            chunk = MAX_AUTO_CHUNK
-        else:
-            per_worker = math.ceil(n_sets / n_workers)
-            chunk = max(math.ceil(per_worker / CHUNKS_PER_WORKER),
-                        min(MIN_AUTO_CHUNK, per_worker))
-            chunk = max(1, min(MAX_AUTO_CHUNK, chunk))
+        chunk = max(1, min(MAX_AUTO_CHUNK, math.ceil(n_sets / max(n_workers, 1))))
     return [range(i, min(i + chunk, n_sets)) for i in range(0, n_sets, chunk)]
 
 
@@ -629,9 +616,9 @@ def add_parser(sub) -> None:
                        help='start a local Dask cluster of N worker processes (default: '
                             'the number of cores); 0 runs here without Dask')
     p.add_argument('--chunk', type=_chunk, metavar='SETS',
-                   help=f'parameter sets per task (default: about {CHUNKS_PER_WORKER} '
-                        f'tasks per worker of at least {MIN_AUTO_CHUNK} and at most '
-                        f'{MAX_AUTO_CHUNK} sets)')
+                   help=f'parameter sets per task (default: an equal share per worker, '
+                        f'at most {MAX_AUTO_CHUNK}); smaller chunks move the progress bar '
+                        f'more often but run slower')
 
 
 def cmd_sweep(args) -> int:
