@@ -43,8 +43,7 @@ setup(
         # hill_muscle_ros.gym only (the Gymnasium environments); tested with 1.4.0.
         'gym': ['gymnasium>=1.4.0'],
         # `hill-muscle sweep` only; every other command runs without them.
-        'sweep': ['dask[distributed]>=2026.8.0', 'distributed>=2026.8.0',
-                  'pyarrow>=26.0.1', 'scipy'],
+        'sweep': ['dask>=2026.8.0', 'distributed>=2026.8.0', 'pyarrow>=26.0.1'],
     },
     zip_safe=True,
     maintainer='hill_muscle_ros maintainers',

@@ -169,7 +169,7 @@ def _grid_values(axis: dict) -> list[float]:
 
 def _lhs_values(axes: Sequence[dict], samples: int, seed: int) -> list[tuple[float, ...]]:
     """``samples`` points of a seeded Latin hypercube over the ranges ``axes``."""
-    from scipy.stats import qmc   # the sweep's own dependency, not the package's
+    from scipy.stats import qmc   # here: importing the module stays light
 
     unit = qmc.LatinHypercube(d=len(axes), rng=seed).random(samples)
     columns = []
