@@ -44,7 +44,6 @@ import contextlib
 import datetime as _dt
 import os
 import re
-import signal
 import sys
 import time
 from dataclasses import dataclass
@@ -58,8 +57,8 @@ from .model import LENGTH_CHOICES, UNITS_CHOICES, Protocol
 from .params_file import load_muscle_params
 from .recording.analysis import BagContentError, analyse
 from .resources import default_params_file, protocol_path
-from .supervisor import (GraphProbe, ProcessGroup, SupervisorError, node_command,
-                         ros_environment)
+from .supervisor import (GraphProbe, ProcessGroup, StopSignals, SupervisorError,
+                         node_command, ros_environment)
 
 PROG = 'python -m hill_muscle_ros.demo'
 DEFAULT_RUNS_DIR = Path('runs')
@@ -329,14 +328,6 @@ def simulator_stats(log_text: str) -> SimulatorStats | None:
                           int(late_knots.group(1)) if late_knots else 0)
 
 
-class _Stop(Exception):
-    pass
-
-
-def _raise_stop(signum, _frame):
-    raise _Stop(signal.Signals(signum).name)
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog=PROG, description=__doc__.split('\n\n')[0])
     parser.add_argument('--protocol', default='II', metavar='{I,II,PATH}',
@@ -380,17 +371,18 @@ def main(argv: Sequence[str] | None = None) -> int:
                         args.runs_dir, args.name, args.real_time_factor, args.lookahead)
     # SIGINT (even if inherited ignored), SIGTERM and SIGHUP unwind like
     # Ctrl-C, so the finally blocks stop the children.
-    signal.signal(signal.SIGINT, signal.default_int_handler)
-    for sig in (signal.SIGTERM, signal.SIGHUP):
-        signal.signal(sig, _raise_stop)
+    stops = StopSignals()
     try:
         return run_demo(config)
-    except DemoError as err:
-        print(f'demo failed: {err}', file=sys.stderr)
-        return 1
-    except (KeyboardInterrupt, _Stop):
-        print('demo interrupted; every process it started has been stopped', file=sys.stderr)
-        return 130
+    except (KeyboardInterrupt, DemoError, RuntimeError) as err:
+        if isinstance(err, KeyboardInterrupt) or stops.received is not None:
+            print('demo interrupted; every process it started has been stopped',
+                  file=sys.stderr)
+            return 130
+        if isinstance(err, DemoError):
+            print(f'demo failed: {err}', file=sys.stderr)
+            return 1
+        raise
 
 
 if __name__ == '__main__':

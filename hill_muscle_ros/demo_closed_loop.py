@@ -16,7 +16,6 @@ import argparse
 import datetime as _dt
 import math
 import os
-import signal
 import sys
 import time
 from dataclasses import dataclass
@@ -29,7 +28,8 @@ import yaml
 from .model.protocol import Knots
 from .recording.analysis import closed_loop_summary
 from .resources import config_dir
-from .supervisor import GraphProbe, ProcessGroup, node_command, ros_environment
+from .supervisor import (GraphProbe, ProcessGroup, StopSignals, node_command,
+                         ros_environment)
 from .timebase import NS_PER_S
 
 #: Default namespace of the demo's nodes, so that it does not cross-talk with
@@ -232,14 +232,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         'closed_loop_%Y-%m-%dT%H-%M-%SZ')
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 
-    def on_sigterm(signum, frame):
-        raise KeyboardInterrupt  # the same clean-up as Ctrl-C
-
-    # SIGINT even if inherited ignored (a parent started in the background
-    # ignores it, and Python then keeps it ignored): Ctrl-C and kill -INT stop
-    # the demo and its nodes wherever it was started from.
-    signal.signal(signal.SIGINT, signal.default_int_handler)
-    signal.signal(signal.SIGTERM, on_sigterm)
+    stops = StopSignals()   # Ctrl-C, SIGTERM, SIGHUP: the same clean-up
     try:
         profile = TargetProfile.from_yaml(args.profile or default_profile())
         if out.exists() and any(out.iterdir()):
@@ -248,10 +241,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         bag, t0_ns = run(profile, out, args.namespace)
         png = out / 'closed_loop.png'
         summary = plot(bag, png, profile, t0_ns, args.namespace)
-    except KeyboardInterrupt:
-        print('interrupted: every node stopped', file=sys.stderr)
-        return 130
-    except (ProfileError, RuntimeError) as err:
+    except (KeyboardInterrupt, ProfileError, RuntimeError) as err:
+        if isinstance(err, KeyboardInterrupt) or stops.received is not None:
+            print('interrupted: every node stopped', file=sys.stderr)
+            return 130
         print(f'demo-closed-loop: error: {err}', file=sys.stderr)
         return EXIT_ERROR
     print(f'tracking error: RMS {summary["rms_error_n"]:.3f} N, largest '

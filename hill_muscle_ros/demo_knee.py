@@ -31,7 +31,6 @@ import argparse
 import datetime as _dt
 import math
 import os
-import signal
 import sys
 import time
 from dataclasses import dataclass
@@ -45,8 +44,8 @@ from .model.limb import LimbPlant, LimbResult
 from .model.stimulus import command_from_pulse_width
 from .params_file import load_plant
 from .resources import config_dir
-from .supervisor import (GraphProbe, ProcessGroup, SupervisorError, node_command,
-                         ros_environment)
+from .supervisor import (GraphProbe, ProcessGroup, StopSignals, SupervisorError,
+                         node_command, ros_environment)
 from .timebase import NS_PER_S
 
 #: Default namespace of the demo's nodes, so that it does not cross-talk with
@@ -449,14 +448,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         'knee_%Y-%m-%dT%H-%M-%SZ')
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 
-    def on_sigterm(signum, frame):
-        raise KeyboardInterrupt  # the same clean-up as Ctrl-C
-
-    # SIGINT even if inherited ignored (a parent started in the background
-    # ignores it, and Python then keeps it ignored): Ctrl-C and kill -INT stop
-    # the demo and its nodes wherever it was started from.
-    signal.signal(signal.SIGINT, signal.default_int_handler)
-    signal.signal(signal.SIGTERM, on_sigterm)
+    stops = StopSignals()   # Ctrl-C, SIGTERM, SIGHUP: the same clean-up
     started = time.monotonic()
     try:
         plant, _ = load_plant(plant_file())
@@ -469,11 +461,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         png, gif = out / 'knee.png', out / 'knee.gif'
         plot(recorded, profile, png)
         frames = animate(recorded, plant, profile, gif)
-    except KeyboardInterrupt:
-        print(f'interrupted: every node stopped, the bag so far closed in {out / "bag"}',
-              file=sys.stderr)
-        return EXIT_INTERRUPTED
-    except (ValueError, RuntimeError) as err:
+    except (KeyboardInterrupt, ValueError, RuntimeError) as err:
+        if isinstance(err, KeyboardInterrupt) or stops.received is not None:
+            print(f'interrupted: every node stopped, the bag so far closed in {out / "bag"}',
+                  file=sys.stderr)
+            return EXIT_INTERRUPTED
         print(f'demo-knee: error: {err}', file=sys.stderr)
         return EXIT_ERROR
     print('tracking error (angle - target), RMS per segment:')

@@ -152,6 +152,33 @@ def _child_setup(then: Callable[[], None] | None) -> Callable[[], None]:
     return setup
 
 
+class StopSignals:
+    """How a demo (a plain Python program that starts nodes) is stopped.
+
+    SIGINT, SIGTERM and SIGHUP raise :class:`KeyboardInterrupt` at once, so
+    that every ``finally`` on the way out stops the children and closes the
+    bag; SIGINT is taken even if it was inherited ignored (a program started
+    in the background by a shell). The signal is also remembered in
+    :attr:`received`: a ``KeyboardInterrupt`` raised while the main thread is
+    inside rclpy's C extension comes out of it as another exception (pybind11
+    turns it into ``RuntimeError: Unable to convert call argument ...``), and
+    the demo must treat that as the interrupt it is, not as its own error.
+    """
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+    def __init__(self) -> None:
+        #: the number of the first stop signal received, or None
+        self.received: int | None = None
+        for sig in self.SIGNALS:
+            signal.signal(sig, self._on_signal)
+
+    def _on_signal(self, signum, _frame) -> None:
+        if self.received is None:
+            self.received = signum
+        raise KeyboardInterrupt(signal.Signals(signum).name)
+
+
 class Process:
     """One child process in its own session, logging to a file.
 
