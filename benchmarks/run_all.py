@@ -9,6 +9,7 @@ Usage::
 
     .venv/bin/python benchmarks/run_all.py --out BENCHMARKS.md [--runs 7]
 
+``--only fit`` runs only section 8, ``hill-muscle fit`` (``bench_fit.py``).
 ``--only fes`` runs only section 7, the FES features (``bench_fes.py``, a few
 minutes), and prints its Markdown instead of writing BENCHMARKS.md (or writes
 it to ``--out`` if given)::
@@ -35,6 +36,7 @@ REPO = HERE.parent
 sys.path.insert(0, str(HERE))
 
 import bench_fes  # noqa: E402
+import bench_fit  # noqa: E402
 import bench_node  # noqa: E402
 # bench_rtf.py (item 6, live); run_all.bench_rtf is the offline item 2.
 import bench_rtf as live_rtf  # noqa: E402
@@ -565,6 +567,7 @@ def write_report(path: Path, runs: int, started: dict, results: dict) -> None:
     add('')
     bench_fes.write_section(add, results['fes'])
     add('')
+    bench_fit.write_section(add, results['fit'])
     add('## Profiles')
     add('')
     add('`benchmarks/profile_simulate.py` writes cProfile and pyinstrument output of '
@@ -579,8 +582,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--out', type=Path, default=None,
                         help='Markdown file to write (default: BENCHMARKS.md; with --only, '
                              'print the section instead)')
-    parser.add_argument('--only', choices=('fes',), default=None,
-                        help='run one section only: fes = section 7, the FES features')
+    parser.add_argument('--only', choices=('fes', 'fit'), default=None,
+                        help='run one section only: fes = section 7, the FES features; '
+                             'fit = section 8, hill-muscle fit')
     parser.add_argument('--runs', type=int, default=7,
                         help=f'runs per measurement, at least {MIN_RUNS} (default: 7)')
     parser.add_argument('--node-seconds', type=float, default=30.0,
@@ -592,14 +596,15 @@ def main(argv: list[str] | None = None) -> int:
                'load': load_average()}
     t0 = time.perf_counter()
     os.chdir(REPO)
-    if args.only == 'fes':
+    if args.only is not None:
         lines = []
-        fes = bench_fes.run(args.runs)
-        lines.append(f'<!-- run_all.py --only fes --runs {args.runs}, {started["date"]}, load '
-                     f'average {started["load"]} at start, {load_average()} at end, '
+        section = {'fes': bench_fes, 'fit': bench_fit}[args.only]
+        measured = section.run(args.runs)
+        lines.append(f'<!-- run_all.py --only {args.only} --runs {args.runs}, {started["date"]}, '
+                     f'load average {started["load"]} at start, {load_average()} at end, '
                      f'{time.perf_counter() - t0:.0f} s -->')
         lines.append('')
-        bench_fes.write_section(lines.append, fes)
+        section.write_section(lines.append, measured)
         text = '\n'.join(lines) + '\n'
         if args.out is None:
             print(text)
@@ -625,6 +630,8 @@ def main(argv: list[str] | None = None) -> int:
     results['batch'] = bench_batch(args.runs, protocol)
     print('FES features', flush=True)
     results['fes'] = bench_fes.run(args.runs)
+    print('hill-muscle fit', flush=True)
+    results['fit'] = bench_fit.run(args.runs)
     print('ROS nodes', flush=True)
     results['node_seconds'] = args.node_seconds
     results['nodes'] = bench_nodes(args.node_seconds)

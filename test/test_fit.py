@@ -5,7 +5,6 @@ inputs and force apart in time, an unknown name)."""
 import dataclasses
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
@@ -31,8 +30,6 @@ FITTED = ','.join(TRUTH)
 #: peak force of Protocol II, a load cell's noise.
 NOISE_N = 0.5
 NOISE_SEED = 20261201
-#: The speed goal: a 3-parameter fit of Protocol II at 1 kHz (measured ~1 s).
-FIT_TIME_LIMIT_S = 10.0
 
 
 def _params_file(path, **values):
@@ -210,18 +207,6 @@ def test_standard_errors_match_the_spread_over_noise_seeds(truth_run):
     # freedom); this seed gives 0.83..1.00, so errors off by a factor 2 fail.
     ratio = spread / np.mean(errors, axis=0)
     assert np.all((ratio > 0.5) & (ratio < 1.6)), ratio
-
-
-def test_three_parameter_fit_meets_the_speed_goal(truth_run):
-    bag, _ = truth_run
-    recording = fit.load_muscle_recording(bag)
-    start = MuscleParams()
-    began = time.perf_counter()
-    result = fit.fit_parameters(fit.MuscleReplay(recording), recording.force_n, start,
-                                fit.parse_fit_names(FITTED, start))
-    elapsed = time.perf_counter() - began
-    assert result.estimates == pytest.approx(list(TRUTH.values()), rel=1e-6)
-    assert elapsed < FIT_TIME_LIMIT_S
 
 
 # --------------------------------------------------------------------------- identifiability
