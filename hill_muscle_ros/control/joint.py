@@ -40,7 +40,7 @@ from ..model.curves import force_length, parallel_force
 from ..model.limb import ANGLE_LIMIT_RAD, Limb, LimbPlant
 from ..model.params import MuscleParams
 from ..model.stimulus import command_from_pulse_width
-from .pi import ControllerInputs, _spec, pulse_width_within
+from .pi import ControllerInputs, _spec, check_spec_fields, pulse_width_within
 
 #: Default gains and reference rate. Tuned offline on the knee preset with
 #: :func:`simulate_joint_control` (limb at 1 kHz, controller at 100 Hz), for
@@ -115,19 +115,7 @@ class JointControllerParams:
         0.0, 3600.0))
 
     def __post_init__(self) -> None:
-        for f in dataclasses.fields(self):
-            value, spec = getattr(self, f.name), f.metadata
-            if spec['choices'] is not None:
-                if value not in spec['choices']:
-                    raise ValueError(f'`{f.name}` must be one of {", ".join(spec["choices"])}, '
-                                     f'got {value!r}')
-                continue
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise ValueError(f'`{f.name}` must be a number, got {value!r}')
-            if not (math.isfinite(value) and spec['low'] <= value <= spec['high']):
-                raise ValueError(f'`{f.name}` must be in [{spec["low"]:g}, {spec["high"]:g}] '
-                                 f'{spec["unit"]}, got {value!r}')
-            object.__setattr__(self, f.name, float(value))
+        check_spec_fields(self)
 
 
 #: The controller's parameter names: a plant file shared with the limb node

@@ -74,6 +74,28 @@ def _spec(unit: str, description: str, low: float | None = None, high: float | N
             'choices': choices}
 
 
+def check_spec_fields(params) -> None:
+    """Validate a frozen controller-parameter dataclass on construction: each
+    field of :func:`_spec` metadata is one of its choices, or a finite number
+    in its [low, high] range, stored as a float.
+
+    :raises ValueError: naming the first bad field, its range (and unit) and the value
+    """
+    for f in dataclasses.fields(params):
+        value, spec = getattr(params, f.name), f.metadata
+        if spec['choices'] is not None:
+            if value not in spec['choices']:
+                raise ValueError(f'`{f.name}` must be one of {", ".join(spec["choices"])}, '
+                                 f'got {value!r}')
+            continue
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ValueError(f'`{f.name}` must be a number, got {value!r}')
+        if not (math.isfinite(value) and spec['low'] <= value <= spec['high']):
+            raise ValueError(f'`{f.name}` must be in [{spec["low"]:g}, {spec["high"]:g}] '
+                             f'{spec["unit"]}, got {value!r}')
+        object.__setattr__(params, f.name, float(value))
+
+
 @dataclass(frozen=True)
 class ControllerParams:
     """Gains and limits of :class:`ForceController`; validated on construction.
@@ -137,20 +159,7 @@ class ControllerParams:
         'rejected as garbage', 1e-3, 1e9))
 
     def __post_init__(self) -> None:
-        for f in dataclasses.fields(self):
-            value = getattr(self, f.name)
-            choices = f.metadata['choices']
-            if choices is not None:
-                if value not in choices:
-                    raise ValueError(f'`{f.name}` must be one of {", ".join(choices)}, '
-                                     f'got {value!r}')
-                continue
-            low, high = f.metadata['low'], f.metadata['high']
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise ValueError(f'`{f.name}` must be a number, got {value!r}')
-            if not (math.isfinite(value) and low <= value <= high):
-                raise ValueError(f'`{f.name}` must be in [{low}, {high}], got {value!r}')
-            object.__setattr__(self, f.name, float(value))
+        check_spec_fields(self)
 
 
 class LengthRate:
