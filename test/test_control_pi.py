@@ -26,7 +26,7 @@ VARIANTS = ['initial', 'instantaneous']
 
 def closed_loop(length, target_n, duration_s, ramp_start_s=None, ramp_m_per_s=0.01,
                 ramp_to_m=0.01, feedforward='model', kp=None, ki=None, units='multi',
-                curve=None):
+                curve=None, feedback_delay_steps=FEEDBACK_DELAY_STEPS):
     curve = curve or {}
     muscle = Muscle(MuscleParams(length=length, units=units, **curve))
     gains = {k: v for k, v in (('kp_s_per_n', kp), ('ki_s_per_n_s', ki)) if v is not None}
@@ -34,7 +34,7 @@ def closed_loop(length, target_n, duration_s, ramp_start_s=None, ramp_m_per_s=0.
                            MuscleParams(length=length, units=units, **curve))
     rate = LengthRate(ctrl.params.length_rate_window_s)
     every = int(round(1.0 / (ctrl.params.rate_hz * MUSCLE_DT_S)))
-    history = [0.0] * (FEEDBACK_DELAY_STEPS + 1)
+    history = [0.0] * (feedback_delay_steps + 1)
     lengths = [0.0] * (LENGTH_DELAY_STEPS + 1)
     pw = 0.0
     t_out, f_out = [], []
@@ -42,7 +42,7 @@ def closed_loop(length, target_n, duration_s, ramp_start_s=None, ramp_m_per_s=0.
         t = k * MUSCLE_DT_S
         rate.add(t, lengths[-1 - LENGTH_DELAY_STEPS])
         if k % every == 0:
-            pw = ctrl.update(target_n, history[-1 - FEEDBACK_DELAY_STEPS], every * MUSCLE_DT_S,
+            pw = ctrl.update(target_n, history[-1 - feedback_delay_steps], every * MUSCLE_DT_S,
                              rate.dl_mt_m, rate.rate(t))
         dl = 0.0
         if ramp_start_s is not None:
@@ -67,6 +67,19 @@ def test_step_to_20N_settles_within_2_percent_in_under_1_5_s(length):
 def test_step_to_20N_overshoots_less_than_10_percent(length):
     _, f = closed_loop(length, 20.0, 3.0)
     assert f.max() < 1.10 * 20.0
+
+
+#: [ms] of feedback delay the default gains must ride out: a 100 Hz Python node
+#: taking 2000 messages a second on a loaded machine acts on force this old.
+LONG_FEEDBACK_DELAY_STEPS = 50
+
+
+@pytest.mark.parametrize('length', ['initial', 'instantaneous'])
+def test_step_to_20N_overshoots_less_than_10_percent_with_50_ms_of_feedback_delay(length):
+    t, f = closed_loop(length, 20.0, 3.0, feedback_delay_steps=LONG_FEEDBACK_DELAY_STEPS)
+    assert f.max() < 1.10 * 20.0
+    outside = np.flatnonzero(np.abs(f - 20.0) > 0.02 * 20.0)
+    assert t[outside[-1]] < 1.5
 
 
 @pytest.mark.parametrize('length', ['initial', 'instantaneous'])

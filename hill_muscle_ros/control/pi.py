@@ -31,21 +31,26 @@ DEFAULT_FF_FORCE_N = _DEFAULTS.f_iso_max_n * force_length(_DEFAULTS.l_rest_m / _
 
 
 #: [s/N] and [s/(N s)] default gains, and [s] the reference model's time
-#: constant. Tuned offline (muscle at 1 kHz, controller at 100 Hz) for
-#: robustness to the loop delay of DDS on a loaded machine rather than for the
-#: fastest step: with 3-10 ms of feedback delay, 2-5 ms of command delay and up
-#: to 10 ms of jitter, the step 0 -> 20 N overshoots < 1 % and settles within
-#: 2 % in about 0.22 s, and the 10 mm/s stretch at 15 N stays within 0.72-1.05 N
-#: after its first 100 ms (0.72-0.82 N up to 5 ms of delay and 8 ms of jitter).
-#: Why not stiffer: during a fast stretch with few units recruited the CE
-#: cannot lengthen faster than F0 b' / a' (Eq. 3 saturates), the muscle turns
-#: soft and fast, and a larger kp (4e-5) drives the pulse width to zero there
-#: and collapses the loop once the delay passes about 8 ms.
+#: constant. Tuned offline (muscle at 1 kHz, controller at 100 Hz,
+#: ``test/test_control_pi.py``'s loop) for robustness to the loop delay of DDS
+#: on a loaded machine rather than for the fastest step. The step 0 -> 20 N
+#: overshoots < 0.1 % with up to 50 ms of feedback delay and 3.7 % with 60 ms
+#: (``instantaneous``), settling within 2 % in 0.60-0.68 s; the 10 mm/s stretch
+#: at 15 N stays within 0.58-0.59 N after its first 100 ms with 5-30 ms.
+#: Why not faster: the earlier kp 1.5e-5, ki 3e-4 and 60 ms settled in 0.22 s
+#: but overshot 10 % at 30 ms of delay and 29 % at 50 ms, and a fresh-clone
+#: run over DDS measured that 10 % (the force a 100 Hz Python node acts on
+#: can be tens of ms old when it takes 2000 messages a second). Why not
+#: stiffer: during a fast stretch with few units recruited the CE cannot
+#: lengthen faster than F0 b' / a' (Eq. 3 saturates), the muscle turns soft
+#: and fast, and a larger kp (4e-5) drives the pulse width to zero there and
+#: collapses the loop once the delay passes about 8 ms. The model feedforward,
+#: not the PI, holds the stretch, so the softer PI costs it nothing.
 #: [N] no FES-driven muscle comes near this; a larger input is a unit error or garbage.
 DEFAULT_FORCE_LIMIT_N = 1.0e4
-DEFAULT_KP_S_PER_N = 1.5e-5
-DEFAULT_KI_S_PER_N_S = 3.0e-4
-DEFAULT_REFERENCE_TAU_S = 0.06
+DEFAULT_KP_S_PER_N = 1.0e-5
+DEFAULT_KI_S_PER_N_S = 1.5e-4
+DEFAULT_REFERENCE_TAU_S = 0.15
 #: [s] window of the imposed length's rate estimate: long enough to average
 #: out DDS arrival jitter over several 1 kHz samples, short enough to see a
 #: ramp stop within a fraction of a control period (offline, a 10 ms window
