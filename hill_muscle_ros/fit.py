@@ -153,11 +153,13 @@ class FitParameter:
         return params.replace(**{self.field: tuple(values)})
 
 
-def parse_fit_names(text: str, params: MuscleParams) -> list[FitParameter]:
+def parse_fit_names(text: str, params: MuscleParams, prefix: str = '') -> list[FitParameter]:
     """The fitted quantities that ``--fit NAME[,NAME...]`` names.
 
     :param text: comma-separated field names, optionally ``name[i]`` for a list entry
     :param params: the start parameters (for list lengths)
+    :param prefix: what the user wrote before these names (``quadriceps.`` on a
+        limb), for the messages
     :raises FitError: naming an unknown, repeated or non-float name
     """
     fields = {f.name: f for f in dataclasses.fields(MuscleParams)}
@@ -172,32 +174,32 @@ def parse_fit_names(text: str, params: MuscleParams) -> list[FitParameter]:
             try:
                 index = int(rest)
             except ValueError:
-                raise FitError(f'--fit: `{name}`: the index must be an integer') from None
+                raise FitError(f'--fit: `{prefix}{name}`: the index must be an integer') from None
         f = fields.get(field_name)
         if f is None:
-            raise FitError(f'--fit: unknown parameter `{name}` (fittable: '
+            raise FitError(f'--fit: unknown parameter `{prefix}{name}` (fittable: '
                            f'{", ".join(fittable_names())})')
         spec = f.metadata
         if spec['choices'] is not None or f.type == 'int':
-            raise FitError(f'--fit: `{name}` cannot be fitted: it is not a real number '
+            raise FitError(f'--fit: `{prefix}{name}` cannot be fitted: it is not a real number '
                            f'({"a choice" if spec["choices"] else "an integer"})')
         is_list = f.type.startswith('tuple')
         if is_list:
             n = len(getattr(params, field_name))
             if index is None:
                 if n != 1:
-                    raise FitError(f'--fit: `{name}` has {n} entries: name one, e.g. '
-                                   f'`{field_name}[0]`')
+                    raise FitError(f'--fit: `{prefix}{name}` has {n} entries: name one, e.g. '
+                                   f'`{prefix}{field_name}[0]`')
                 index = 0
             elif not 0 <= index < n:
-                raise FitError(f'--fit: `{name}`: index out of range, the start '
+                raise FitError(f'--fit: `{prefix}{name}`: index out of range, the start '
                                f'parameters give {n} entries')
         elif index is not None:
-            raise FitError(f'--fit: `{name}`: `{field_name}` is not a list')
+            raise FitError(f'--fit: `{prefix}{name}`: `{field_name}` is not a list')
         param = FitParameter(field_name, index if is_list else None, spec['unit'],
                              float(spec['low']), float(spec['high']), name != field_name)
         if any(p.name == param.name for p in out):
-            raise FitError(f'--fit: `{param.name}` is named twice')
+            raise FitError(f'--fit: `{prefix}{param.name}` is named twice')
         out.append(param)
     return out
 
@@ -437,12 +439,13 @@ class FitResult:
     :param estimates: their estimates
     :param std_errors: their standard errors, sqrt(diag(sigma^2 (J^T J)^-1))
     :param correlation: the correlation matrix of the estimates
-    :param rms_n: [N] residual RMS at the estimate
-    :param start_rms_n: [N] residual RMS at the start
-    :param n_samples: number of force samples fitted
+    :param rms_n: [N] residual RMS at the estimate (in the measured quantity's
+        unit: [rad] for a joint angle)
+    :param start_rms_n: [N] residual RMS at the start (as ``rms_n``)
+    :param n_samples: number of samples fitted
     :param n_evaluations: evaluations of residual and Jacobian together
     :param message: the optimiser's reason to stop
-    :param fitted: the predicted force at the samples, at the estimate
+    :param fitted: the prediction at the samples, at the estimate
     """
 
     parameters: tuple[FitParameter, ...]
@@ -481,13 +484,15 @@ def _and(names: Sequence[str]) -> str:
     return quoted[0] if len(quoted) == 1 else ', '.join(quoted[:-1]) + ' and ' + quoted[-1]
 
 
-def check_identifiable(parameters: Sequence[FitParameter], x: np.ndarray,
-                       jac: np.ndarray, force: np.ndarray) -> None:
+def check_identifiable(parameters: Sequence[Any], x: np.ndarray,
+                       jac: np.ndarray, force: np.ndarray, quantity: str = 'force') -> None:
     """Raise if the Jacobian shows fitted quantities the force does not determine.
 
+    :param parameters: the fitted quantities (:class:`FitParameter` or :class:`PlantParameter`)
     :param x: the values at which ``jac`` was taken
     :param jac: [N per unit] d force / d x, one column per quantity
     :param force: [N] the predicted force there (its norm sets the scale)
+    :param quantity: what is measured, in the messages (``force``, ``joint angle``)
     :raises NotIdentifiableError: naming the quantities, with the reason
     """
     norms = np.linalg.norm(jac, axis=0)
@@ -497,7 +502,7 @@ def check_identifiable(parameters: Sequence[FitParameter], x: np.ndarray,
     if dead:
         listed = _and(dead)
         raise NotIdentifiableError(dead, f'not identifiable from this recording: {listed} '
-                                         '(the force does not depend on '
+                                         f'(the {quantity} does not depend on '
                                          f'{"it" if len(dead) == 1 else "them"})')
     if len(parameters) < 2:
         return
@@ -511,14 +516,15 @@ def check_identifiable(parameters: Sequence[FitParameter], x: np.ndarray,
         names = [p.name for p, w in zip(parameters, share) if w >= VARIANCE_PROPORTION]
         listed = _and(names)
         raise NotIdentifiableError(names, f'not identifiable from this recording: {listed} '
-                                          '(J^T J is near-singular: the force determines only '
+                                          f'(J^T J is near-singular: the {quantity} determines only '
                                           'a combination of them; fit fewer of them or use a '
                                           'recording that separates them)')
 
 
 def fit_parameters(model: ForceModel, measured: np.ndarray, start: Any,
-                   parameters: Sequence[FitParameter],
-                   progress: Callable[[str], None] | None = None) -> FitResult:
+                   parameters: Sequence[Any],
+                   progress: Callable[[str], None] | None = None, *,
+                   quantity: str = 'force', unit: str = 'N') -> FitResult:
     """Least-squares estimate of ``parameters``, the rest of ``start`` held.
 
     Each evaluation predicts K = n + 1 parameter sets at once: the residual at
@@ -531,6 +537,8 @@ def fit_parameters(model: ForceModel, measured: np.ndarray, start: Any,
     :param start: the start parameters (their ``replace`` makes the others)
     :param parameters: the quantities to fit
     :param progress: called with one line per evaluation (cost, RMS)
+    :param quantity: what ``measured`` is, in the messages (``force``, ``joint angle``)
+    :param unit: its unit, in the progress lines
     :raises NotIdentifiableError: at the start or at the estimate
     :raises FitError: if a parameter set on the way is invalid
     """
@@ -539,7 +547,7 @@ def fit_parameters(model: ForceModel, measured: np.ndarray, start: Any,
     n = len(parameters)
     m = len(measured)
     if m <= n:
-        raise FitError(f'{m} force samples for {n} parameters: too few to fit')
+        raise FitError(f'{m} {quantity} samples for {n} parameters: too few to fit')
     x0 = np.array([p.get(start) for p in parameters])
     cache: dict[str, Any] = {}
 
@@ -557,8 +565,8 @@ def fit_parameters(model: ForceModel, measured: np.ndarray, start: Any,
         cache['n'] = cache.get('n', 0) + 1
         if progress is not None:
             cost = 0.5 * float(residual @ residual)
-            progress(f'evaluation {cache["n"]:3d}: cost {cost:.6g} N^2, RMS '
-                     f'{math.sqrt(2.0 * cost / m):.6g} N  ' + ', '.join(
+            progress(f'evaluation {cache["n"]:3d}: cost {cost:.6g} {unit}^2, RMS '
+                     f'{math.sqrt(2.0 * cost / m):.6g} {unit}  ' + ', '.join(
                          f'{p.name}={v:.8g}' for p, v in zip(parameters, x)))
 
     def fun(x: np.ndarray) -> np.ndarray:
@@ -571,7 +579,7 @@ def fit_parameters(model: ForceModel, measured: np.ndarray, start: Any,
 
     evaluate(x0)
     start_rms = float(np.sqrt(np.mean(cache['residual'] ** 2)))
-    check_identifiable(parameters, x0, cache['jac'], cache['force'])
+    check_identifiable(parameters, x0, cache['jac'], cache['force'], quantity)
     lower = np.array([p.low for p in parameters])
     upper = np.array([p.high for p in parameters])
     result = least_squares(fun, x0, jac=jac, bounds=(lower, upper), method='trf',
@@ -580,7 +588,7 @@ def fit_parameters(model: ForceModel, measured: np.ndarray, start: Any,
     x = result.x
     evaluate(x)
     J, residual = cache['jac'], cache['residual']
-    check_identifiable(parameters, x, J, cache['force'])
+    check_identifiable(parameters, x, J, cache['force'], quantity)
     # sigma^2 (J^T J)^-1 through the column-normalised J: same result, better conditioned.
     norms = np.linalg.norm(J, axis=0)
     inv = np.linalg.inv((J / norms).T @ (J / norms)) / np.outer(norms, norms)
@@ -633,7 +641,6 @@ def format_report(result: FitResult, recording: MuscleRecording, start_source: s
     """The fit in words and tables (Markdown; also what stdout shows)."""
     r = recording
     names = [p.name for p in result.parameters]
-    width = max(len(n) for n in names + ['parameter'])
     lines = [f'# Fit of {", ".join(names)}', '',
              f'- bag: {r.bag}',
              f'- force: `{r.topics["force"]}`, {result.n_samples} samples at '
@@ -643,8 +650,19 @@ def format_report(result: FitResult, recording: MuscleRecording, start_source: s
              f'- start: {start_source}',
              f'- least squares: {result.n_evaluations} evaluations; {result.message}',
              f'- residual RMS: {result.rms_n:.6g} N (at the start: {result.start_rms_n:.6g} N)',
-             '', f'| {"parameter":<{width}} | {"start":>12} | {"estimate":>14} | '
-                 f'{"std error":>10} | unit |',
+             ''] + _estimate_lines(result) + [
+        '', 'Standard errors: sigma^2 (J^T J)^-1 at the estimate, sigma^2 = the sum of '
+            'squared residuals / (samples - parameters); they assume independent '
+            'force errors of equal variance.']
+    return '\n'.join(lines)
+
+
+def _estimate_lines(result: FitResult) -> list[str]:
+    """The estimates with their standard errors, and their correlations (Markdown)."""
+    names = [p.name for p in result.parameters]
+    width = max(len(n) for n in names + ['parameter'])
+    lines = [f'| {"parameter":<{width}} | {"start":>12} | {"estimate":>14} | '
+             f'{"std error":>10} | unit |',
              f'|{"-" * (width + 2)}|{"-" * 14}|{"-" * 16}|{"-" * 12}|------|']
     for p, x0, x, se in zip(result.parameters, result.start_values, result.estimates,
                             result.std_errors):
@@ -656,10 +674,7 @@ def format_report(result: FitResult, recording: MuscleRecording, start_source: s
     for name, row in zip(names, result.correlation):
         lines.append('| ' + ' | '.join([f'{name:<{width}}'] + [f'{c:12.4f}' for c in row])
                      + ' |')
-    lines += ['', 'Standard errors: sigma^2 (J^T J)^-1 at the estimate, sigma^2 = the sum of '
-                  'squared residuals / (samples - parameters); they assume independent '
-                  'force errors of equal variance.']
-    return '\n'.join(lines)
+    return lines
 
 
 def report_data(result: FitResult, recording: MuscleRecording) -> dict[str, Any]:
