@@ -7,7 +7,8 @@ Importing this package registers:
   (``gymnasium.make_vec(..., num_envs=K)`` gives
   :class:`~.vector.ForceTrackingVectorEnv`, K of them on the batch engine);
 - ``hill_muscle_ros/KneeAngle-v0``: :class:`~.knee_angle.KneeAngleEnv`, the
-  knee preset, a pulse width per muscle, an angle target to track.
+  knee preset, a pulse width per muscle, an angle target to track
+  (``make_vec`` gives :class:`~.vector.KneeAngleVectorEnv`).
 
 Install with ``pip install hill_muscle_ros[gym]`` (or ``pip install gymnasium``).
 The rest of the package does not need gymnasium.
@@ -20,7 +21,7 @@ except ImportError as err:   # name the extra that brings it
 
 from .force_tracking import ForceTrackingEnv
 from .knee_angle import KneeAngleEnv
-from .vector import ForceTrackingVectorEnv
+from .vector import ForceTrackingVectorEnv, KneeAngleVectorEnv
 
 FORCE_TRACKING_ID = 'hill_muscle_ros/ForceTracking-v0'
 KNEE_ANGLE_ID = 'hill_muscle_ros/KneeAngle-v0'
@@ -32,7 +33,8 @@ if FORCE_TRACKING_ID not in gymnasium.registry:
                        vector_entry_point='hill_muscle_ros.gym.vector:ForceTrackingVectorEnv')
 if KNEE_ANGLE_ID not in gymnasium.registry:
     gymnasium.register(id=KNEE_ANGLE_ID,
-                       entry_point='hill_muscle_ros.gym.knee_angle:KneeAngleEnv')
+                       entry_point='hill_muscle_ros.gym.knee_angle:KneeAngleEnv',
+                       vector_entry_point='hill_muscle_ros.gym.vector:KneeAngleVectorEnv')
 
 __all__ = ['FORCE_TRACKING_ID', 'ForceTrackingEnv', 'ForceTrackingVectorEnv', 'KNEE_ANGLE_ID',
-           'KneeAngleEnv']
+           'KneeAngleEnv', 'KneeAngleVectorEnv']

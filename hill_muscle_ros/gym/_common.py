@@ -9,11 +9,13 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-from typing import Any
+from typing import Any, Mapping, Sequence
 
+import gymnasium as gym
 import numpy as np
 
-from ..model.params import MuscleParams
+# The FES extensions' fields and their defaults, as the parameters define them.
+from ..model.params import _FES_FIELDS, CURVE_FIELDS, MuscleParams
 
 #: [s] The model's integration step inside every control period: 1 kHz, the
 #: step the shipped presets are validated at (the FES quadriceps' stiff tendon
@@ -94,10 +96,50 @@ def check_hold_range(hold_min_s: Any, hold_max_s: Any, period_s: float) -> tuple
     return lo, hi
 
 
-def muscle_params(params: Any, units: str | None, length: str | None) -> MuscleParams:
+def muscle_variant(p: MuscleParams, *, units: str | None = None, length: str | None = None,
+                   fes_features: bool = True, overrides: Mapping[str, Any] | None = None,
+                   where: str = 'overrides') -> MuscleParams:
+    """A muscle changed by an environment's options, in this order: the variant
+    fields ``units`` and ``length`` if given; with ``fes_features=False`` every
+    FES extension of the dynamics back at the paper's value (delay, activation,
+    ``fv_scaling``, fatigue, fibre types, recruitment order, unit length spread;
+    the recruitment curve stays, it maps the action to the command); last,
+    ``overrides``, any :class:`MuscleParams` fields by name.
+
+    :param where: what to call ``overrides`` in error messages
+    :raises ValueError: naming an unknown field, or the field and value that
+        :class:`MuscleParams` refuses
+    """
+    if not isinstance(fes_features, bool):
+        raise ValueError(f'`fes_features` must be True or False, got {fes_features!r}')
+    changes = {k: v for k, v in (('units', units), ('length', length)) if v is not None}
+    if not fes_features:
+        changes.update((name, f.default) for name, f in _FES_FIELDS.items()
+                       if name not in CURVE_FIELDS)
+    if overrides is not None:
+        if not isinstance(overrides, Mapping):
+            raise ValueError(f'`{where}` must map MuscleParams fields to values, '
+                             f'got {overrides!r}')
+        known = MuscleParams.field_names()
+        unknown = sorted(str(k) for k in overrides if k not in known)
+        if unknown:
+            raise ValueError(f'`{where}`: unknown MuscleParams field `{unknown[0]}` '
+                             f'(known: {", ".join(known)})')
+        changes.update(overrides)
+    if not changes:
+        return p
+    try:
+        return dataclasses.replace(p, **changes)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f'`{where}`: {err}') from None
+
+
+def muscle_params(params: Any, units: str | None = None, length: str | None = None,
+                  fes_features: bool = True,
+                  overrides: Mapping[str, Any] | None = None) -> MuscleParams:
     """The muscle of an environment: a :class:`MuscleParams`, a parameters
     YAML file (``config/muscle.yaml`` format) or ``None`` (the paper's muscle),
-    with the variant fields ``units`` and ``length`` replaced if given.
+    changed by the options as :func:`muscle_variant` says.
 
     :raises ValueError: naming the file, the field and the value on any defect
     """
@@ -111,8 +153,39 @@ def muscle_params(params: Any, units: str | None, length: str | None) -> MuscleP
     else:
         raise ValueError(f'`params` must be a MuscleParams, a YAML path or None, '
                          f'got {params!r}')
-    changes = {k: v for k, v in (('units', units), ('length', length)) if v is not None}
-    return dataclasses.replace(p, **changes) if changes else p
+    return muscle_variant(p, units=units, length=length, fes_features=fes_features,
+                          overrides=overrides)
+
+
+def check_pulse_widths(values: Any, high: np.ndarray, labels: Sequence[str], name: str,
+                       rows: int | None = None) -> np.ndarray:
+    """Pulse widths [s] of one action (``rows=None``) or of K actions, validated.
+
+    :param values: the action(s): M widths, or K rows of M
+    :param high: [s] the widest accepted width of each of the M muscles
+    :param labels: what each width is, for messages (``'hamstrings pulse width'``)
+    :param name: the argument's name, ``action`` or ``actions``
+    :return: [s] float64 widths, shape (M,) or (K, M)
+    :raises ValueError: on a wrong size, or a NaN or out-of-range width, naming
+        its index (``action[1]``, ``actions[3]``, ``actions[3, 1]``), muscle and value
+    """
+    m = len(high)
+    shape = (m,) if rows is None else (rows, m)
+    a = np.asarray(values, dtype=np.float64)
+    if a.size != int(np.prod(shape)):
+        what = 'one pulse width [s]' if m == 1 else f'{m} pulse widths [s]'
+        per = '' if rows is None else f' per environment ({rows})'
+        raise ValueError(f'`{name}` must hold {what}{per}, got shape {np.shape(values)}')
+    a = a.reshape(shape)
+    bad = ~((a >= 0.0) & (a <= high))   # also true for NaN
+    if bad.any():
+        index = np.unravel_index(int(np.flatnonzero(bad)[0]), shape)
+        j = int(index[-1])
+        shown = [int(i) for i in index] if m > 1 else [int(i) for i in index[:-1]]
+        where = f'[{", ".join(map(str, shown))}]' if shown else ''
+        raise ValueError(f'`{name}{where}` ({labels[j]}) must be in [0, {high[j]:g}] s, '
+                         f'got {a[index]!r}')
+    return a
 
 
 def hold_lengths(rng: np.random.Generator, n_periods: int, lo: int, hi: int) -> np.ndarray:
@@ -138,29 +211,106 @@ def piecewise_constant(starts: np.ndarray, values: np.ndarray, n_periods: int) -
 
 
 class History:
-    """The last ``length`` samples of a few signals, newest first, as one vector.
+    """The last ``length`` samples of a few signals, newest first, as one vector;
+    with ``batch`` K, one such history per sub-environment.
 
     :param length: samples kept (>= 1)
     :param width: signals per sample
+    :param batch: sub-environments (``None``: a single environment)
     """
 
-    def __init__(self, length: int, width: int) -> None:
-        self._buf = np.zeros((length, width))
+    def __init__(self, length: int, width: int, batch: int | None = None) -> None:
+        self._buf = np.zeros((length, width) if batch is None else (batch, length, width))
 
     def fill(self, sample) -> None:
-        """Start an episode: every slot holds ``sample`` (no earlier samples exist)."""
-        self._buf[:] = sample
+        """Start an episode: every slot holds ``sample`` (no earlier samples exist);
+        ``sample`` has shape (width,), or (K, width) with a batch."""
+        self._buf[:] = np.asarray(sample)[..., None, :]
 
     def push(self, sample) -> None:
         """Add the newest sample, dropping the oldest."""
-        self._buf[1:] = self._buf[:-1]
-        self._buf[0] = sample
+        self._buf[..., 1:, :] = self._buf[..., :-1, :]
+        self._buf[..., 0, :] = sample
 
     @property
     def newest(self) -> np.ndarray:
         """The newest sample (a view)."""
-        return self._buf[0]
+        return self._buf[..., 0, :]
 
     def flat(self) -> np.ndarray:
-        """``[newest sample, previous, ...]`` flattened (a copy)."""
-        return self._buf.reshape(-1).copy()
+        """``[newest sample, previous, ...]`` flattened, per sub-environment (a copy)."""
+        return self._buf.reshape(*self._buf.shape[:-2], -1).copy()
+
+
+class TrackingEnv(gym.Env):
+    """What both tracking environments share: the episode's clock of control
+    periods, the reset option that holds one target, the observation history.
+
+    Subclasses set :attr:`TARGET_OPTION` and write :meth:`check_target` and
+    :meth:`draw_episode`; the native vector environments call the same two, so
+    a sub-environment draws exactly what a single environment draws.
+    """
+
+    metadata = {'render_modes': []}
+    #: The name of the reset option that holds one target for the whole episode.
+    TARGET_OPTION = ''
+
+    def _init_episode(self, *, control_period_s: Any, episode_duration_s: Any,
+                      history_length: Any, stim_cost: Any, hold_min_s: Any, hold_max_s: Any,
+                      render_mode: Any, width: int) -> None:
+        """Validate and keep the settings of the episode's clock and history.
+
+        :param width: signals per history sample
+        :raises ValueError: naming the argument and the value
+        """
+        if render_mode is not None:
+            raise ValueError(f'`render_mode` must be None (no rendering), got {render_mode!r}')
+        self.render_mode = None
+        self.n_steps = steps_per_period(control_period_s)
+        self.control_period_s = self.n_steps * MODEL_DT_S
+        self.n_periods = whole_multiple(
+            'episode_duration_s', check_positive('episode_duration_s', episode_duration_s),
+            self.control_period_s, 'control periods')
+        self.history_length = check_count('history_length', history_length)
+        self.stim_cost = check_positive('stim_cost', stim_cost, allow_zero=True)
+        self._hold = check_hold_range(hold_min_s, hold_max_s, self.control_period_s)
+        self._history = History(self.history_length, width)
+        self._targets = np.zeros(self.n_periods)
+        self._k = 0
+
+    def check_target(self, value: Any) -> float:
+        """The fixed target of the reset option, validated (in the subclass)."""
+        raise NotImplementedError
+
+    def draw_episode(self, rng: np.random.Generator, fixed: float | None) -> Any:
+        """One episode's profiles from ``rng`` (in the subclass)."""
+        raise NotImplementedError
+
+    def fixed_target(self, options: Mapping[str, Any] | None) -> float | None:
+        """The reset options: the fixed target if given (validated), else ``None``.
+
+        :raises ValueError: on an unknown option or a bad target
+        """
+        options = dict(options or {})
+        value = options.pop(self.TARGET_OPTION, None)
+        if options:
+            raise ValueError(f'unknown reset options {sorted(options)}; '
+                             f'known: {self.TARGET_OPTION}')
+        return None if value is None else self.check_target(value)
+
+    def stimulation_cost(self, pw: np.ndarray) -> np.ndarray:
+        """The reward's stimulation term, ``stim_cost`` mean_i (PW_i / PW_max,i)^2.
+
+        :param pw: [s] widths, shape (..., M) for M muscles
+        :return: [-] shape (...)
+        """
+        return self.stim_cost * np.mean((pw / self._pw_max) ** 2, axis=-1)
+
+    def _check_running(self) -> None:
+        if self._k >= self.n_periods:
+            raise ValueError('the episode is over (truncated): call reset() first')
+
+    def _target_after(self, k: int) -> float:
+        """The target of the period that starts at control instant ``k`` (the
+        last period's after the end)."""
+        return float(self._targets[min(k, self.n_periods - 1)])

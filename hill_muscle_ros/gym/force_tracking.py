@@ -11,16 +11,14 @@ from __future__ import annotations
 import math
 from typing import Any
 
-import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
 from ..model.muscle import DL_MT_LIMIT_M, Muscle
 from ..model.params import MuscleParams
 from ..model.stimulus import command_from_pulse_width
-from ._common import (MODEL_DT_S, History, check_count, check_hold_range, check_positive,
-                      hold_lengths, muscle_params, piecewise_constant, steps_per_period,
-                      whole_multiple)
+from ._common import (MODEL_DT_S, TrackingEnv, check_positive, check_pulse_widths,
+                      hold_lengths, muscle_params, piecewise_constant)
 
 #: Signals of one history sample, in order: [N] force, [N] target, [m] CE
 #: length, [m] MTU length change (the length command).
@@ -33,32 +31,7 @@ _FITNESS_COLUMN = 11
 _N_COLUMNS = 12
 
 
-def draw_profiles(rng: np.random.Generator, env: 'ForceTrackingEnv',
-                  target_n: float | None) -> tuple[np.ndarray, np.ndarray]:
-    """One episode's profiles (see :class:`ForceTrackingEnv`, *Episode*).
-
-    :param rng: the episode's generator (the environment's ``np_random``)
-    :param env: the environment whose settings (periods, holds, ranges) apply
-    :param target_n: [N] a fixed target for the whole episode, or ``None``
-    :return: [N] the target of every control period and [m] dl_MT at every
-        model step boundary (``n_periods * n_steps + 1`` values, 0 first)
-    """
-    n_periods, n_steps = env.n_periods, env.n_steps
-    starts = hold_lengths(rng, n_periods, *env._hold)
-    targets = rng.uniform(0.0, env.target_max_n, size=len(starts))
-    knots = rng.uniform(0.0, env.length_max_m, size=len(starts))
-    per_period = piecewise_constant(starts, targets, n_periods)
-    if target_n is not None:
-        per_period[:] = target_n
-    # dl_MT: 0 at t = 0, then knot i at the start of hold i + 1, the last knot
-    # at the episode's end; linear in between, sampled every model step.
-    knot_steps = np.append(starts[1:], n_periods) * n_steps
-    dl = np.interp(np.arange(n_periods * n_steps + 1), np.append(0, knot_steps),
-                   np.append(0.0, knots))
-    return per_period, dl
-
-
-class ForceTrackingEnv(gym.Env):
+class ForceTrackingEnv(TrackingEnv):
     """Track a piecewise-constant force target by choosing the pulse width.
 
     **Time.** Every :meth:`step` holds one pulse width for one control period
@@ -78,8 +51,9 @@ class ForceTrackingEnv(gym.Env):
     ``history_length - 1`` instants before it (the default 5 covers the last
     4 control periods, 80 ms at 20 ms). At reset every slot holds the resting
     sample. The target is the one that holds over the coming period. With
-    fatigue on (``fatigue: riener``) one more entry follows: the mean fitness
-    of the units [-], 1 for a fresh muscle.
+    fatigue on (``fatigue: riener``), or ``observe_fitness=True``, one more
+    entry follows: the mean fitness of the units [-], 1 for a fresh muscle
+    (and always 1 without fatigue).
 
     **Reward** (dimensionless), for the period just simulated with pulse width
     PW and target F*::
@@ -105,6 +79,15 @@ class ForceTrackingEnv(gym.Env):
         ``config/fes_quadriceps.yaml``) or ``None`` for the paper's muscle
     :param units: [-] variant override: ``multi`` or ``single`` (``None``: as ``params``)
     :param length: [-] variant override: ``initial`` or ``instantaneous``
+    :param fes_features: ``False`` switches every FES extension of the muscle's
+        dynamics off (delay, activation, ``fv_scaling``, fatigue, fibre types,
+        recruitment order, unit length spread), the recruitment curve kept:
+        the paper's dynamics on the same muscle
+    :param overrides: any :class:`MuscleParams` fields by name, applied last
+        (``{'fatigue': 'riener', 'tau_act_s': 0.025}``)
+    :param observe_fitness: append the mean fitness to the observation;
+        ``None``: when fatigue is on. Set it ``True`` to train without fatigue
+        and test with it on the same observation space.
     :param control_period_s: [s] control period, 0.010-0.050, whole milliseconds
     :param episode_duration_s: [s] episode length, a whole number of periods
     :param history_length: [-] samples of each signal in the observation, >= 1
@@ -116,25 +99,22 @@ class ForceTrackingEnv(gym.Env):
     :param render_mode: only ``None`` (no rendering)
     """
 
-    metadata = {'render_modes': []}
+    TARGET_OPTION = 'target_n'
 
     def __init__(self, params: MuscleParams | str | None = None, *, units: str | None = None,
-                 length: str | None = None, control_period_s: float = 0.02,
-                 episode_duration_s: float = 5.0, history_length: int = 5,
-                 stim_cost: float = 0.01, target_max_fraction: float = 0.5,
-                 length_max_m: float = 0.01, hold_min_s: float = 0.5,
-                 hold_max_s: float = 1.5, render_mode: str | None = None) -> None:
-        if render_mode is not None:
-            raise ValueError(f'`render_mode` must be None (no rendering), got {render_mode!r}')
-        self.render_mode = None
-        self.params = p = muscle_params(params, units, length)
-        self.n_steps = steps_per_period(control_period_s)
-        self.control_period_s = self.n_steps * MODEL_DT_S
-        self.n_periods = whole_multiple(
-            'episode_duration_s', check_positive('episode_duration_s', episode_duration_s),
-            self.control_period_s, 'control periods')
-        self.history_length = check_count('history_length', history_length)
-        self.stim_cost = check_positive('stim_cost', stim_cost, allow_zero=True)
+                 length: str | None = None, fes_features: bool = True,
+                 overrides: dict[str, Any] | None = None, observe_fitness: bool | None = None,
+                 control_period_s: float = 0.02, episode_duration_s: float = 5.0,
+                 history_length: int = 5, stim_cost: float = 0.01,
+                 target_max_fraction: float = 0.5, length_max_m: float = 0.01,
+                 hold_min_s: float = 0.5, hold_max_s: float = 1.5,
+                 render_mode: str | None = None) -> None:
+        self._init_episode(control_period_s=control_period_s,
+                           episode_duration_s=episode_duration_s,
+                           history_length=history_length, stim_cost=stim_cost,
+                           hold_min_s=hold_min_s, hold_max_s=hold_max_s,
+                           render_mode=render_mode, width=len(SAMPLE_FIELDS))
+        self.params = p = muscle_params(params, units, length, fes_features, overrides)
         frac = check_positive('target_max_fraction', target_max_fraction)
         if frac > 1.0:
             raise ValueError(f'`target_max_fraction` must be in (0, 1], '
@@ -144,32 +124,55 @@ class ForceTrackingEnv(gym.Env):
         if self.length_max_m > DL_MT_LIMIT_M:
             raise ValueError(f'`length_max_m` must be at most {DL_MT_LIMIT_M} m, '
                              f'got {length_max_m!r}')
-        self._hold = check_hold_range(hold_min_s, hold_max_s, self.control_period_s)
-        self.fatigue = p.fatigue != 'none'
+        if observe_fitness is not None and not isinstance(observe_fitness, bool):
+            raise ValueError(f'`observe_fitness` must be True, False or None, '
+                             f'got {observe_fitness!r}')
+        #: whether the observation ends with the mean fitness
+        self.observe_fitness = (p.fatigue != 'none' if observe_fitness is None
+                                else observe_fitness)
 
         self.muscle = Muscle(p)
         self.action_space = spaces.Box(0.0, p.pw_max_s, shape=(1,), dtype=np.float32)
+        #: what the action entry is, for error messages
+        self.action_labels = ('pulse width',)
+        self._pw_max = np.array([p.pw_max_s])
         #: [s] the widest accepted width: the Box's float32 bound, read back
-        self._pw_high_s = float(self.action_space.high[0])
-        width = len(SAMPLE_FIELDS)
+        self._pw_high = self.action_space.high.astype(np.float64)
         low = np.tile([0.0, 0.0, -np.inf, -DL_MT_LIMIT_M], self.history_length)
         high = np.tile([np.inf, self.target_max_n, np.inf, DL_MT_LIMIT_M], self.history_length)
-        if self.fatigue:
+        if self.observe_fitness:
             low, high = np.append(low, 0.0), np.append(high, 1.0)
         self.observation_space = spaces.Box(low.astype(np.float32), high.astype(np.float32),
                                             dtype=np.float32)
-        self._history = History(self.history_length, width)
         self._columns = [[0.0] * self.n_steps for _ in range(_N_COLUMNS)]
-        self._targets = np.zeros(self.n_periods)
         self._dl = np.zeros(self.n_periods * self.n_steps + 1)
-        self._k = 0
         self._fitness = 1.0
 
     # -- episode ---------------------------------------------------------------------
 
-    def _draw_profiles(self, target_n: float | None) -> None:
-        """Targets per period and dl_MT per model step, from ``self.np_random``."""
-        self._targets, self._dl = draw_profiles(self.np_random, self, target_n)
+    def draw_episode(self, rng: np.random.Generator,
+                     fixed: float | None) -> tuple[np.ndarray, np.ndarray]:
+        """One episode's profiles (see the class docstring, *Episode*).
+
+        :param rng: the episode's generator (``self.np_random``, or a vector
+            environment's generator of this sub-environment)
+        :param fixed: [N] a target for the whole episode, or ``None``
+        :return: [N] the target of every control period and [m] dl_MT at every
+            model step boundary (``n_periods * n_steps + 1`` values, 0 first)
+        """
+        n_periods, n_steps = self.n_periods, self.n_steps
+        starts = hold_lengths(rng, n_periods, *self._hold)
+        targets = rng.uniform(0.0, self.target_max_n, size=len(starts))
+        knots = rng.uniform(0.0, self.length_max_m, size=len(starts))
+        per_period = piecewise_constant(starts, targets, n_periods)
+        if fixed is not None:
+            per_period[:] = fixed
+        # dl_MT: 0 at t = 0, then knot i at the start of hold i + 1, the last
+        # knot at the episode's end; linear in between, sampled every model step.
+        knot_steps = np.append(starts[1:], n_periods) * n_steps
+        dl = np.interp(np.arange(n_periods * n_steps + 1), np.append(0, knot_steps),
+                       np.append(0.0, knots))
+        return per_period, dl
 
     def check_target(self, target_n: Any) -> float:
         """A fixed target from ``reset`` options, validated.
@@ -191,13 +194,7 @@ class ForceTrackingEnv(gym.Env):
             [0, target_max_fraction f_iso_max]
         """
         super().reset(seed=seed)
-        options = dict(options or {})
-        target_n = options.pop('target_n', None)
-        if options:
-            raise ValueError(f'unknown reset options {sorted(options)}; known: target_n')
-        if target_n is not None:
-            target_n = self.check_target(target_n)
-        self._draw_profiles(target_n)
+        self._targets, self._dl = self.draw_episode(self.np_random, self.fixed_target(options))
         self.muscle.reset()
         self._k = 0
         out = self.muscle.outputs()
@@ -205,25 +202,15 @@ class ForceTrackingEnv(gym.Env):
         self._history.fill((out.force_n, self._targets[0], out.l_ce_m, out.dl_mt_m))
         return self._observation(), self._info(0.0, 0.0, 0.0)
 
-    def _check_action(self, action) -> float:
-        a = np.asarray(action, dtype=np.float64)
-        if a.size != 1:
-            raise ValueError(f'`action` must hold one pulse width [s], got shape {a.shape}')
-        pw = float(a.reshape(-1)[0])
-        if not 0.0 <= pw <= self._pw_high_s:   # also false for NaN
-            raise ValueError(f'`action` (pulse width) must be in [0, {self._pw_high_s:g}] s, '
-                             f'got {pw!r}')
-        return pw
-
     def step(self, action) -> tuple[np.ndarray, float, bool, bool, dict]:
         """Hold pulse width ``action[0]`` [s] for one control period.
 
         :raises ValueError: on a NaN or out-of-Box width (the state is unchanged),
             or a step after the episode's end
         """
-        if self._k >= self.n_periods:
-            raise ValueError('the episode is over (truncated): call reset() first')
-        pw = self._check_action(action)
+        self._check_running()
+        widths = check_pulse_widths(action, self._pw_high, self.action_labels, 'action')
+        pw = float(widths[0])
         u = command_from_pulse_width(pw, self.params)
         n, k = self.n_steps, self._k
         target = float(self._targets[k])
@@ -232,12 +219,11 @@ class ForceTrackingEnv(gym.Env):
         self.muscle.run([u] * n, dl, MODEL_DT_S, None, cols)
         f_ref = self.params.f_iso_max_n
         tracking = math.fsum(((f - target) / f_ref) ** 2 for f in cols[_FORCE_COLUMN]) / n
-        stimulation = self.stim_cost * (pw / self.params.pw_max_s) ** 2
+        stimulation = float(self.stimulation_cost(widths))
         self._k = k = k + 1
         self._fitness = cols[_FITNESS_COLUMN][-1]
-        next_target = float(self._targets[min(k, self.n_periods - 1)])
-        self._history.push((cols[_FORCE_COLUMN][-1], next_target, cols[_L_CE_COLUMN][-1],
-                            dl[-1]))
+        self._history.push((cols[_FORCE_COLUMN][-1], self._target_after(k),
+                            cols[_L_CE_COLUMN][-1], dl[-1]))
         reward = -tracking - stimulation
         truncated = k >= self.n_periods
         return self._observation(), reward, False, truncated, self._info(pw, tracking,
@@ -245,14 +231,14 @@ class ForceTrackingEnv(gym.Env):
 
     def _observation(self) -> np.ndarray:
         obs = self._history.flat()
-        if self.fatigue:
+        if self.observe_fitness:
             obs = np.append(obs, self._fitness)
         return obs.astype(np.float32)
 
     def _info(self, pw: float, tracking: float, stimulation: float) -> dict:
         """Float64 values the float32 observation rounds, and the reward's two terms."""
         return {'t_s': self._k * self.control_period_s, 'pulse_width_s': pw,
-                'target_n': float(self._targets[min(self._k, self.n_periods - 1)]),
+                'target_n': self._target_after(self._k),
                 'force_n': float(self._history.newest[0]),
                 'dl_mt_m': float(self._history.newest[3]),
                 'tracking_cost': tracking, 'stimulation_cost': stimulation}

@@ -9,18 +9,18 @@ here writes a model equation.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
-from typing import Any
+from typing import Any, Mapping
 
-import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
 from ..model.limb import Limb, LimbPlant
 from ..model.stimulus import command_from_pulse_width
-from ._common import (MODEL_DT_S, History, check_count, check_hold_range, check_positive,
-                      hold_lengths, piecewise_constant, steps_per_period, whole_multiple)
+from ._common import (MODEL_DT_S, TrackingEnv, check_pulse_widths, hold_lengths,
+                      muscle_variant, piecewise_constant)
 
 #: Signals of one history sample, in order: [rad] angle, [rad/s] angular
 #: velocity, [rad] target angle.
@@ -47,7 +47,37 @@ def load_knee_plant(plant: LimbPlant | str | os.PathLike | None) -> LimbPlant:
     return load_plant(plant)[0]
 
 
-class KneeAngleEnv(gym.Env):
+def plant_variant(plant: LimbPlant, *, units: str | None = None, length: str | None = None,
+                  fes_features: bool = True, overrides: Mapping[str, Any] | None = None,
+                  muscle_overrides: Mapping[str, Mapping[str, Any]] | None = None) -> LimbPlant:
+    """The plant with its muscles changed by the environment's options: ``units``,
+    ``length``, ``fes_features`` and ``overrides`` apply to every muscle (as
+    :func:`~hill_muscle_ros.gym._common.muscle_variant` says), then
+    ``muscle_overrides[name]`` to the muscle ``name`` alone.
+
+    :raises ValueError: naming an unknown muscle or field, or the muscle, the
+        field and the value that :class:`~hill_muscle_ros.model.params.MuscleParams` refuses
+    """
+    names = [m.name for m in plant.muscles]
+    if muscle_overrides is not None and not isinstance(muscle_overrides, Mapping):
+        raise ValueError(f'`muscle_overrides` must map muscle names to fields and values, '
+                         f'got {muscle_overrides!r}')
+    per_muscle = dict(muscle_overrides or {})
+    unknown = sorted(str(n) for n in per_muscle if n not in names)
+    if unknown:
+        raise ValueError(f'`muscle_overrides`: unknown muscle `{unknown[0]}` '
+                         f'(muscles: {", ".join(names)})')
+    muscles = []
+    for m in plant.muscles:
+        p = muscle_variant(m.params, units=units, length=length, fes_features=fes_features,
+                           overrides=overrides)
+        p = muscle_variant(p, overrides=per_muscle.get(m.name),
+                           where=f'muscle_overrides.{m.name}')
+        muscles.append(m if p == m.params else dataclasses.replace(m, params=p))
+    return dataclasses.replace(plant, muscles=tuple(muscles))
+
+
+class KneeAngleEnv(TrackingEnv):
     """Track a piecewise-constant joint angle by choosing each muscle's pulse width.
 
     **Time.** Every :meth:`step` holds the pulse widths for one control period
@@ -82,6 +112,16 @@ class KneeAngleEnv(gym.Env):
     terminated.
 
     :param plant: a :class:`LimbPlant`, a plant YAML file, or ``None`` for ``config/knee.yaml``
+    :param units: [-] variant override of every muscle: ``multi`` or ``single``
+        (``None``: as the plant)
+    :param length: [-] variant override of every muscle: ``initial`` or ``instantaneous``
+    :param fes_features: ``False`` switches every FES extension of every
+        muscle's dynamics off (delay, activation, ``fv_scaling``, fatigue, fibre
+        types, recruitment order, unit length spread), the recruitment curves kept
+    :param overrides: :class:`~hill_muscle_ros.model.params.MuscleParams`
+        fields by name, applied to every muscle (``{'fatigue': 'none'}``)
+    :param muscle_overrides: fields per muscle name, applied last
+        (``{'quadriceps': {'f_iso_max_n': 1200.0}}``)
     :param control_period_s: [s] control period, 0.010-0.050, whole milliseconds
     :param episode_duration_s: [s] episode length, a whole number of periods
     :param history_length: [-] samples of each signal in the observation, >= 1
@@ -93,35 +133,37 @@ class KneeAngleEnv(gym.Env):
     :param render_mode: only ``None`` (no rendering)
     """
 
-    metadata = {'render_modes': []}
+    TARGET_OPTION = 'target_rad'
 
-    def __init__(self, plant: LimbPlant | str | None = None, *, control_period_s: float = 0.02,
-                 episode_duration_s: float = 6.0, history_length: int = 5,
-                 stim_cost: float = 0.01, angle_min_rad: float = DEFAULT_ANGLE_MIN_RAD,
+    def __init__(self, plant: LimbPlant | str | None = None, *, units: str | None = None,
+                 length: str | None = None, fes_features: bool = True,
+                 overrides: dict[str, Any] | None = None,
+                 muscle_overrides: dict[str, dict[str, Any]] | None = None,
+                 control_period_s: float = 0.02, episode_duration_s: float = 6.0,
+                 history_length: int = 5, stim_cost: float = 0.01,
+                 angle_min_rad: float = DEFAULT_ANGLE_MIN_RAD,
                  angle_max_rad: float = DEFAULT_ANGLE_MAX_RAD, hold_min_s: float = 1.0,
                  hold_max_s: float = 3.0, render_mode: str | None = None) -> None:
-        if render_mode is not None:
-            raise ValueError(f'`render_mode` must be None (no rendering), got {render_mode!r}')
-        self.render_mode = None
-        self.plant = load_knee_plant(plant)
+        self._init_episode(control_period_s=control_period_s,
+                           episode_duration_s=episode_duration_s,
+                           history_length=history_length, stim_cost=stim_cost,
+                           hold_min_s=hold_min_s, hold_max_s=hold_max_s,
+                           render_mode=render_mode, width=len(SAMPLE_FIELDS))
+        self.plant = plant_variant(load_knee_plant(plant), units=units, length=length,
+                                   fes_features=fes_features, overrides=overrides,
+                                   muscle_overrides=muscle_overrides)
         if not self.plant.muscles:
             raise ValueError('`plant` must have at least one muscle, got none')
-        self.n_steps = steps_per_period(control_period_s)
-        self.control_period_s = self.n_steps * MODEL_DT_S
-        self.n_periods = whole_multiple(
-            'episode_duration_s', check_positive('episode_duration_s', episode_duration_s),
-            self.control_period_s, 'control periods')
-        self.history_length = check_count('history_length', history_length)
-        self.stim_cost = check_positive('stim_cost', stim_cost, allow_zero=True)
         lo, hi = float(angle_min_rad), float(angle_max_rad)
         if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
             raise ValueError(f'`angle_min_rad` <= `angle_max_rad` must be finite, got '
                              f'{angle_min_rad!r}, {angle_max_rad!r}')
         self.angle_min_rad, self.angle_max_rad = lo, hi
-        self._hold = check_hold_range(hold_min_s, hold_max_s, self.control_period_s)
 
         self.limb = Limb(self.plant)
         self._muscle_params = [m.params for m in self.plant.muscles]
+        #: what each action entry is, for error messages
+        self.action_labels = tuple(f'{m.name} pulse width' for m in self.plant.muscles)
         self._pw_max = np.array([p.pw_max_s for p in self._muscle_params])
         self.action_space = spaces.Box(np.zeros(len(self._pw_max), dtype=np.float32),
                                        self._pw_max.astype(np.float32), dtype=np.float32)
@@ -131,9 +173,46 @@ class KneeAngleEnv(gym.Env):
         low = np.tile([-np.inf, -np.inf, lo], h).astype(np.float32)
         high = np.tile([np.inf, np.inf, hi], h).astype(np.float32)
         self.observation_space = spaces.Box(low, high, dtype=np.float32)
-        self._history = History(h, len(SAMPLE_FIELDS))
-        self._targets = np.zeros(self.n_periods)
-        self._k = 0
+
+    def check_target(self, target_rad: Any) -> float:
+        """A fixed target from ``reset`` options, validated.
+
+        :param target_rad: [rad] in [angle_min_rad, angle_max_rad]
+        """
+        x = float(target_rad)
+        if not self.angle_min_rad <= x <= self.angle_max_rad:   # also false for NaN
+            raise ValueError(f'`target_rad` must be in [{self.angle_min_rad:g}, '
+                             f'{self.angle_max_rad:g}] rad, got {target_rad!r}')
+        return x
+
+    def draw_episode(self, rng: np.random.Generator, fixed: float | None) -> np.ndarray:
+        """[rad] The target of every control period of one episode, from ``rng``.
+
+        :param fixed: [rad] a target for the whole episode, or ``None``
+        """
+        starts = hold_lengths(rng, self.n_periods, *self._hold)
+        values = rng.uniform(self.angle_min_rad, self.angle_max_rad, size=len(starts))
+        targets = piecewise_constant(starts, values, self.n_periods)
+        if fixed is not None:
+            targets[:] = fixed
+        return targets
+
+    def commands(self, pw: np.ndarray) -> list[float]:
+        """[-] Each muscle's command u for widths ``pw`` [s], through its own curve."""
+        return [command_from_pulse_width(w, p) for w, p in zip(pw.tolist(), self._muscle_params)]
+
+    def run_period(self, limb: Limb, us: list[float], target_rad: float) -> tuple[float, Any]:
+        """Step ``limb`` through one control period with commands ``us`` held.
+
+        :param target_rad: [rad] the period's target theta*
+        :return: the tracking term, mean_j (theta_j - theta*)^2 [rad^2], and the
+            limb's outputs at the period's end
+        """
+        sq = 0.0
+        for _ in range(self.n_steps):
+            out = limb.step(us, 0.0, MODEL_DT_S)
+            sq += (out.theta_rad - target_rad) ** 2
+        return sq / self.n_steps, out
 
     def reset(self, *, seed: int | None = None,
               options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
@@ -144,37 +223,11 @@ class KneeAngleEnv(gym.Env):
             [angle_min_rad, angle_max_rad]
         """
         super().reset(seed=seed)
-        options = dict(options or {})
-        target = options.pop('target_rad', None)
-        if options:
-            raise ValueError(f'unknown reset options {sorted(options)}; known: target_rad')
-        if target is not None:
-            x = float(target)
-            if not self.angle_min_rad <= x <= self.angle_max_rad:   # also false for NaN
-                raise ValueError(f'`target_rad` must be in [{self.angle_min_rad:g}, '
-                                 f'{self.angle_max_rad:g}] rad, got {target!r}')
-        rng = self.np_random
-        starts = hold_lengths(rng, self.n_periods, *self._hold)
-        values = rng.uniform(self.angle_min_rad, self.angle_max_rad, size=len(starts))
-        self._targets = piecewise_constant(starts, values, self.n_periods)
-        if target is not None:
-            self._targets[:] = x
+        self._targets = self.draw_episode(self.np_random, self.fixed_target(options))
         self.limb.reset()
         self._k = 0
         self._history.fill((self.limb.theta_rad, self.limb.omega_rad_per_s, self._targets[0]))
         return self._observation(), self._info(np.zeros(len(self._pw_max)), 0.0, 0.0)
-
-    def _check_action(self, action) -> np.ndarray:
-        a = np.asarray(action, dtype=np.float64).reshape(-1)
-        if a.shape != self._pw_high.shape:
-            raise ValueError(f'`action` must hold {len(self._pw_high)} pulse widths [s], '
-                             f'got shape {np.shape(action)}')
-        bad = ~((a >= 0.0) & (a <= self._pw_high))   # also true for NaN
-        if bad.any():
-            i = int(np.flatnonzero(bad)[0])
-            raise ValueError(f'`action[{i}]` ({self.plant.muscles[i].name} pulse width) must '
-                             f'be in [0, {self._pw_high[i]:g}] s, got {a[i]!r}')
-        return a
 
     def step(self, action) -> tuple[np.ndarray, float, bool, bool, dict]:
         """Hold the pulse widths ``action`` [s] for one control period.
@@ -182,21 +235,13 @@ class KneeAngleEnv(gym.Env):
         :raises ValueError: on a NaN or out-of-Box width (the state is unchanged),
             or a step after the episode's end
         """
-        if self._k >= self.n_periods:
-            raise ValueError('the episode is over (truncated): call reset() first')
-        pw = self._check_action(action)
-        us = [command_from_pulse_width(w, p) for w, p in zip(pw.tolist(), self._muscle_params)]
-        k, limb = self._k, self.limb
-        target = float(self._targets[k])
-        sq = 0.0
-        for _ in range(self.n_steps):
-            out = limb.step(us, 0.0, MODEL_DT_S)
-            sq += (out.theta_rad - target) ** 2
-        tracking = sq / self.n_steps
-        stimulation = self.stim_cost * float(np.mean((pw / self._pw_max) ** 2))
+        self._check_running()
+        pw = check_pulse_widths(action, self._pw_high, self.action_labels, 'action')
+        k = self._k
+        tracking, out = self.run_period(self.limb, self.commands(pw), float(self._targets[k]))
+        stimulation = float(self.stimulation_cost(pw))
         self._k = k = k + 1
-        self._history.push((out.theta_rad, out.omega_rad_per_s,
-                            self._targets[min(k, self.n_periods - 1)]))
+        self._history.push((out.theta_rad, out.omega_rad_per_s, self._target_after(k)))
         truncated = k >= self.n_periods
         return (self._observation(), -tracking - stimulation, False, truncated,
                 self._info(pw, tracking, stimulation))
@@ -208,5 +253,5 @@ class KneeAngleEnv(gym.Env):
         """Float64 values the float32 observation rounds, and the reward's two terms."""
         return {'t_s': self._k * self.control_period_s, 'pulse_width_s': pw.copy(),
                 'theta_rad': float(self.limb.theta_rad),
-                'target_rad': float(self._targets[min(self._k, self.n_periods - 1)]),
+                'target_rad': self._target_after(self._k),
                 'tracking_cost': tracking, 'stimulation_cost': stimulation}

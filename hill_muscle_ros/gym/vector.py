@@ -1,11 +1,20 @@
-"""The native vector form of ``hill_muscle_ros/ForceTracking-v0``: K episodes
-stepped together on :class:`~hill_muscle_ros.model.batch.MuscleBatch`.
+"""The native vector forms of both environments: K episodes stepped together.
 
-``gymnasium.make_vec('hill_muscle_ros/ForceTracking-v0', num_envs=K)`` makes
-it. Sub-environment i behaves as a :class:`~.force_tracking.ForceTrackingEnv`
-seeded with ``seed + i`` (gymnasium's convention for an integer seed): the
-same profiles bit for bit, the same muscle to the batch engine's agreement
-with the scalar one (1e-9 N, ``test/test_model_batch.py``).
+``gymnasium.make_vec(id, num_envs=K)`` makes them. Sub-environment i behaves
+as the single environment seeded with ``seed + i`` (gymnasium's convention for
+an integer seed): the same episodes bit for bit, since both draw them with the
+single environment's :meth:`~._common.TrackingEnv.draw_episode` from a
+generator seeded alike.
+
+- :class:`ForceTrackingVectorEnv` steps the K muscles on
+  :class:`~hill_muscle_ros.model.batch.MuscleBatch`: the same muscle to the
+  batch engine's agreement with the scalar one (1e-9 N,
+  ``test/test_model_batch.py``).
+- :class:`KneeAngleVectorEnv` steps K scalar
+  :class:`~hill_muscle_ros.model.limb.Limb` s, each as the single environment
+  does (no batch of limbs exists yet): identical trajectories, with the
+  vector API and the shared autoreset, but no speed-up over K single
+  environments.
 """
 from __future__ import annotations
 
@@ -17,47 +26,59 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from ..model.batch import MuscleBatch
+from ..model.limb import Limb
 from ..model.stimulus import command_from_pulse_width
-from ._common import MODEL_DT_S
-from .force_tracking import SAMPLE_FIELDS, ForceTrackingEnv, draw_profiles
+from ._common import MODEL_DT_S, History, TrackingEnv, check_pulse_widths
+from .force_tracking import SAMPLE_FIELDS as FORCE_FIELDS
+from .force_tracking import ForceTrackingEnv
+from .knee_angle import SAMPLE_FIELDS as KNEE_FIELDS
+from .knee_angle import KneeAngleEnv
 
 
-class ForceTrackingVectorEnv(VectorEnv):
-    """K force-tracking episodes with the same settings, one muscle each.
+class TrackingVectorEnv(VectorEnv):
+    """K episodes of one tracking environment with the same settings.
 
-    Every keyword argument is :class:`~.force_tracking.ForceTrackingEnv`'s;
-    spaces, reward, bad-action errors and episodes are the same, per
-    sub-environment. Episodes all last ``episode_duration_s`` and never
-    terminate, so the K sub-environments end together; the step after the end
-    resets them all (gymnasium's ``NEXT_STEP`` autoreset: that step ignores
-    the actions and returns the first observations with reward 0).
+    Every keyword argument is the single environment's; spaces, reward,
+    bad-action errors and episodes are the same, per sub-environment. Episodes
+    all last ``episode_duration_s`` and never terminate, so the K
+    sub-environments end together; the step after the end resets them all
+    (gymnasium's ``NEXT_STEP`` autoreset: that step ignores the actions and
+    returns the first observations with reward 0), each drawing its next
+    episode from its own generator, as a single environment's ``reset()``
+    without a seed does. ``info`` holds the reward's two terms per
+    sub-environment, ``tracking_cost`` and ``stimulation_cost``.
+
+    Subclasses set :attr:`single_env` and write the engine's part:
+    :meth:`_set_episode`, :meth:`_restart_engines` and :meth:`_advance`.
 
     :param num_envs: [-] K, >= 1
     """
 
     metadata = {'render_modes': [], 'autoreset_mode': AutoresetMode.NEXT_STEP}
+    #: The single environment's class.
+    single_env: type[TrackingEnv] = TrackingEnv
+    #: The signals of one history sample (the single environment's).
+    sample_fields: tuple[str, ...] = ()
 
     def __init__(self, num_envs: int = 1, **kwargs: Any) -> None:
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) \
                 or num_envs < 1:
             raise ValueError(f'`num_envs` must be an integer >= 1, got {num_envs!r}')
         #: the settings of every sub-environment, validated by the single env
-        self.template = t = ForceTrackingEnv(**kwargs)
+        self.template = t = self.single_env(**kwargs)
         self.num_envs = k = int(num_envs)
         self.render_mode = None
-        self.params = t.params
         self.single_action_space = t.action_space
         self.single_observation_space = t.observation_space
         self.action_space = batch_space(t.action_space, k)
         self.observation_space = batch_space(t.observation_space, k)
-        self.batch = MuscleBatch([t.params] * k)
         self._rngs: list[np.random.Generator | None] = [None] * k
-        self._history = np.zeros((k, t.history_length, len(SAMPLE_FIELDS)))
+        self._history = History(t.history_length, len(self.sample_fields), batch=k)
         self._targets = np.zeros((k, t.n_periods))
-        self._dl = np.zeros((k, t.n_periods * t.n_steps + 1))
         self._k = 0
         self._needs_reset = False
-        self._pw_high_s = float(t.action_space.high[0])
+
+    # -- episodes --------------------------------------------------------------------
 
     def _seed_rngs(self, seed: int | list | None) -> None:
         k = self.num_envs
@@ -73,78 +94,148 @@ class ForceTrackingVectorEnv(VectorEnv):
             if s is not None or self._rngs[i] is None:
                 self._rngs[i], _ = seeding.np_random(s)
 
+    def _draw(self, fixed: float | None) -> None:
+        for i, rng in enumerate(self._rngs):
+            self._set_episode(i, self.template.draw_episode(rng, fixed))
+
     def reset(self, *, seed: int | list | None = None,
               options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
         """Start K episodes; ``seed`` an int (sub-env i gets ``seed + i``) or K seeds.
 
-        :param options: ``{'target_n': F}``: every sub-environment holds F [N]
+        :param options: the single environment's (``{'target_n': F}``,
+            ``{'target_rad': x}``): every sub-environment holds that target
         """
-        options = dict(options or {})
-        target_n = options.pop('target_n', None)
-        if options:
-            raise ValueError(f'unknown reset options {sorted(options)}; known: target_n')
-        if target_n is not None:
-            target_n = self.template.check_target(target_n)
+        fixed = self.template.fixed_target(options)
         self._seed_rngs(seed)
-        for i, rng in enumerate(self._rngs):
-            self._targets[i], self._dl[i] = draw_profiles(rng, self.template, target_n)
+        self._draw(fixed)
         return self._restart(), {}
 
     def _restart(self) -> np.ndarray:
-        self.batch.reset()
         self._k = 0
         self._needs_reset = False
-        out = self.batch.outputs()
-        sample = np.stack([out.force_n, self._targets[:, 0], out.l_ce_m, out.dl_mt_m], axis=1)
-        self._history[:] = sample[:, None, :]
-        return self._observation(out.mean_fitness)
+        self._history.fill(self._restart_engines())
+        return self._observation()
 
-    def _check_actions(self, actions) -> np.ndarray:
-        a = np.asarray(actions, dtype=np.float64)
-        if a.size != self.num_envs:
-            raise ValueError(f'`actions` must hold one pulse width [s] per environment '
-                             f'({self.num_envs}), got shape {a.shape}')
-        pw = a.reshape(-1)
-        bad = ~((pw >= 0.0) & (pw <= self._pw_high_s))   # also true for NaN
-        if bad.any():
-            i = int(np.flatnonzero(bad)[0])
-            raise ValueError(f'`actions[{i}]` (pulse width) must be in '
-                             f'[0, {self._pw_high_s:g}] s, got {pw[i]!r}')
-        return pw
+    # -- stepping --------------------------------------------------------------------
 
     def step(self, actions) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
-        """One control period of every sub-environment (see the class docstring)."""
+        """One control period of every sub-environment (see the class docstring).
+
+        :raises ValueError: on a NaN or out-of-Box width, naming the
+            sub-environment (and the muscle); the state is unchanged
+        """
         t, k_envs = self.template, self.num_envs
-        pw = self._check_actions(actions)
+        pw = check_pulse_widths(actions, t._pw_high, t.action_labels, 'actions', rows=k_envs)
+        no = np.zeros(k_envs, dtype=bool)
         if self._needs_reset:   # NEXT_STEP autoreset: new episodes from the same generators
-            for i, rng in enumerate(self._rngs):
-                self._targets[i], self._dl[i] = draw_profiles(rng, t, None)
-            obs = self._restart()
-            zeros = np.zeros(k_envs, dtype=bool)
-            return obs, np.zeros(k_envs), zeros, zeros.copy(), {}
-        u = np.array([command_from_pulse_width(w, self.params) for w in pw.tolist()])
-        n, k = t.n_steps, self._k
-        target = self._targets[:, k]
-        f_ref = self.params.f_iso_max_n
-        squared = np.zeros(k_envs)
-        for j in range(k * n + 1, (k + 1) * n + 1):
-            out = self.batch.step(u, self._dl[:, j], MODEL_DT_S)
-            squared += ((out.force_n - target) / f_ref) ** 2
-        tracking = squared / n
-        stimulation = t.stim_cost * (pw / self.params.pw_max_s) ** 2
+            self._draw(None)
+            return self._restart(), np.zeros(k_envs), no, no.copy(), {}
+        k = self._k
+        next_target = self._targets[:, min(k + 1, t.n_periods - 1)]
+        tracking, sample = self._advance(pw, k, next_target)
+        stimulation = t.stimulation_cost(pw)
         self._k = k = k + 1
-        next_target = self._targets[:, min(k, t.n_periods - 1)]
-        self._history[:, 1:] = self._history[:, :-1]
-        self._history[:, 0] = np.stack([out.force_n, next_target, out.l_ce_m,
-                                        self._dl[:, k * n]], axis=1)
+        self._history.push(sample)
         truncated = np.full(k_envs, k >= t.n_periods)
         self._needs_reset = bool(truncated[0])
         info = {'tracking_cost': tracking, 'stimulation_cost': stimulation}
-        return (self._observation(out.mean_fitness), -tracking - stimulation,
-                np.zeros(k_envs, dtype=bool), truncated, info)
+        return self._observation(), -tracking - stimulation, no, truncated, info
 
-    def _observation(self, fitness: np.ndarray) -> np.ndarray:
-        obs = self._history.reshape(self.num_envs, -1)
-        if self.template.fatigue:
-            obs = np.concatenate([obs, np.asarray(fitness)[:, None]], axis=1)
-        return obs.astype(np.float32)
+    def _observation(self) -> np.ndarray:
+        return self._history.flat().astype(np.float32)
+
+    # -- the engine: in the subclasses -------------------------------------------------
+
+    def _set_episode(self, i: int, episode: Any) -> None:
+        """Keep sub-environment ``i``'s episode, as ``draw_episode`` gives it."""
+        raise NotImplementedError
+
+    def _restart_engines(self) -> np.ndarray:
+        """Every plant at rest; the first history sample, shape (K, width)."""
+        raise NotImplementedError
+
+    def _advance(self, pw: np.ndarray, k: int,
+                 next_target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Step every plant through control period ``k`` with widths ``pw`` (K, M).
+
+        :param next_target: the target of period k + 1, per sub-environment
+        :return: the tracking term per sub-environment and the newest history
+            sample, shape (K, width)
+        """
+        raise NotImplementedError
+
+
+class ForceTrackingVectorEnv(TrackingVectorEnv):
+    """K force-tracking episodes (:class:`~.force_tracking.ForceTrackingEnv`'s
+    keyword arguments), the K muscles on one :class:`MuscleBatch`."""
+
+    single_env = ForceTrackingEnv
+    sample_fields = FORCE_FIELDS
+
+    def __init__(self, num_envs: int = 1, **kwargs: Any) -> None:
+        super().__init__(num_envs, **kwargs)
+        t = self.template
+        self.params = t.params
+        self.batch = MuscleBatch([t.params] * self.num_envs)
+        self._dl = np.zeros((self.num_envs, t.n_periods * t.n_steps + 1))
+        self._fitness = np.ones(self.num_envs)
+
+    def _set_episode(self, i: int, episode: tuple[np.ndarray, np.ndarray]) -> None:
+        self._targets[i], self._dl[i] = episode
+
+    def _restart_engines(self) -> np.ndarray:
+        self.batch.reset()
+        out = self.batch.outputs()
+        self._fitness = out.mean_fitness
+        return np.stack([out.force_n, self._targets[:, 0], out.l_ce_m, out.dl_mt_m], axis=1)
+
+    def _advance(self, pw: np.ndarray, k: int,
+                 next_target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        p, n = self.params, self.template.n_steps
+        u = np.array([command_from_pulse_width(w, p) for w in pw[:, 0].tolist()])
+        target = self._targets[:, k]
+        squared = np.zeros(self.num_envs)
+        for j in range(k * n + 1, (k + 1) * n + 1):
+            out = self.batch.step(u, self._dl[:, j], MODEL_DT_S)
+            squared += ((out.force_n - target) / p.f_iso_max_n) ** 2
+        self._fitness = out.mean_fitness
+        sample = np.stack([out.force_n, next_target, out.l_ce_m, self._dl[:, (k + 1) * n]],
+                          axis=1)
+        return squared / n, sample
+
+    def _observation(self) -> np.ndarray:
+        obs = super()._observation()
+        if self.template.observe_fitness:
+            obs = np.concatenate([obs, self._fitness[:, None].astype(np.float32)], axis=1)
+        return obs
+
+
+class KneeAngleVectorEnv(TrackingVectorEnv):
+    """K knee-angle episodes (:class:`~.knee_angle.KneeAngleEnv`'s keyword
+    arguments), K scalar limbs stepped one after the other."""
+
+    single_env = KneeAngleEnv
+    sample_fields = KNEE_FIELDS
+
+    def __init__(self, num_envs: int = 1, **kwargs: Any) -> None:
+        super().__init__(num_envs, **kwargs)
+        self.limbs = [Limb(self.template.plant) for _ in range(self.num_envs)]
+
+    def _set_episode(self, i: int, episode: np.ndarray) -> None:
+        self._targets[i] = episode
+
+    def _restart_engines(self) -> np.ndarray:
+        for limb in self.limbs:
+            limb.reset()
+        return np.array([(limb.theta_rad, limb.omega_rad_per_s, target)
+                         for limb, target in zip(self.limbs, self._targets[:, 0])])
+
+    def _advance(self, pw: np.ndarray, k: int,
+                 next_target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        t = self.template
+        tracking = np.empty(self.num_envs)
+        sample = np.empty((self.num_envs, len(KNEE_FIELDS)))
+        for i, limb in enumerate(self.limbs):
+            tracking[i], out = t.run_period(limb, t.commands(pw[i]), float(self._targets[i, k]))
+            sample[i] = (out.theta_rad, out.omega_rad_per_s, next_target[i])
+        return tracking, sample
