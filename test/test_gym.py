@@ -10,7 +10,7 @@ from gymnasium.utils.env_checker import check_env  # noqa: E402
 from gymnasium.wrappers import ClipAction  # noqa: E402
 
 from hill_muscle_ros.gym import (FORCE_TRACKING_ID, KNEE_ANGLE_ID, ForceTrackingEnv,  # noqa: E402
-                                 KneeAngleEnv)
+                                 ForceTrackingVectorEnv, KneeAngleEnv, KneeAngleVectorEnv)
 from hill_muscle_ros.model import Muscle, MuscleParams  # noqa: E402
 from hill_muscle_ros.model.fes_muscle import FesMuscle  # noqa: E402
 from hill_muscle_ros.model.limb import Limb  # noqa: E402
@@ -281,23 +281,29 @@ def test_readme_gym_example_prints_the_output_the_readme_shows(capsys):
     assert capsys.readouterr().out == shown
 
 
-def _vector_against_singles(k, n_steps, **kwargs):
+def _vector_against_singles(env_id, single_cls, k, n_steps, exact=False, **kwargs):
     """Step make_vec and K single envs (seeds 11 + i) with the same actions,
     through the end of the episode and the autoreset step after it."""
-    vec = gym.make_vec(FORCE_TRACKING_ID, num_envs=k, **kwargs)
-    singles = [ForceTrackingEnv(**kwargs) for _ in range(k)]
+    vec = gym.make_vec(env_id, num_envs=k, **kwargs)
+    singles = [single_cls(**kwargs) for _ in range(k)]
     obs_v, _ = vec.reset(seed=11)
     obs_s = np.stack([env.reset(seed=11 + i)[0] for i, env in enumerate(singles)])
     np.testing.assert_array_equal(obs_v, obs_s)
     rng = np.random.default_rng(1)
     high = singles[0].action_space.high
     for _ in range(n_steps):
-        actions = rng.uniform(0.0, high, size=(k, 1)).astype(np.float32)
-        obs_v, rew_v, term_v, trunc_v, _ = vec.step(actions)
+        actions = rng.uniform(0.0, high, size=(k, len(high))).astype(np.float32)
+        obs_v, rew_v, term_v, trunc_v, info_v = vec.step(actions)
         steps = [env.step(a) for env, a in zip(singles, actions)]
-        # The batch engine agrees with the scalar muscle to 1e-9 N, not bit for bit.
-        np.testing.assert_allclose(obs_v, np.stack([s[0] for s in steps]), rtol=1e-6, atol=1e-9)
-        np.testing.assert_allclose(rew_v, [s[1] for s in steps], rtol=1e-9, atol=1e-12)
+        if exact:   # the same scalar engine: bit for bit
+            np.testing.assert_array_equal(obs_v, np.stack([s[0] for s in steps]))
+            np.testing.assert_array_equal(rew_v, [s[1] for s in steps])
+            np.testing.assert_array_equal(info_v['tracking_cost'],
+                                          [s[4]['tracking_cost'] for s in steps])
+        else:   # the batch engine agrees with the scalar muscle to 1e-9 N, not bit for bit
+            np.testing.assert_allclose(obs_v, np.stack([s[0] for s in steps]), rtol=1e-6,
+                                       atol=1e-9)
+            np.testing.assert_allclose(rew_v, [s[1] for s in steps], rtol=1e-9, atol=1e-12)
         assert list(term_v) == [s[2] for s in steps]
         assert list(trunc_v) == [s[3] for s in steps]
     assert trunc_v.all()
@@ -306,16 +312,59 @@ def _vector_against_singles(k, n_steps, **kwargs):
     obs_v, rew_v, term_v, trunc_v, _ = vec.step(actions)
     np.testing.assert_array_equal(obs_v, np.stack([env.reset()[0] for env in singles]))
     assert not rew_v.any() and not term_v.any() and not trunc_v.any()
+    # ... and the new episodes run on as the singles' do.
+    actions = rng.uniform(0.0, high, size=(k, len(high))).astype(np.float32)
+    obs_v = vec.step(actions)[0]
+    np.testing.assert_allclose(obs_v, np.stack([env.step(a)[0] for env, a in
+                                                zip(singles, actions)]),
+                               rtol=0 if exact else 1e-6, atol=0 if exact else 1e-9)
     return vec
 
 
 def test_make_vec_uses_the_native_vector_env_and_equals_k_single_envs():
-    vec = _vector_against_singles(4, 25, episode_duration_s=0.5)
-    assert type(vec.unwrapped).__name__ == 'ForceTrackingVectorEnv'
+    vec = _vector_against_singles(FORCE_TRACKING_ID, ForceTrackingEnv, 4, 25,
+                                  episode_duration_s=0.5)
+    assert type(vec.unwrapped) is ForceTrackingVectorEnv
 
 
 def test_make_vec_with_fatigue_equals_k_single_envs():
-    _vector_against_singles(3, 10, params=str(FES_QUADRICEPS), episode_duration_s=0.2)
+    _vector_against_singles(FORCE_TRACKING_ID, ForceTrackingEnv, 3, 10,
+                            params=str(FES_QUADRICEPS), episode_duration_s=0.2)
+
+
+def test_knee_make_vec_uses_the_native_vector_env_and_equals_k_single_envs_exactly():
+    # Holds of 40-60 ms: the target changes inside the 0.1 s episodes.
+    vec = _vector_against_singles(KNEE_ANGLE_ID, KneeAngleEnv, 3, 5, exact=True,
+                                  episode_duration_s=0.1, hold_min_s=0.04, hold_max_s=0.06)
+    assert type(vec.unwrapped) is KneeAngleVectorEnv
+
+
+def test_knee_make_vec_with_options_equals_k_single_envs_exactly():
+    _vector_against_singles(KNEE_ANGLE_ID, KneeAngleEnv, 2, 3, exact=True,
+                            episode_duration_s=0.06, fes_features=False, units='single',
+                            muscle_overrides={'hamstrings': {'f_iso_max_n': 800.0}})
+
+
+def test_knee_vector_env_action_outside_the_box_raises_naming_env_and_muscle():
+    vec = gym.make_vec(KNEE_ANGLE_ID, num_envs=2)
+    vec.reset(seed=0)
+    with pytest.raises(ValueError, match=r'`actions\[1, 1\]` \(hamstrings pulse width\) '
+                                         r'must be in \[0, 0.0006\] s, got nan'):
+        vec.step(np.array([[0.0001, 0.0], [0.0001, np.nan]]))
+    with pytest.raises(ValueError, match=r'`actions` must hold 2 pulse widths \[s\] per '
+                                         r'environment \(2\)'):
+        vec.step(np.zeros(2))
+
+
+def test_knee_vector_reset_target_option_holds_every_sub_env_and_bad_one_raises():
+    vec = gym.make_vec(KNEE_ANGLE_ID, num_envs=2)
+    obs, _ = vec.reset(seed=[3, 4], options={'target_rad': 0.5})
+    assert np.all(obs[:, 2::3] == np.float32(0.5))
+    assert np.all(vec.unwrapped._targets == 0.5)
+    with pytest.raises(ValueError, match=r'`target_rad` must be in'):
+        vec.reset(options={'target_rad': 3.0})
+    with pytest.raises(ValueError, match=r"unknown reset options \['target_n'\]"):
+        vec.reset(options={'target_n': 3.0})
 
 
 def test_vector_env_action_outside_the_box_raises_naming_the_env():
@@ -323,3 +372,137 @@ def test_vector_env_action_outside_the_box_raises_naming_the_env():
     vec.reset(seed=0)
     with pytest.raises(ValueError, match=r'`actions\[1\]` \(pulse width\) must be in'):
         vec.step(np.array([[0.0001], [np.nan]]))
+
+
+# -- options: muscle parameters, physiology features, variant ----------------------------
+
+def test_force_tracking_fes_features_off_is_the_paper_dynamics_on_the_same_muscle():
+    preset = ForceTrackingEnv(FES_QUADRICEPS).params
+    env = ForceTrackingEnv(FES_QUADRICEPS, fes_features=False, length_max_m=0.0)
+    p = env.params
+    assert p.fes_defaults and not isinstance(env.muscle, FesMuscle)
+    # the muscle and its recruitment curve are the preset's
+    assert (p.f_iso_max_n, p.k_se_n_per_m, p.recruitment_curve, p.pw_threshold_s) == \
+        (preset.f_iso_max_n, preset.k_se_n_per_m, preset.recruitment_curve,
+         preset.pw_threshold_s)
+    assert env.observation_space.shape == (20,)   # no fatigue: no fitness entry
+    env.reset(seed=0)
+    pw = np.array([0.0004], dtype=np.float32)
+    info = env.step(pw)[4]
+    reference = Muscle(p)
+    from hill_muscle_ros.model.stimulus import command_from_pulse_width
+    u = command_from_pulse_width(float(pw[0]), p)
+    for _ in range(20):
+        out = reference.step(u, 0.0, DT_S)
+    assert info['force_n'] == pytest.approx(out.force_n, rel=1e-12)
+    # With the preset's 31 ms delay nothing has happened yet after 20 ms.
+    delayed = ForceTrackingEnv(FES_QUADRICEPS, length_max_m=0.0)
+    delayed.reset(seed=0)
+    assert delayed.step(pw)[4]['force_n'] == pytest.approx(0.0, abs=1e-9)
+    assert info['force_n'] > 100.0
+
+
+def test_force_tracking_overrides_switch_features_on_and_reach_the_engine():
+    env = ForceTrackingEnv(overrides={'fatigue': 'riener', 'tau_act_s': 0.02,
+                                      'tau_deact_s': 0.03})
+    assert (env.params.fatigue, env.params.tau_act_s) == ('riener', 0.02)
+    assert isinstance(env.muscle, FesMuscle)
+    assert env.observation_space.shape == (21,)   # fatigue on: the fitness is observed
+    env.reset(seed=0)
+    # Full width: with activation dynamics the force of the first period is
+    # still rising, below the paper's instantaneous recruitment.
+    env_plain = ForceTrackingEnv()
+    env_plain.reset(seed=0)
+    high = env.action_space.high
+    assert env.step(high)[4]['force_n'] < env_plain.step(high)[4]['force_n']
+
+
+@pytest.mark.parametrize('overrides, message', [
+    ({'fatigeu': 'riener'}, r'`overrides`: unknown MuscleParams field `fatigeu`'),
+    ({'tau_act_s': -1.0}, r'`overrides`: `tau_act_s` must be'),
+    (['fatigue'], r'`overrides` must map MuscleParams fields to values'),
+])
+def test_force_tracking_bad_overrides_raise_naming_the_field(overrides, message):
+    with pytest.raises(ValueError, match=message):
+        ForceTrackingEnv(overrides=overrides)
+
+
+def test_fes_features_must_be_a_bool():
+    with pytest.raises(ValueError, match=r'`fes_features` must be True or False, got 0'):
+        ForceTrackingEnv(fes_features=0)
+
+
+def test_observe_fitness_gives_a_model_without_fatigue_the_fatigued_observation_space():
+    # Train without fatigue, test with it: the same observation layout.
+    plain = ForceTrackingEnv(observe_fitness=True)
+    tired = ForceTrackingEnv(FES_QUADRICEPS)
+    assert plain.observation_space.shape == tired.observation_space.shape == (21,)
+    obs, _ = plain.reset(seed=0)
+    for _ in range(5):
+        obs = plain.step(plain.action_space.high)[0]
+        assert obs[-1] == 1.0   # no fatigue: fitness stays 1
+    hidden = ForceTrackingEnv(FES_QUADRICEPS, observe_fitness=False)
+    assert hidden.observation_space.shape == (20,)
+    with pytest.raises(ValueError, match='`observe_fitness` must be True, False or None'):
+        ForceTrackingEnv(observe_fitness='yes')
+
+
+def test_force_vector_env_with_observe_fitness_equals_single_envs():
+    _vector_against_singles(FORCE_TRACKING_ID, ForceTrackingEnv, 2, 5, observe_fitness=True,
+                            episode_duration_s=0.1, overrides={'tau_act_s': 0.01,
+                                                               'tau_deact_s': 0.01})
+
+
+def test_knee_variant_and_features_options_reach_every_muscle():
+    env = KneeAngleEnv(units='single', length='instantaneous', fes_features=False)
+    for m in env.plant.muscles:
+        p = m.params
+        assert (p.units, p.length, p.fes_defaults) == ('single', 'instantaneous', True)
+        assert p.recruitment_curve == 'exponential'   # the curve stays the preset's
+    assert [type(m) for m in env.limb.muscles] == [FesMuscle, FesMuscle]  # the limb's engine
+    assert [m.params for m in env.limb.muscles] == [m.params for m in env.plant.muscles]
+
+
+def test_knee_overrides_apply_to_all_muscles_and_muscle_overrides_to_one():
+    env = KneeAngleEnv(overrides={'fatigue': 'none'},
+                       muscle_overrides={'quadriceps': {'f_iso_max_n': 1200.0}})
+    quad, ham = (m.params for m in env.plant.muscles)
+    assert quad.fatigue == ham.fatigue == 'none'
+    assert (quad.f_iso_max_n, ham.f_iso_max_n) == (1200.0, 593.4)
+
+
+def test_knee_muscle_overrides_change_the_simulated_limb():
+    # One period of quadriceps stimulation against an independent Limb on the
+    # changed plant: the option reaches the dynamics, not only the parameters.
+    plant, _ = load_plant(config_dir() / 'knee.yaml')
+    quad = plant.muscles[0]
+    changed = dataclasses.replace(plant, muscles=(
+        dataclasses.replace(quad, params=dataclasses.replace(quad.params, f_iso_max_n=600.0)),
+        plant.muscles[1]))
+    env = KneeAngleEnv(muscle_overrides={'quadriceps': {'f_iso_max_n': 600.0}},
+                       control_period_s=0.05)
+    env.reset(seed=0, options={'target_rad': 0.5})
+    pw = np.array([0.0005, 0.0], dtype=np.float32)
+    info = env.step(pw)[4]
+    limb = Limb(changed)
+    from hill_muscle_ros.model.stimulus import command_from_pulse_width
+    us = [command_from_pulse_width(float(w), m.params) for w, m in zip(pw, changed.muscles)]
+    for _ in range(50):
+        out = limb.step(us, 0.0, DT_S)
+    assert info['theta_rad'] == out.theta_rad
+    default = KneeAngleEnv(control_period_s=0.05)
+    default.reset(seed=0, options={'target_rad': 0.5})
+    assert default.step(pw)[4]['theta_rad'] > info['theta_rad'] > 0.0
+
+
+@pytest.mark.parametrize('kwargs, message', [
+    ({'muscle_overrides': {'biceps': {'f_iso_max_n': 1.0}}},
+     r'`muscle_overrides`: unknown muscle `biceps` \(muscles: quadriceps, hamstrings\)'),
+    ({'muscle_overrides': {'hamstrings': {'f_iso_max_n': -1.0}}},
+     r'`muscle_overrides.hamstrings`: `f_iso_max_n` must be'),
+    ({'overrides': {'nope': 1}}, r'`overrides`: unknown MuscleParams field `nope`'),
+    ({'units': 'many'}, r'^`units` must be one of'),
+])
+def test_knee_bad_muscle_options_raise_naming_them(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        KneeAngleEnv(**kwargs)

@@ -116,20 +116,20 @@ def muscle_variant(p: MuscleParams, *, units: str | None = None, length: str | N
     if not fes_features:
         changes.update((name, f.default) for name, f in _FES_FIELDS.items()
                        if name not in CURVE_FIELDS)
-    if overrides is not None:
-        if not isinstance(overrides, Mapping):
-            raise ValueError(f'`{where}` must map MuscleParams fields to values, '
-                             f'got {overrides!r}')
-        known = MuscleParams.field_names()
-        unknown = sorted(str(k) for k in overrides if k not in known)
-        if unknown:
-            raise ValueError(f'`{where}`: unknown MuscleParams field `{unknown[0]}` '
-                             f'(known: {", ".join(known)})')
-        changes.update(overrides)
-    if not changes:
+    if changes:   # MuscleParams names the field and the value it refuses
+        p = dataclasses.replace(p, **changes)
+    if overrides is None:
         return p
+    if not isinstance(overrides, Mapping):
+        raise ValueError(f'`{where}` must map MuscleParams fields to values, '
+                         f'got {overrides!r}')
+    known = MuscleParams.field_names()
+    unknown = sorted(str(k) for k in overrides if k not in known)
+    if unknown:
+        raise ValueError(f'`{where}`: unknown MuscleParams field `{unknown[0]}` '
+                         f'(known: {", ".join(known)})')
     try:
-        return dataclasses.replace(p, **changes)
+        return dataclasses.replace(p, **overrides)
     except (TypeError, ValueError) as err:
         raise ValueError(f'`{where}`: {err}') from None
 
@@ -184,7 +184,7 @@ def check_pulse_widths(values: Any, high: np.ndarray, labels: Sequence[str], nam
         shown = [int(i) for i in index] if m > 1 else [int(i) for i in index[:-1]]
         where = f'[{", ".join(map(str, shown))}]' if shown else ''
         raise ValueError(f'`{name}{where}` ({labels[j]}) must be in [0, {high[j]:g}] s, '
-                         f'got {a[index]!r}')
+                         f'got {float(a[index])!r}')
     return a
 
 
