@@ -10,11 +10,12 @@ generator seeded alike.
   :class:`~hill_muscle_ros.model.batch.MuscleBatch`: the same muscle to the
   batch engine's agreement with the scalar one (1e-9 N,
   ``test/test_model_batch.py``).
-- :class:`KneeAngleVectorEnv` steps K scalar
-  :class:`~hill_muscle_ros.model.limb.Limb` s, each as the single environment
-  does (no batch of limbs exists yet): identical trajectories, with the
-  vector API and the shared autoreset, but no speed-up over K single
-  environments.
+- :class:`KneeAngleVectorEnv` steps the K limbs on
+  :class:`~hill_muscle_ros.model.limb_batch.LimbBatch`, which steps each by
+  its own :class:`~hill_muscle_ros.model.limb.Limb` (the single
+  environment's engine): identical trajectories, bit for bit. The limb batch
+  has no vectorised path yet, so this brings the vector API and the shared
+  autoreset but little speed over K single environments.
 """
 from __future__ import annotations
 
@@ -26,7 +27,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from ..model.batch import MuscleBatch
-from ..model.limb import Limb
+from ..model.limb_batch import LimbBatch
 from ..model.stimulus import command_from_pulse_width
 from ._common import MODEL_DT_S, History, TrackingEnv, check_pulse_widths
 from .force_tracking import SAMPLE_FIELDS as FORCE_FIELDS
@@ -212,30 +213,31 @@ class ForceTrackingVectorEnv(TrackingVectorEnv):
 
 class KneeAngleVectorEnv(TrackingVectorEnv):
     """K knee-angle episodes (:class:`~.knee_angle.KneeAngleEnv`'s keyword
-    arguments), K scalar limbs stepped one after the other."""
+    arguments), the K limbs on one :class:`LimbBatch`."""
 
     single_env = KneeAngleEnv
     sample_fields = KNEE_FIELDS
 
     def __init__(self, num_envs: int = 1, **kwargs: Any) -> None:
         super().__init__(num_envs, **kwargs)
-        self.limbs = [Limb(self.template.plant) for _ in range(self.num_envs)]
+        self.batch = LimbBatch([self.template.plant] * self.num_envs)
 
     def _set_episode(self, i: int, episode: np.ndarray) -> None:
         self._targets[i] = episode
 
     def _restart_engines(self) -> np.ndarray:
-        for limb in self.limbs:
-            limb.reset()
-        return np.array([(limb.theta_rad, limb.omega_rad_per_s, target)
-                         for limb, target in zip(self.limbs, self._targets[:, 0])])
+        self.batch.reset()
+        out = self.batch.outputs()
+        return np.stack([out.theta_rad, out.omega_rad_per_s, self._targets[:, 0]], axis=1)
 
     def _advance(self, pw: np.ndarray, k: int,
                  next_target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        t = self.template
-        tracking = np.empty(self.num_envs)
-        sample = np.empty((self.num_envs, len(KNEE_FIELDS)))
-        for i, limb in enumerate(self.limbs):
-            tracking[i], out = t.run_period(limb, t.commands(pw[i]), float(self._targets[i, k]))
-            sample[i] = (out.theta_rad, out.omega_rad_per_s, next_target[i])
-        return tracking, sample
+        n = self.template.n_steps
+        u = self.batch.commands_from_pulse_widths(pw)
+        target = self._targets[:, k]
+        squared = np.zeros(self.num_envs)
+        for _ in range(n):   # no external torque, as the single environment
+            out = self.batch.step_commands(u, 0.0, MODEL_DT_S)
+            squared += (out.theta_rad - target) ** 2
+        sample = np.stack([out.theta_rad, out.omega_rad_per_s, next_target], axis=1)
+        return squared / n, sample
