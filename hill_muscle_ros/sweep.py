@@ -1,12 +1,13 @@
-"""``hill-muscle sweep``: simulate one protocol over many muscle parameter sets.
+"""``hill-muscle sweep``: simulate one protocol over many muscle or limb parameter sets.
 
-A sweep spec (YAML) names a protocol, optional base parameters, the
-parameters to vary and the instants to sample. The parameter sets are cut
-into chunks; each chunk is simulated at once by the batch engine
-(:class:`~hill_muscle_ros.model.batch.MuscleBatch`) on a Dask worker, either
-of a local cluster started for the sweep or of an existing one given by its
-scheduler address. The result is a tidy Parquet table: one row per parameter
-set and sample time.
+A sweep spec (YAML) names a protocol, optional base parameters (or a limb
+plant), the parameters to vary and the instants to sample. The parameter sets
+are cut into chunks; each chunk is simulated at once by a batch engine
+(:class:`~hill_muscle_ros.model.batch.MuscleBatch` for the muscle,
+:class:`~hill_muscle_ros.model.limb_batch.LimbBatch` for a limb) on a Dask
+worker, either of a local cluster started for the sweep or of an existing one
+given by its scheduler address. The result is a tidy Parquet table: one row
+per parameter set and sample time.
 
 Spec keys::
 
@@ -19,6 +20,23 @@ Spec keys::
       k_se_n_per_m: {low: 5e3, high: 2e4, n: 4, log: true}   # or a range of n
     samples: 64                  # ... or, with ranges only (no n), a Latin
     seed: 0                      # hypercube of this many sets (seed default 0)
+
+A limb sweep gives ``plant`` (a limb plant file, as ``hill-muscle simulate
+--plant`` reads) instead of ``params``, a limb protocol, and names the plant's
+parameters in ``vary`` with the plant file's dotted names: ``joint.<field>``
+(a :class:`~hill_muscle_ros.model.limb.JointParams` field) and
+``<muscle>.<field>`` (a muscle's ``moment_arm_m``, ``reference_angle_rad`` or
+any :class:`~hill_muscle_ros.model.params.MuscleParams` field)::
+
+    plant: knee.yaml
+    protocol: protocols/knee_extension.yaml
+    sample_times_s: [1.0, 2.0]
+    vary:
+      quadriceps.f_iso_max_n: [1000.0, 1500.0]
+      joint.stiffness_n_m_per_rad: {low: 10.0, high: 20.0, n: 3}
+
+Its rows hold ``theta_rad`` and one ``<muscle>_force_n`` column per muscle
+(the names of ``hill-muscle simulate --plant``'s CSV) instead of ``force_n``.
 
 Dask, SciPy and pyarrow are imported only by the functions that need them:
 the rest of the package runs without them. This module has no rclpy.
@@ -43,10 +61,11 @@ import numpy as np
 import yaml
 
 from . import resources
-from .model import MuscleBatch, MuscleParams, Protocol
+from .model import LimbOutOfRange, MuscleBatch, MuscleParams, Protocol, simulate_limb_batch
+from .model.limb import JointParams, LimbMuscle, LimbPlant, LimbProtocol
 from .model.protocol import safe_load_yaml
 from .model.simulate import sample_times
-from .params_file import load_muscle_params
+from .params_file import load_muscle_params, load_plant
 
 #: [Hz] step rate when neither the spec nor its parameters file gives one
 #: (the same default as ``hill-muscle simulate``).
@@ -67,6 +86,15 @@ STEP_TOLERANCE = 1e-6
 #: sets/s in chunks of 256 and 900 in chunks of 512, but 80-100 sets/s for
 #: 256 sets in chunks of 32. Ctrl-C loses at most the chunks running.
 MAX_AUTO_CHUNK = 512
+#: Largest automatic chunk of a limb sweep. A limb batch steps each limb on
+#: its own (:mod:`~hill_muscle_ros.model.limb_batch`), so a chunk costs the
+#: same per set at any size, and one knee set of a few seconds already takes
+#: seconds: small chunks balance the workers and move the progress bar, for a
+#: task overhead of milliseconds.
+MAX_AUTO_LIMB_CHUNK = 4
+#: Fields of a limb muscle that ``vary`` may name besides its MuscleParams
+#: (``action`` is a choice of sign, not a parameter to sweep).
+LIMB_MUSCLE_FIELDS = ('moment_arm_m', 'reference_angle_rad')
 #: Value of the ``worker`` column for rows computed in this process (no Dask).
 LOCAL_WORKER = 'local'
 #: [s] how long to wait for an existing scheduler to answer.
@@ -83,20 +111,28 @@ class SweepError(ValueError):
 class SweepSpec:
     """A validated sweep.
 
-    :param protocol: the protocol every set replays
+    :param protocol: the protocol every set replays (a limb protocol for a limb)
     :param rate_hz: [Hz] step rate, 1 / dt
     :param sample_times_s: [s] sample instants, on the step grid, ascending
     :param names: the varied parameters, in spec order
-    :param sets: one validated :class:`MuscleParams` per parameter set
+    :param sets: one validated :class:`MuscleParams` per parameter set, or one
+        :class:`LimbPlant` for a limb sweep
     :param values: per set, the values of ``names``
+    :param plant: the base plant of a limb sweep, ``None`` for the muscle
     """
 
-    protocol: Protocol
+    protocol: Protocol | LimbProtocol
     rate_hz: float
     sample_times_s: tuple[float, ...]
     names: tuple[str, ...]
-    sets: tuple[MuscleParams, ...]
+    sets: tuple[MuscleParams, ...] | tuple[LimbPlant, ...]
     values: tuple[tuple[Any, ...], ...]
+    plant: LimbPlant | None = None
+
+    @property
+    def muscle_names(self) -> tuple[str, ...]:
+        """The limb's muscles, in the plant's order (none for a muscle sweep)."""
+        return () if self.plant is None else tuple(m.name for m in self.plant.muscles)
 
     @property
     def sample_indices(self) -> tuple[int, ...]:
@@ -107,6 +143,9 @@ class SweepSpec:
 # --------------------------------------------------------------------------- spec
 
 _FIELDS = {f.name: f for f in dataclasses.fields(MuscleParams)}
+_JOINT_FIELDS = {f.name: f for f in dataclasses.fields(JointParams) if f.name != 'name'}
+_LIMB_MUSCLE_FIELDS = {f.name: f for f in dataclasses.fields(LimbMuscle)
+                       if f.name in LIMB_MUSCLE_FIELDS}
 
 
 def _is_number(value: Any) -> bool:
@@ -126,14 +165,15 @@ def _resolve(base: Path, text: Any, key: str, source: str) -> Path:
     return path if path.is_absolute() else base / path
 
 
-def _range_axis(source: str, name: str, spec: Mapping[str, Any], lhs: bool) -> dict:
-    """Validate a ``{low, high, n, log}`` range; returns its fields."""
+def _range_axis(source: str, name: str, spec: Mapping[str, Any], lhs: bool,
+                field: dataclasses.Field) -> dict:
+    """Validate a ``{low, high, n, log}`` range of parameter ``field``; returns its fields."""
     key = f'vary.{name}'
     unknown = sorted(str(k) for k in spec if k not in RANGE_KEYS)
     if unknown:
         raise SweepError(f'{source}: unknown key `{key}.{unknown[0]}` '
                          f'(a range has {", ".join(RANGE_KEYS)})')
-    if _FIELDS[name].type != 'float':
+    if field.type != 'float':
         raise SweepError(f'{source}: `{key}` is not a real-valued parameter, so it '
                          f'takes a list of values, not a range; got {dict(spec)!r}')
     for bound in ('low', 'high'):
@@ -222,25 +262,16 @@ def parse_spec(doc: Any, source: str = '<spec>', base_dir: Path | None = None) -
     if unknown:
         raise SweepError(f'{source}: unknown key `{unknown[0]}` '
                          f'(known: {", ".join(SPEC_KEYS)})')
-    if doc.get('plant') is not None:
-        raise SweepError(f'{source}: `plant` sweeps (the limb) are not supported yet; '
-                         f'sweep the muscle alone, got plant={doc["plant"]!r}')
     for key in ('protocol', 'vary', 'sample_times_s'):
         if key not in doc:
             raise SweepError(f'{source}: missing key `{key}`')
-
-    name = doc['protocol']
-    if not isinstance(name, str) or not name:
-        raise SweepError(f'{source}: `protocol` must be I, II or a path, got {name!r}')
-    path = (resources.protocol_path(name) if name in resources.BUILTIN_PROTOCOLS
-            else _resolve(base_dir, name, 'protocol', source))
-    params_path = (resources.default_params_file() if doc.get('params') is None
-                   else _resolve(base_dir, doc['params'], 'params', source))
-    try:
-        protocol = Protocol.from_yaml(path)
-        base, node = load_muscle_params(params_path)
-    except ValueError as err:   # ProtocolError is a ValueError; both name the file
-        raise SweepError(str(err)) from None
+    limb = doc.get('plant') is not None
+    if limb:
+        protocol, base, node = _load_limb(doc, source, base_dir)
+        fields = _plant_fields(base)
+    else:
+        protocol, base, node = _load_muscle(doc, source, base_dir)
+        fields = _FIELDS
 
     rate = doc.get('rate_hz', node.get('rate_hz', DEFAULT_RATE_HZ))
     if not _is_number(rate) or not math.isfinite(rate) or rate <= 0.0:
@@ -253,9 +284,8 @@ def parse_spec(doc: Any, source: str = '<spec>', base_dir: Path | None = None) -
         raise SweepError(f'{source}: `vary` must map parameter names to a list of values '
                          f'or a range {{low, high, n, log}}, got {vary!r}')
     for key in vary:
-        if key not in _FIELDS:
-            raise SweepError(f'{source}: unknown parameter `vary.{key}` '
-                             f'(known: {", ".join(_FIELDS)})')
+        if key not in fields:
+            raise SweepError(f'{source}: {_unknown(str(key), base if limb else None)}')
     samples = doc.get('samples')
     lhs = samples is not None
     if lhs and (isinstance(samples, bool) or not isinstance(samples, int) or samples < 1):
@@ -270,7 +300,7 @@ def parse_spec(doc: Any, source: str = '<spec>', base_dir: Path | None = None) -
     axes = []
     for key, spec in vary.items():
         if isinstance(spec, dict):
-            axes.append(_range_axis(source, key, spec, lhs))
+            axes.append(_range_axis(source, key, spec, lhs, fields[key]))
         elif isinstance(spec, list) and spec:
             if lhs:
                 raise SweepError(f'{source}: with `samples`, `vary.{key}` must be a range '
@@ -288,13 +318,111 @@ def parse_spec(doc: Any, source: str = '<spec>', base_dir: Path | None = None) -
     sets, values = [], []
     for i, combo in enumerate(combos):
         try:
-            p = dataclasses.replace(base, **dict(zip(names, combo)))
+            if limb:
+                p = _replaced_plant(base, dict(zip(names, combo)))
+            else:
+                p = dataclasses.replace(base, **dict(zip(names, combo)))
         except (ValueError, TypeError) as err:
             shown = ', '.join(f'{n}={v!r}' for n, v in zip(names, combo))
             raise SweepError(f'{source}: parameter set {i} ({shown}): {err}') from None
         sets.append(p)
-        values.append(tuple(getattr(p, n) for n in names))
-    return SweepSpec(protocol, rate, times, names, tuple(sets), tuple(values))
+        values.append(tuple(_plant_value(p, n) if limb else getattr(p, n) for n in names))
+    return SweepSpec(protocol, rate, times, names, tuple(sets), tuple(values),
+                     base if limb else None)
+
+
+def _load_muscle(doc: Mapping[str, Any], source: str, base_dir: Path
+                 ) -> tuple[Protocol, MuscleParams, dict]:
+    """The protocol and the base parameters of a muscle sweep, and the file's node keys."""
+    name = doc['protocol']
+    if not isinstance(name, str) or not name:
+        raise SweepError(f'{source}: `protocol` must be I, II or a path, got {name!r}')
+    path = (resources.protocol_path(name) if name in resources.BUILTIN_PROTOCOLS
+            else _resolve(base_dir, name, 'protocol', source))
+    params_path = (resources.default_params_file() if doc.get('params') is None
+                   else _resolve(base_dir, doc['params'], 'params', source))
+    try:
+        protocol = Protocol.from_yaml(path)
+        base, node = load_muscle_params(params_path)
+    except ValueError as err:   # ProtocolError is a ValueError; both name the file
+        raise SweepError(str(err)) from None
+    return protocol, base, node
+
+
+def _load_limb(doc: Mapping[str, Any], source: str, base_dir: Path
+               ) -> tuple[LimbProtocol, LimbPlant, dict]:
+    """The limb protocol and the base plant of a limb sweep, and the file's node keys."""
+    if doc.get('params') is not None:
+        raise SweepError(f'{source}: `params` (a muscle\'s parameters) and `plant` (a limb) '
+                         f'exclude each other; set the muscles\' parameters in the plant '
+                         f'file, got params={doc["params"]!r}')
+    name = doc['protocol']
+    if not isinstance(name, str) or not name or name in resources.BUILTIN_PROTOCOLS:
+        raise SweepError(f'{source}: with `plant`, `protocol` must be the path of a limb '
+                         f'protocol (inputs per muscle), got {name!r}')
+    path = _resolve(base_dir, name, 'protocol', source)
+    plant_path = _resolve(base_dir, doc['plant'], 'plant', source)
+    try:
+        protocol = LimbProtocol.from_yaml(path)
+        plant, node = load_plant(plant_path)
+    except ValueError as err:   # ProtocolError is a ValueError; both name the file
+        raise SweepError(str(err)) from None
+    try:
+        protocol.commands(np.zeros(1), plant)   # a protocol muscle the plant lacks
+    except ValueError as err:
+        raise SweepError(f'{path}: {err}') from None
+    return protocol, plant, node
+
+
+def _plant_fields(plant: LimbPlant) -> dict[str, dataclasses.Field]:
+    """The plant's parameters by their dotted names: ``joint.<field>`` and
+    ``<muscle>.<field>`` (the muscle's arm and reference angle, its MuscleParams)."""
+    fields = {f'joint.{name}': f for name, f in _JOINT_FIELDS.items()}
+    for m in plant.muscles:
+        fields.update({f'{m.name}.{name}': f for name, f in _LIMB_MUSCLE_FIELDS.items()})
+        fields.update({f'{m.name}.{name}': f for name, f in _FIELDS.items()})
+    return fields
+
+
+def _unknown(key: str, plant: LimbPlant | None) -> str:
+    """The message for a ``vary`` name that is not a parameter."""
+    if plant is None:
+        return f'unknown parameter `vary.{key}` (known: {", ".join(_FIELDS)})'
+    muscles = [m.name for m in plant.muscles]
+    owner, _, field = key.partition('.')
+    if owner == 'joint':
+        return (f'unknown joint parameter `vary.{key}` (known: '
+                f'{", ".join(f"joint.{n}" for n in _JOINT_FIELDS)})')
+    if owner in muscles:
+        return (f'unknown parameter `{field}` of muscle `{owner}` in `vary.{key}` '
+                f'(known: {", ".join([*_LIMB_MUSCLE_FIELDS, *_FIELDS])})')
+    return (f'unknown plant parameter `vary.{key}`: a limb sweep varies `joint.<field>` '
+            f'or `<muscle>.<field>` with a muscle of the plant ({", ".join(muscles)})')
+
+
+def _replaced_plant(base: LimbPlant, changes: Mapping[str, Any]) -> LimbPlant:
+    """``base`` with the dotted-name parameters ``changes`` replaced, each validated
+    by its own dataclass (the joint, the limb muscle, the muscle's parameters)."""
+    joint = {k.partition('.')[2]: v for k, v in changes.items() if k.startswith('joint.')}
+    muscles = []
+    for m in base.muscles:
+        mine = {k.partition('.')[2]: v for k, v in changes.items()
+                if k.partition('.')[0] == m.name}
+        params = {k: v for k, v in mine.items() if k in _FIELDS}
+        arm = {k: v for k, v in mine.items() if k not in _FIELDS}
+        muscles.append(dataclasses.replace(
+            m, params=dataclasses.replace(m.params, **params), **arm) if mine else m)
+    return LimbPlant(dataclasses.replace(base.joint, **joint) if joint else base.joint,
+                     tuple(muscles))
+
+
+def _plant_value(plant: LimbPlant, key: str) -> Any:
+    """The value of the dotted-name parameter ``key`` of ``plant``."""
+    owner, _, field = key.partition('.')
+    if owner == 'joint':
+        return getattr(plant.joint, field)
+    [muscle] = [m for m in plant.muscles if m.name == owner]
+    return getattr(muscle if field in _LIMB_MUSCLE_FIELDS else muscle.params, field)
 
 
 def load_spec(path: str | Path) -> SweepSpec:
@@ -354,40 +482,85 @@ def run_chunk(set_ids: Sequence[int], params: Sequence[MuscleParams], protocol: 
         Dask worker that ran it, or ``local``)
     """
     force = simulate_forces(protocol, params, rate_hz, sample_indices)
+    return {'set_ids': list(set_ids), 'force_n': force, 'worker': _worker()}
+
+
+def run_limb_chunk(set_ids: Sequence[int], plants: Sequence[LimbPlant],
+                   protocol: LimbProtocol, rate_hz: float,
+                   sample_indices: Sequence[int]) -> dict:
+    """One task of a limb sweep: simulate a chunk of plants with a
+    :class:`~hill_muscle_ros.model.limb_batch.LimbBatch`; runs on a Dask worker or here.
+
+    :return: ``set_ids``, ``theta_rad`` (K, S), ``force_n`` (K, M, S) and ``worker``
+    :raises SweepError: naming the parameter set of a limb driven beyond its
+        muscles' length range
+    """
+    try:
+        theta, force = simulate_limb_batch(plants, protocol, rate_hz, sample_indices)
+    except LimbOutOfRange as err:
+        raise SweepError(f'parameter set {set_ids[err.limb]}: {err.message}') from None
+    return {'set_ids': list(set_ids), 'theta_rad': theta, 'force_n': force,
+            'worker': _worker()}
+
+
+def _worker() -> str:
+    """The address of the Dask worker running this, or ``local``."""
     try:
         from distributed import get_worker
-        worker = get_worker().address
+        return get_worker().address
     except (ImportError, ValueError):   # not inside a Dask worker
-        worker = LOCAL_WORKER
-    return {'set_ids': list(set_ids), 'force_n': force, 'worker': worker}
+        return LOCAL_WORKER
 
 
-def chunk_ranges(n_sets: int, n_workers: int, chunk: int | None = None) -> list[range]:
+def _chunk_task(spec: SweepSpec) -> Callable[..., dict]:
+    """The task that simulates a chunk of the spec's sets."""
+    return run_chunk if spec.plant is None else run_limb_chunk
+
+
+def chunk_ranges(n_sets: int, n_workers: int, chunk: int | None = None,
+                 max_chunk: int = MAX_AUTO_CHUNK) -> list[range]:
     """Consecutive ranges of set indices, one per task.
 
     :param n_workers: workers that share the tasks (0: this process alone)
     :param chunk: sets per task (default: an equal share per worker, at most
-        :data:`MAX_AUTO_CHUNK`)
+        ``max_chunk``)
+    :param max_chunk: largest automatic chunk (:data:`MAX_AUTO_CHUNK`, or
+        :data:`MAX_AUTO_LIMB_CHUNK` for a limb)
     """
     if chunk is None:
-        chunk = max(1, min(MAX_AUTO_CHUNK, math.ceil(n_sets / max(n_workers, 1))))
+        chunk = max(1, min(max_chunk, math.ceil(n_sets / max(n_workers, 1))))
     return [range(i, min(i + chunk, n_sets)) for i in range(0, n_sets, chunk)]
 
 
 # --------------------------------------------------------------------------- output
 
+def force_columns(spec: SweepSpec) -> list[str]:
+    """The output columns between ``t_s`` and ``worker``: ``force_n`` for the
+    muscle; ``theta_rad`` and ``<muscle>_force_n`` per muscle for a limb."""
+    if spec.plant is None:
+        return ['force_n']
+    return ['theta_rad'] + [f'{name}_force_n' for name in spec.muscle_names]
+
+
 def to_table(spec: SweepSpec, results: Sequence[dict], complete: bool):
     """The tidy pyarrow table: one row per set and sample time, ordered by set.
 
-    Columns: ``set_id``, the varied parameters, ``t_s``, ``force_n``, ``worker``.
+    Columns: ``set_id``, the varied parameters, ``t_s``, those of
+    :func:`force_columns`, ``worker``.
     """
     import pyarrow as pa
 
     results = sorted(results, key=lambda r: r['set_ids'][0])
+    outputs = force_columns(spec)
     columns: dict[str, list] = {'set_id': []}
     columns.update({n: [] for n in spec.names})
-    columns.update({'t_s': [], 'force_n': [], 'worker': []})
+    columns.update({'t_s': [], **{c: [] for c in outputs}, 'worker': []})
     for res in results:
+        if spec.plant is None:
+            series = [res['force_n']]
+        else:
+            series = [res['theta_rad']] + [res['force_n'][:, i]
+                                           for i in range(len(spec.muscle_names))]
         for row, set_id in enumerate(res['set_ids']):
             values = spec.values[set_id]
             for j, t in enumerate(spec.sample_times_s):
@@ -395,13 +568,21 @@ def to_table(spec: SweepSpec, results: Sequence[dict], complete: bool):
                 for n, v in zip(spec.names, values):
                     columns[n].append(list(v) if isinstance(v, tuple) else v)
                 columns['t_s'].append(t)
-                columns['force_n'].append(float(res['force_n'][row, j]))
+                for c, x in zip(outputs, series):
+                    columns[c].append(float(x[row, j]))
                 columns['worker'].append(res['worker'])
     metadata = {'hill_muscle_ros.protocol': spec.protocol.name,
                 'hill_muscle_ros.rate_hz': repr(spec.rate_hz),
                 'hill_muscle_ros.n_sets': str(len(spec.sets)),
                 'hill_muscle_ros.complete': 'true' if complete else 'false'}
+    if spec.plant is not None:
+        metadata['hill_muscle_ros.plant'] = (f'{spec.plant.joint.name}: '
+                                             f'{", ".join(spec.muscle_names)}')
     return pa.table(columns).replace_schema_metadata(metadata)
+
+
+def _max_chunk(spec: SweepSpec) -> int:
+    return MAX_AUTO_CHUNK if spec.plant is None else MAX_AUTO_LIMB_CHUNK
 
 
 def write_parquet(path: Path, table) -> None:
@@ -458,11 +639,12 @@ def run_local(spec: SweepSpec, chunk: int | None = None,
               on_chunk: Callable[[int], None] | None = None) -> SweepResult:
     """Run every chunk in this process, without Dask (a reference and a fallback)."""
     results = []
+    task = _chunk_task(spec)
     start = time.perf_counter()
     try:
-        for ids in chunk_ranges(len(spec.sets), 0, chunk):
-            results.append(run_chunk(list(ids), [spec.sets[i] for i in ids], spec.protocol,
-                                     spec.rate_hz, spec.sample_indices))
+        for ids in chunk_ranges(len(spec.sets), 0, chunk, _max_chunk(spec)):
+            results.append(task(list(ids), [spec.sets[i] for i in ids], spec.protocol,
+                                spec.rate_hz, spec.sample_indices))
             if on_chunk:
                 on_chunk(len(ids))
     except KeyboardInterrupt:
@@ -485,9 +667,10 @@ def run_on_client(spec: SweepSpec, client, chunk: int | None = None,
     # sweep's copy, which the scheduler may be releasing just then, and the
     # tasks that need it would be cancelled.
     [protocol] = client.scatter([spec.protocol], broadcast=True, hash=False)
-    futures = [client.submit(run_chunk, list(ids), [spec.sets[i] for i in ids], protocol,
+    task = _chunk_task(spec)
+    futures = [client.submit(task, list(ids), [spec.sets[i] for i in ids], protocol,
                              spec.rate_hz, spec.sample_indices, pure=False)
-               for ids in chunk_ranges(len(spec.sets), n_workers, chunk)]
+               for ids in chunk_ranges(len(spec.sets), n_workers, chunk, _max_chunk(spec))]
     results = []
     try:
         for future in as_completed(futures):
@@ -596,10 +779,12 @@ def add_parser(sub) -> None:
     p = sub.add_parser(
         'sweep', help='simulate a protocol over many parameter sets on Dask (Parquet out)',
         description='Simulate one protocol for every parameter set of a sweep spec (a grid '
-                    'or a Latin hypercube) on a Dask cluster, and write the force at the '
-                    'sample times as a Parquet table: one row per set and time.',
+                    'or a Latin hypercube) on a Dask cluster, and write the force (a limb: '
+                    'the joint angle and each muscle\'s force) at the sample times as a '
+                    'Parquet table: one row per set and time.',
         epilog='examples:\n'
                '  hill-muscle sweep config/sweep_example.yaml --out sweep.parquet\n'
+               '  hill-muscle sweep config/sweep_knee_example.yaml --out knee.parquet\n'
                '  hill-muscle sweep spec.yaml --out sweep.parquet --workers 2\n'
                '  hill-muscle sweep spec.yaml --out sweep.parquet '
                '--scheduler tcp://10.0.0.5:8786',
@@ -617,8 +802,16 @@ def add_parser(sub) -> None:
                             'the number of cores); 0 runs here without Dask')
     p.add_argument('--chunk', type=_chunk, metavar='SETS',
                    help=f'parameter sets per task (default: an equal share per worker, '
-                        f'at most {MAX_AUTO_CHUNK}); smaller chunks move the progress bar '
+                        f'at most {MAX_AUTO_CHUNK}, {MAX_AUTO_LIMB_CHUNK} for a limb); smaller '
+                        f'chunks move the progress bar '
                         f'more often but run slower')
+
+
+def _plant_text(spec: SweepSpec) -> str:
+    """`` on the knee (quadriceps, hamstrings)`` for a limb sweep, else nothing."""
+    if spec.plant is None:
+        return ''
+    return f' on the {spec.plant.joint.name} ({", ".join(spec.muscle_names)})'
 
 
 def cmd_sweep(args) -> int:
@@ -635,7 +828,8 @@ def cmd_sweep(args) -> int:
                  else args.scheduler or
                  f'a local Dask cluster of {args.workers or os.cpu_count() or 1} workers')
         print(f'{len(spec.sets)} parameter sets x {len(spec.sample_times_s)} sample times, '
-              f'{spec.protocol.name} at {spec.rate_hz:g} Hz, on {where}', flush=True)
+              f'{spec.protocol.name}{_plant_text(spec)} at {spec.rate_hz:g} Hz, on {where}',
+              flush=True)
         result = run_sweep(spec, args.scheduler, args.workers, args.chunk,
                            Progress(len(spec.sets)))
         write_parquet(args.out, to_table(spec, result.results, result.complete))

@@ -4,9 +4,12 @@ The reference for every force is :func:`hill_muscle_ros.model.simulate.simulate`
 one parameter set at a time on the scalar engine; the sweep computes them in
 batches (:class:`~hill_muscle_ros.model.batch.MuscleBatch`), here, on a local
 Dask cluster and on a scheduler and workers started as separate processes.
+Limb sweeps: the reference is :func:`hill_muscle_ros.model.limb.simulate_limb`
+on plants built here from the plant file, one at a time.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -23,8 +26,10 @@ import yaml
 
 from hill_muscle_ros import cli
 from hill_muscle_ros.model import MuscleParams, Protocol, simulate
-from hill_muscle_ros.resources import protocol_path
-from hill_muscle_ros.sweep import (SweepError, parse_spec, run_on_client, run_sweep,
+from hill_muscle_ros.model.limb import LimbProtocol, simulate_limb
+from hill_muscle_ros.params_file import load_plant
+from hill_muscle_ros.resources import config_dir, protocol_path
+from hill_muscle_ros.sweep import (SweepError, load_spec, parse_spec, run_on_client, run_sweep,
                                    simulate_forces)
 
 pq = pytest.importorskip('pyarrow.parquet')
@@ -130,7 +135,8 @@ def test_latin_hypercube_repeats_with_its_seed_and_changes_with_another():
     ({'samples': 0}, '`samples` must be a positive integer, got 0'),
     ({'sample_times_s': [1.0005]}, '`sample_times_s[0]` must be a multiple of the step'),
     ({'sample_times_s': [7.0]}, '`sample_times_s[0]` must be within the protocol, 0..6 s'),
-    ({'plant': 'knee.yaml'}, '`plant` sweeps (the limb) are not supported yet'),
+    ({'plant': 'knee.yaml'}, 'with `plant`, `protocol` must be the path of a limb protocol '
+                             "(inputs per muscle), got 'II'"),
     ({'vari': {}}, 'unknown key `vari`'),
 ])
 def test_bad_spec_is_an_error_naming_the_key_and_value(change, message):
@@ -394,3 +400,198 @@ def test_readme_forces_are_those_of_simulate():
                     and abs(p.k_se_n_per_m - float(k_se)) < 0.05 and p.units == units]
         want = simulate(protocol, params).force_n[4000]   # t = 4 s at 1 kHz
         assert f'{want:.3f}' == force
+
+
+# --------------------------------------------------------------------------- limb
+
+CONFIG = config_dir()
+#: [rad] bound on a limb sweep's joint angle vs separate runs.
+ATOL_RAD = 1e-9
+#: A small knee sweep: 2 x 2 = 4 plants, the knee extension to 1 s (the
+#: quadriceps stimulated from 0.5 s, 31 ms of delay).
+KNEE = {'plant': 'knee.yaml', 'protocol': 'protocols/knee_extension.yaml',
+        'sample_times_s': [0.0, 0.6, 1.0],
+        'vary': {'quadriceps.f_iso_max_n': [1000.0, 1500.0],
+                 'hamstrings.moment_arm_m': [0.028, 0.035]}}
+KNEE_COLUMNS = ['set_id', 'quadriceps.f_iso_max_n', 'hamstrings.moment_arm_m', 't_s',
+                'theta_rad', 'quadriceps_force_n', 'hamstrings_force_n', 'worker']
+
+
+def knee_plants():
+    """KNEE's plants built here, in the grid's order (the first entry slowest)."""
+    base = load_plant(CONFIG / 'knee.yaml')[0]
+    quad, ham = base.muscles
+    return [dataclasses.replace(base, muscles=(
+        dataclasses.replace(quad, params=dataclasses.replace(quad.params, f_iso_max_n=f)),
+        dataclasses.replace(ham, moment_arm_m=arm)))
+        for f in (1000.0, 1500.0) for arm in (0.028, 0.035)]
+
+
+def limb_reference(plants, protocol, rate_hz, times):
+    """theta (sets, times) and forces (sets, muscles, times), one simulate_limb per plant."""
+    idx = [round(t * rate_hz) for t in times]
+    runs = [simulate_limb(p, protocol, rate_hz) for p in plants]
+    theta = np.array([r['theta_rad'][idx] for r in runs])
+    force = np.array([[r[f'{m.name}_force_n'][idx] for m in p.muscles]
+                      for r, p in zip(runs, plants)])
+    return theta, force
+
+
+def limb_columns_of(table, spec):
+    """theta (sets, times) and forces (sets, muscles, times) of a limb table."""
+    n_sets, n_times = len(spec.sets), len(spec.sample_times_s)
+    assert table.num_rows == n_sets * n_times
+    assert table.column('set_id').to_pylist() == [i for i in range(n_sets)
+                                                  for _ in range(n_times)]
+    theta = np.asarray(table.column('theta_rad')).reshape(n_sets, n_times)
+    force = np.stack([np.asarray(table.column(f'{m}_force_n')).reshape(n_sets, n_times)
+                      for m in spec.muscle_names], axis=1)
+    return theta, force
+
+
+def test_limb_grid_replaces_only_the_named_muscle_and_joint_parameters():
+    spec = parse_spec({**KNEE, 'vary': {'quadriceps.f_iso_max_n': [1000.0, 1500.0],
+                                        'joint.stiffness_n_m_per_rad': [15.0, 25.0],
+                                        'hamstrings.moment_arm_m': [0.03]}},
+                      'spec.yaml', CONFIG)
+    base = load_plant(CONFIG / 'knee.yaml')[0]
+    assert spec.values == ((1000.0, 15.0, 0.03), (1000.0, 25.0, 0.03),
+                           (1500.0, 15.0, 0.03), (1500.0, 25.0, 0.03))
+    for (f, k, arm), plant in zip(spec.values, spec.sets):
+        quad, ham = plant.muscles
+        assert quad.params == dataclasses.replace(base.muscles[0].params, f_iso_max_n=f)
+        assert ham == dataclasses.replace(base.muscles[1], moment_arm_m=arm)
+        assert plant.joint == dataclasses.replace(base.joint, stiffness_n_m_per_rad=k)
+    assert spec.rate_hz == 1000.0   # the plant file's rate_hz
+
+
+@pytest.mark.parametrize('change, message', [
+    ({'vary': {'quadriceps.f_iso_max': [1.0]}},
+     'unknown parameter `f_iso_max` of muscle `quadriceps` in `vary.quadriceps.f_iso_max` '
+     '(known: moment_arm_m, reference_angle_rad, f_iso_max_n,'),
+    ({'vary': {'quadriceps.action': ['flexor']}},
+     'unknown parameter `action` of muscle `quadriceps`'),
+    ({'vary': {'joint.stiffness': [1.0]}},
+     'unknown joint parameter `vary.joint.stiffness` (known: joint.inertia_kg_m2,'),
+    ({'vary': {'joint.name': ['ankle']}}, 'unknown joint parameter `vary.joint.name`'),
+    ({'vary': {'f_iso_max_n': [1.0]}},
+     'unknown plant parameter `vary.f_iso_max_n`: a limb sweep varies `joint.<field>` or '
+     '`<muscle>.<field>` with a muscle of the plant (quadriceps, hamstrings)'),
+    ({'vary': {'soleus.f_iso_max_n': [1.0]}}, 'unknown plant parameter `vary.soleus.f_iso_max_n`'),
+    ({'vary': {'quadriceps.f_iso_max_n': [1000.0, -3.0]}},
+     'parameter set 1 (quadriceps.f_iso_max_n=-3.0): `f_iso_max_n` must be positive'),
+    ({'vary': {'joint.inertia_kg_m2': [0.0]}},
+     'parameter set 0 (joint.inertia_kg_m2=0.0): `joint.inertia_kg_m2` must be'),
+    ({'vary': {'hamstrings.moment_arm_m': [2.0]}},
+     '`hamstrings.moment_arm_m` must be in (0, 1] m, got 2.0'),
+    ({'vary': {'quadriceps.n_units': {'low': 10, 'high': 100, 'n': 3}}},
+     '`vary.quadriceps.n_units` is not a real-valued parameter'),
+    ({'params': 'muscle.yaml'},
+     "`params` (a muscle's parameters) and `plant` (a limb) exclude each other"),
+    ({'protocol': 'II'}, 'with `plant`, `protocol` must be the path of a limb protocol'),
+    ({'plant': 'ankle.yaml'}, "knee_extension.yaml: protocol `knee extension`: muscle "
+                              "`quadriceps` is not in the plant (muscles: tibialis_anterior)"),
+    ({'sample_times_s': [6.5]}, '`sample_times_s[0]` must be within the protocol, 0..6 s'),
+])
+def test_bad_limb_spec_is_an_error_naming_the_key_and_value(change, message):
+    doc = {**KNEE, 'vary': {'quadriceps.f_iso_max_n': [1000.0]}, **change}
+    with pytest.raises(SweepError) as err:
+        parse_spec(doc, 'spec.yaml', CONFIG)
+    assert message in str(err.value)
+
+
+def test_local_limb_sweep_writes_the_tidy_table_of_simulate_limb(tmp_path, capsys):
+    doc = {**KNEE, 'plant': str(CONFIG / 'knee.yaml'),
+           'protocol': str(CONFIG / 'protocols' / 'knee_extension.yaml')}
+    out = tmp_path / 'out.parquet'
+    assert cli.main(['sweep', str(write_spec(tmp_path, doc)), '--out', str(out),
+                     '--workers', '0']) == 0
+    spec = parse_spec(doc)
+    table = pq.read_table(out)
+    assert table.column_names == KNEE_COLUMNS
+    theta, force = limb_columns_of(table, spec)
+    protocol = LimbProtocol.from_yaml(CONFIG / 'protocols' / 'knee_extension.yaml')
+    want_theta, want_force = limb_reference(knee_plants(), protocol, 1000.0,
+                                            spec.sample_times_s)
+    np.testing.assert_allclose(theta, want_theta, rtol=0, atol=ATOL_RAD)
+    np.testing.assert_allclose(force, want_force, rtol=0, atol=ATOL_N)
+    # The sets differ where they should: a stronger quadriceps lifts the shank higher.
+    assert theta[2, -1] > theta[0, -1] > 0.1
+    assert table.column('hamstrings.moment_arm_m').to_pylist()[::3] == [0.028, 0.035] * 2
+    assert set(table.column('worker').to_pylist()) == {'local'}
+    assert table.schema.metadata[b'hill_muscle_ros.plant'] == b'knee: quadriceps, hamstrings'
+    assert f'wrote 12 rows to {out}' in capsys.readouterr().out
+
+
+def test_limb_driven_out_of_range_stops_the_sweep_naming_the_set(tmp_path, capsys):
+    # 1000 N m on the foot (its joint spring of 20.4 N m/rad balances it at
+    # 49 rad): damped by 40 N m s/rad (set 0) it creeps there with a time
+    # constant of 2 s, 11 rad in 0.5 s, 0.4 m of its muscle's MTU; with the
+    # preset's 0.82 (set 1) it spins until the MTU passes 1 m. (Far more
+    # damping would make the 1 ms RK4 step unstable: B / J times 1 ms must
+    # stay below 2.78.)
+    protocol = tmp_path / 'push.yaml'
+    protocol.write_text(yaml.safe_dump({
+        'name': 'push', 'duration_s': 0.5,
+        'muscles': {'tibialis_anterior': {'recruitment': [[0.0, 0.0]]}},
+        'external_torque_n_m': [[0.0, 1000.0]]}))
+    doc = {'plant': str(CONFIG / 'ankle.yaml'), 'protocol': str(protocol),
+           'sample_times_s': [0.5], 'vary': {'joint.damping_n_m_s_per_rad': [40.0, 0.82]}}
+    status = cli.main(['sweep', str(write_spec(tmp_path, doc)), '--out',
+                       str(tmp_path / 'out.parquet'), '--workers', '0'])
+    err = capsys.readouterr().err
+    assert status == cli.EXIT_USAGE
+    assert 'hill-muscle: error: parameter set 1: muscle `tibialis_anterior` is stretched' in err
+    assert 'Traceback' not in err and not (tmp_path / 'out.parquet').exists()
+
+
+#: KNEE to 0.6 s, for the cluster: two tasks of two plants.
+KNEE_CLUSTER = {**KNEE, 'sample_times_s': [0.3, 0.6]}
+
+
+@pytest.mark.slow
+def test_limb_sweep_on_a_local_cluster_of_two_workers_gives_the_local_numbers(tmp_path):
+    doc = {**KNEE_CLUSTER, 'plant': str(CONFIG / 'knee.yaml'),
+           'protocol': str(CONFIG / 'protocols' / 'knee_extension.yaml')}
+    spec = parse_spec(doc)
+    local = run_sweep(spec, workers=0, chunk=2)
+    out = tmp_path / 'out.parquet'
+    assert cli.main(['sweep', str(write_spec(tmp_path, doc)), '--out', str(out),
+                     '--workers', '2', '--chunk', '2']) == 0
+    table = pq.read_table(out)
+    assert table.column_names == KNEE_COLUMNS
+    theta, force = limb_columns_of(table, spec)
+    want_theta = np.empty_like(theta)
+    want_force = np.empty_like(force)
+    for res in local.results:
+        want_theta[res['set_ids']] = res['theta_rad']
+        want_force[res['set_ids']] = res['force_n']
+    np.testing.assert_allclose(theta, want_theta, rtol=0, atol=ATOL_RAD)
+    np.testing.assert_allclose(force, want_force, rtol=0, atol=ATOL_N)
+    workers = set(table.column('worker').to_pylist())
+    assert 1 <= len(workers) <= 2 and all(w.startswith('tcp://127.0.0.1:') for w in workers)
+
+
+# --------------------------------------------------------------------------- README, limb
+
+def test_readme_knee_spec_is_the_shipped_knee_example_spec():
+    section = readme_sweep_section()
+    shown = section.split('```yaml\n')[2].split('```', 1)[0]
+    shipped = CONFIG / 'sweep_knee_example.yaml'
+    assert yaml.safe_load(shown) == yaml.safe_load(shipped.read_text(encoding='utf-8'))
+
+
+def test_readme_knee_rows_are_those_of_simulate_limb():
+    rows = re.findall(r'^ *([\d.]+) N +([\d.]+) N m/rad +(-?[\d.]+) deg +([\d.]+) N +'
+                      r'([\d.]+) N +tcp://', readme_sweep_section(), flags=re.MULTILINE)
+    spec = load_spec(CONFIG / 'sweep_knee_example.yaml')
+    assert len(rows) == len(spec.sets)
+    to_2s = dataclasses.replace(spec.protocol, duration_s=2.0)   # the rows are at 2 s
+    for (f_iso, k, theta, quad, ham), plant in zip(rows, spec.sets):
+        assert (plant.muscles[0].params.f_iso_max_n, plant.joint.stiffness_n_m_per_rad) == (
+            float(f_iso), float(k))
+        run = simulate_limb(plant, to_2s, spec.rate_hz)
+        k2 = 2000   # t = 2 s at 1 kHz
+        assert f'{math.degrees(run["theta_rad"][k2]):.2f}' == theta
+        assert f'{run["quadriceps_force_n"][k2]:.1f}' == quad
+        assert f'{run["hamstrings_force_n"][k2]:.2f}' == ham

@@ -6,7 +6,7 @@ parameters, protocols and the offline simulation loop.
 from .batch import BatchOutputs, MuscleBatch
 from .command_track import MAX_KNOTS, CommandTrack
 from .curves import force_length, force_velocity, force_velocity_inverse
-from .limb_batch import LimbBatch, LimbBatchOutputs, simulate_limb_batch
+from .limb_batch import LimbBatch, LimbBatchOutputs, LimbOutOfRange, simulate_limb_batch
 from .memory import NaiveUnitMemory, UnitMemory, recruited_units
 from .muscle import (DL_MT_LIMIT_M, Muscle, MuscleOutputs, check_recruitment,
                      recruitment_from_pulse_width)
@@ -20,5 +20,5 @@ __all__ = [
     'MuscleParams', 'NaiveUnitMemory', 'Protocol', 'ProtocolError', 'SimulationResult',
     'UNITS_CHOICES', 'UnitMemory', 'check_recruitment', 'force_length', 'force_velocity',
     'force_velocity_inverse', 'recruited_units', 'recruitment_from_pulse_width', 'simulate',
-    'LimbBatch', 'LimbBatchOutputs', 'simulate_limb_batch',
+    'LimbBatch', 'LimbBatchOutputs', 'LimbOutOfRange', 'simulate_limb_batch',
 ]

@@ -36,6 +36,22 @@ from .simulate import sample_times
 from .stimulus import command_from_pulse_width
 
 
+class LimbOutOfRange(ValueError):
+    """A limb of a batch driven beyond its muscles' length range.
+
+    :param limb: the limb's index in the batch
+    :param message: what the limb reported (the muscle, its stretch and the angle)
+    """
+
+    def __init__(self, limb: int, message: str) -> None:
+        super().__init__(f'limb {limb}: {message}')
+        self.limb = limb
+        self.message = message
+
+    def __reduce__(self):   # picklable with its two arguments (Dask sends it back)
+        return (type(self), (self.limb, self.message))
+
+
 class LimbBatchOutputs(NamedTuple):
     """K limbs at one instant, all SI; (K,) per limb, (K, M) per limb and muscle.
 
@@ -171,8 +187,9 @@ class LimbBatch:
         :param dt_s: [s] step length, > 0, the same for every limb
         :return: the outputs at the end of the step
         :raises ValueError: on a bad input, naming it, before any limb moves;
-            on a limb driven beyond its muscles' length range, naming the limb
-            (the limbs before it have then stepped: reset the batch)
+            :class:`LimbOutOfRange` (a ValueError) on a limb driven beyond its
+            muscles' length range, naming the limb (the limbs before it have
+            then stepped: reset the batch)
         """
         u = self._checked_commands(commands)
         tau = np.asarray(external_torque_n_m, dtype=float)
@@ -193,7 +210,7 @@ class LimbBatch:
             try:
                 limb.step(u[k], float(tau[k]), dt)
             except ValueError as err:
-                raise ValueError(f'limb {k}: {err}') from None
+                raise LimbOutOfRange(k, str(err)) from None
         return self.outputs()
 
     def step(self, pulse_width_s, external_torque_n_m, dt_s: float) -> LimbBatchOutputs:
@@ -235,8 +252,8 @@ def simulate_limb_batch(plants: Sequence[LimbPlant], protocol: LimbProtocol,
     :param rate_hz: [Hz] step rate, 1 / dt
     :param sample_indices: step indices to sample, ascending
     :return: ([rad] theta, shape (K, S); [N] force, shape (K, M, S))
-    :raises ValueError: on a protocol muscle the plants lack, or a limb driven
-        beyond its muscles' length range (naming the limb)
+    :raises ValueError: on a protocol muscle the plants lack;
+        :class:`LimbOutOfRange` on a limb driven beyond its muscles' length range
     """
     batch = LimbBatch(plants)
     last = max(sample_indices)
