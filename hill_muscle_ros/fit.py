@@ -51,7 +51,11 @@ import yaml
 
 from .model import Muscle, MuscleParams
 from .model.fes_muscle import FesMuscle
+from .model.limb import (ANGLE_LIMIT_RAD, TORQUE_LIMIT_N_M, JointParams, LimbMuscle, LimbPlant,
+                         LimbProtocol, simulate_limb)
 from .model.muscle import DL_MT_LIMIT_M
+from .model.protocol import Knots
+from .model.simulate import sample_times
 from .model.stimulus import command_from_pulse_width
 from .timebase import NS_PER_S
 
@@ -603,6 +607,354 @@ def fit_parameters(model: ForceModel, measured: np.ndarray, start: Any,
                      start_rms, m, cache['n'], str(result.message), cache['force'])
 
 
+# --------------------------------------------------------------------------- the limb
+
+#: Default topics of a limb bag, as the limb node names them: the joint angle,
+#: each muscle's stimulation (``{muscle}`` stands for its name; pulse width
+#: first, else recruitment, the first with messages) and the external torque.
+JOINT_STATES_TOPIC = 'joint_states'
+LIMB_PULSE_WIDTH_TOPIC = '{muscle}/pulse_width'
+LIMB_RECRUITMENT_TOPIC = '{muscle}/recruitment'
+EXTERNAL_TORQUE_TOPIC = 'external_torque'
+MUSCLE_PLACEHOLDER = '{muscle}'
+JOINT_STATE = 'sensor_msgs/msg/JointState'
+#: The first part of a fit name that addresses the joint (``joint.damping_n_m_s_per_rad``),
+#: as the plant file's section and the limb node's parameter names.
+JOINT_PART = 'joint'
+#: A muscle's place on the joint, fittable besides its muscle parameters, with its
+#: unit and range as :class:`~hill_muscle_ros.model.limb.LimbMuscle` checks it:
+#: the moment arm in (0, 1] m, the reference angle within two turns.
+MUSCLE_GEOMETRY = {'moment_arm_m': ('m', 0.0, 1.0),
+                   'reference_angle_rad': ('rad', -ANGLE_LIMIT_RAD, ANGLE_LIMIT_RAD)}
+REPORT_ANGLE_PNG = 'fit_angle.png'
+
+
+@dataclass(frozen=True)
+class PlantParameter:
+    """One fitted quantity of a limb plant, named as the plant file's ROS parameter
+    (``joint.damping_n_m_s_per_rad``, ``quadriceps.f_iso_max_n``,
+    ``quadriceps.moment_arm_m``, ``quadriceps.tau_fatigue_s[1]``).
+
+    :param part: ``joint`` or the muscle's name
+    :param inner: the field within :class:`~hill_muscle_ros.model.limb.JointParams`,
+        :class:`~hill_muscle_ros.model.limb.LimbMuscle` (its geometry) or the
+        muscle's :class:`~hill_muscle_ros.model.params.MuscleParams`
+    :param where: ``joint``, ``geometry`` or ``params``
+    """
+
+    part: str
+    inner: FitParameter
+    where: str
+
+    @property
+    def name(self) -> str:
+        """The name as the user writes it in ``--fit``."""
+        return f'{self.part}.{self.inner.name}'
+
+    @property
+    def field(self) -> str:
+        return self.inner.field
+
+    @property
+    def unit(self) -> str:
+        return self.inner.unit
+
+    @property
+    def low(self) -> float:
+        return self.inner.low
+
+    @property
+    def high(self) -> float:
+        return self.inner.high
+
+    def _muscle(self, plant: LimbPlant) -> tuple[int, LimbMuscle]:
+        return next((i, m) for i, m in enumerate(plant.muscles) if m.name == self.part)
+
+    def get(self, plant: LimbPlant) -> float:
+        if self.where == 'joint':
+            return float(getattr(plant.joint, self.inner.field))
+        _, muscle = self._muscle(plant)
+        if self.where == 'geometry':
+            return float(getattr(muscle, self.inner.field))
+        return self.inner.get(muscle.params)
+
+    def set(self, plant: LimbPlant, value: float) -> LimbPlant:
+        """A copy of ``plant`` with this quantity set (validated on construction)."""
+        if self.where == 'joint':
+            joint = dataclasses.replace(plant.joint, **{self.inner.field: float(value)})
+            return dataclasses.replace(plant, joint=joint)
+        i, muscle = self._muscle(plant)
+        if self.where == 'geometry':
+            muscle = dataclasses.replace(muscle, **{self.inner.field: float(value)})
+        else:
+            muscle = dataclasses.replace(muscle, params=self.inner.set(muscle.params, value))
+        muscles = plant.muscles[:i] + (muscle,) + plant.muscles[i + 1:]
+        return dataclasses.replace(plant, muscles=muscles)
+
+
+def plant_fittable_names(plant: LimbPlant) -> list[str]:
+    """The patterns of fittable names of ``plant`` (for the messages)."""
+    joint = [f.name for f in dataclasses.fields(JointParams) if f.name != 'name']
+    return ([f'{JOINT_PART}.{{{",".join(joint)}}}']
+            + [f'{m.name}.{{{",".join(MUSCLE_GEOMETRY)}}} or {m.name}.<muscle parameter>'
+               for m in plant.muscles])
+
+
+def parse_plant_fit_names(text: str, plant: LimbPlant) -> list[PlantParameter]:
+    """The fitted quantities of a limb that ``--fit NAME[,NAME...]`` names.
+
+    Each name is ``<part>.<field>``, the plant file's parameter name: ``joint.``
+    and a field of the joint, or a muscle's name and ``moment_arm_m``,
+    ``reference_angle_rad`` or one of its muscle parameters (a list entry as
+    ``quadriceps.tau_fatigue_s[1]``).
+
+    :raises FitError: naming an unknown, repeated or non-real name
+    """
+    joint_fields = {f.name: f for f in dataclasses.fields(JointParams) if f.name != 'name'}
+    muscles = {m.name: m for m in plant.muscles}
+    parts = ', '.join([JOINT_PART] + list(muscles))
+    out: list[PlantParameter] = []
+    for raw in text.split(','):
+        name = raw.strip()
+        if not name:
+            raise FitError(f'--fit: empty parameter name in {text!r}')
+        part, dot, rest = name.partition('.')
+        if not dot or not rest:
+            raise FitError(f'--fit: `{name}`: on a limb, name the joint or the muscle first, '
+                           f'as the plant file does, e.g. `{JOINT_PART}.damping_n_m_s_per_rad` '
+                           f'or `{plant.muscles[0].name if plant.muscles else "muscle"}'
+                           f'.f_iso_max_n` (parts: {parts})')
+        if part == JOINT_PART:
+            f = joint_fields.get(rest)
+            if f is None:
+                raise FitError(f'--fit: unknown parameter `{name}` (the joint\'s: '
+                               f'{", ".join(f"{JOINT_PART}.{k}" for k in joint_fields)})')
+            param = PlantParameter(part, FitParameter(rest, None, f.metadata['unit'],
+                                                      float(f.metadata['low']),
+                                                      float(f.metadata['high'])), 'joint')
+        elif part in muscles:
+            if rest in MUSCLE_GEOMETRY:
+                unit, low, high = MUSCLE_GEOMETRY[rest]
+                param = PlantParameter(part, FitParameter(rest, None, unit, low, high),
+                                       'geometry')
+            else:
+                inner = parse_fit_names(rest, muscles[part].params, prefix=f'{part}.')
+                if len(inner) != 1:
+                    raise FitError(f'--fit: `{name}`: one parameter per name')
+                param = PlantParameter(part, inner[0], 'params')
+        else:
+            raise FitError(f'--fit: `{name}`: the plant has no joint or muscle `{part}` '
+                           f'(parts: {parts})')
+        if any(p.name == param.name for p in out):
+            raise FitError(f'--fit: `{param.name}` is named twice')
+        out.append(param)
+    return out
+
+
+@dataclass(frozen=True)
+class LimbRecording:
+    """A limb's recorded stimulation and joint angle, on one uniform time grid.
+
+    :param bag: the bag directory
+    :param rate_hz: [Hz] 1 / dt of the grid (the joint states' median sample spacing)
+    :param t0_ns: [ns] the grid's first instant (the first joint state), in the bag's
+        stamp clock
+    :param joint: the joint's name in ``joint_states``
+    :param stimulation: per muscle name, the pulse width [s] or recruitment [-] held at
+        each grid instant
+    :param stimulation_kind: per muscle name, ``pulse_width`` or ``recruitment``
+    :param external_torque_n_m: [N m] the external torque held at each grid instant
+    :param sample_index: grid index of each joint state used
+    :param angle_rad: [rad] the recorded joint angle at those samples
+    :param topics: the topics read, by role (``joint_states``, ``external_torque``,
+        and each muscle's name); ``external_torque`` is ``None`` if the bag has none
+    """
+
+    bag: Path
+    rate_hz: float
+    t0_ns: int
+    joint: str
+    stimulation: dict
+    stimulation_kind: dict
+    external_torque_n_m: np.ndarray
+    sample_index: np.ndarray
+    angle_rad: np.ndarray
+    topics: dict
+
+    @property
+    def sample_t_s(self) -> np.ndarray:
+        """[s] the times of the joint states on the grid."""
+        return self.sample_index / self.rate_hz
+
+
+def _topic_for(template: str, muscle: str) -> str:
+    return template.replace(MUSCLE_PLACEHOLDER, muscle)
+
+
+def load_limb_recording(bag_dir: str | Path, plant: LimbPlant, *,
+                        joint_states_topic: str | None = None,
+                        pulse_width_topic: str | None = None,
+                        recruitment_topic: str | None = None,
+                        external_torque_topic: str | None = None) -> LimbRecording:
+    """Read a limb bag's stimulation and joint angle onto one time grid.
+
+    The grid is that of ``joint_states`` (the joint named as in the plant); the
+    limb is taken to be at its initial state at the first joint state. Each
+    muscle's stimulation is ``<muscle>/pulse_width`` or else
+    ``<muscle>/recruitment``, the external torque ``external_torque`` (0 if the
+    bag has none), each held from its message on, as the limb node holds them.
+    Topic templates name ``{muscle}`` for the muscle's name.
+
+    :raises FitError: naming the bag and the topic if a topic is missing or a
+        muscle's stimulation does not overlap the joint states in time
+    """
+    from .recording.reader import read_bag
+    bag_dir = Path(bag_dir)
+    try:
+        bag = read_bag(bag_dir)
+    except (FileNotFoundError, OSError, ValueError) as err:
+        raise FitError(f'{bag_dir}: cannot read the bag: {err}') from None
+    if pulse_width_topic is not None and recruitment_topic is not None:
+        raise FitError('give --pulse-width-topic or --recruitment-topic, not both')
+    for option, template in (('--pulse-width-topic', pulse_width_topic),
+                             ('--recruitment-topic', recruitment_topic)):
+        if (template is not None and MUSCLE_PLACEHOLDER not in template
+                and len(plant.muscles) > 1):
+            raise FitError(f'{option} {template!r}: with {len(plant.muscles)} muscles the '
+                           f'topic must contain {MUSCLE_PLACEHOLDER} for the muscle\'s name')
+    states = _pick_topic(bag, [joint_states_topic or JOINT_STATES_TOPIC], 'the joint angle',
+                         '--joint-states-topic')
+    if states.type != JOINT_STATE:
+        raise FitError(f'{bag_dir}: `{states.name}` carries {states.type}, not {JOINT_STATE}')
+    joint = plant.joint.name
+    angle = np.empty(states.count)
+    for k, msg in enumerate(states.messages):
+        names = list(msg.name)
+        if joint not in names:
+            raise FitError(f'{bag_dir}: message {k} on `{states.name}` has no joint '
+                           f'`{joint}` (the plant\'s joint.name); it names: '
+                           f'{", ".join(names) or "none"}')
+        i = names.index(joint)
+        if i >= len(msg.position):
+            raise FitError(f'{bag_dir}: message {k} on `{states.name}` has no position '
+                           f'for `{joint}`')
+        angle[k] = msg.position[i]
+    states_t = states.stamps_ns()
+    if np.any(np.diff(states_t) < 0):
+        raise FitError(f'{bag_dir}: the stamps of `{states.name}` go back in time')
+    keep = np.isfinite(angle)
+    states_t, angle = states_t[keep], angle[keep]
+    if len(states_t) < 2:
+        raise FitError(f'{bag_dir}: `{states.name}` has {len(states_t)} finite joint '
+                       'angles: too few to fit')
+    dt_ns = float(np.median(np.diff(states_t)))
+    if not dt_ns > 0:
+        raise FitError(f'{bag_dir}: the samples of `{states.name}` share one stamp')
+    t0 = int(states_t[0])
+    sample_index = np.rint((states_t - t0) / dt_ns).astype(np.int64)
+    if np.any(np.diff(sample_index) <= 0):
+        raise FitError(f'{bag_dir}: the samples of `{states.name}` are not on a uniform '
+                       'time grid (two fall on one step)')
+    grid_ns = t0 + np.rint(np.arange(sample_index[-1] + 1) * dt_ns).astype(np.int64)
+
+    stimulation, kinds, topics = {}, {}, {'joint_states': states.name}
+    for m in plant.muscles:
+        if pulse_width_topic is not None:
+            candidates = [(_topic_for(pulse_width_topic, m.name), 'pulse_width')]
+        elif recruitment_topic is not None:
+            candidates = [(_topic_for(recruitment_topic, m.name), 'recruitment')]
+        else:
+            candidates = [(_topic_for(LIMB_PULSE_WIDTH_TOPIC, m.name), 'pulse_width'),
+                          (_topic_for(LIMB_RECRUITMENT_TOPIC, m.name), 'recruitment')]
+        found = [(bag.topic(c), k) for c, k in candidates
+                 if bag.has_topic(c) and bag.topic(c).count]
+        if not found:   # the message names every candidate and what the bag has
+            _pick_topic(bag, [c for c, _ in candidates], f"{m.name}'s stimulation",
+                        '--pulse-width-topic or --recruitment-topic')
+        stim, kind = found[0]
+        try:
+            values = stim.values()
+        except ValueError as err:
+            raise FitError(f'{bag_dir}: {err}') from None
+        _check_values(bag_dir, stim.name, kind, values)
+        t = stim.stamps_ns()
+        if t[0] > states_t[-1] or t[-1] < states_t[0]:
+            raise FitError(f'{bag_dir}: the messages on `{stim.name}` ({_span(t, t0)}) and '
+                           f'the joint states on `{states.name}` ({_span(states_t, t0)}) do '
+                           'not overlap in time')
+        stimulation[m.name] = _held(t, values, grid_ns)
+        kinds[m.name] = kind
+        topics[m.name] = stim.name
+    tau_name = external_torque_topic or EXTERNAL_TORQUE_TOPIC
+    if bag.has_topic(tau_name) and bag.topic(tau_name).count:
+        tau = bag.topic(tau_name)
+        try:
+            tau_v = tau.values()
+        except ValueError as err:
+            raise FitError(f'{bag_dir}: {err}') from None
+        bad = ~(np.abs(tau_v) <= TORQUE_LIMIT_N_M)
+        if bad.any():
+            raise FitError(f'{bag_dir}: `{tau.name}` must be within ±{TORQUE_LIMIT_N_M:g} '
+                           f'N m, got {tau_v[bad][0]!r}')
+        torque = _held(tau.stamps_ns(), tau_v, grid_ns)
+        topics['external_torque'] = tau.name
+    elif external_torque_topic is not None:
+        # Named by the user: its absence is an error, not a zero torque.
+        _pick_topic(bag, [external_torque_topic], 'the external torque',
+                    '--external-torque-topic')
+    else:
+        torque = np.zeros(len(grid_ns))
+        topics['external_torque'] = None
+    return LimbRecording(bag_dir, NS_PER_S / dt_ns, t0, joint, stimulation, kinds, torque,
+                         sample_index, angle, topics)
+
+
+def _held_knots(values: np.ndarray, t_s: np.ndarray) -> Knots:
+    """Knots that give ``values[k]`` at ``t_s[k]`` and hold it to the next instant:
+    a repeated time at each change is a step (the later knot wins there)."""
+    change = np.flatnonzero(values[1:] != values[:-1]) + 1
+    times = np.concatenate(([t_s[0]], np.repeat(t_s[change], 2), [t_s[-1]]))
+    held = np.empty(2 * len(change))
+    held[0::2], held[1::2] = values[change - 1], values[change]
+    return Knots(times, np.concatenate(([values[0]], held, [values[-1]])))
+
+
+class LimbReplay:
+    """The recorded stimulation replayed through the limb
+    (:func:`~hill_muscle_ros.model.limb.simulate_limb`), for any plant.
+
+    The recording becomes a limb protocol on the grid's instants: each step holds
+    the stimulation and torque of its start, as the limb node does, and the angle
+    of step k is the state after it, as ``joint_states`` shows it.
+
+    :param recording: the inputs and the joint angles to predict
+    """
+
+    def __init__(self, recording: LimbRecording) -> None:
+        self.recording = recording
+        n = len(recording.external_torque_n_m)
+        t = sample_times((n - 1) / recording.rate_hz, recording.rate_hz)
+        stimulation = {
+            name: ('recruitment' if recording.stimulation_kind[name] == 'recruitment'
+                   else 'pulse_width_s', _held_knots(values, t))
+            for name, values in recording.stimulation.items()}
+        self.protocol = LimbProtocol(f'recording {recording.bag}', float(t[-1]), stimulation,
+                                     _held_knots(recording.external_torque_n_m, t))
+
+    def angle(self, plant: LimbPlant) -> np.ndarray:
+        """[rad] the joint angle at every grid instant, from the plant's initial state."""
+        return simulate_limb(plant, self.protocol, self.recording.rate_hz)['theta_rad']
+
+    def predict(self, plants: Sequence[LimbPlant]) -> np.ndarray:
+        """[rad] the joint angle at the recorded samples, one row per plant."""
+        index = self.recording.sample_index
+        try:
+            return np.array([self.angle(p)[index] for p in plants])
+        except ValueError as err:   # a muscle driven beyond its length range
+            raise FitError(f'the fit reached a plant the recording drives out of range: '
+                           f'{err}') from None
+
+
 # --------------------------------------------------------------------------- outputs
 
 def _yaml_value(value: Any) -> str:
@@ -717,41 +1069,221 @@ def plot_fit(path: Path, result: FitResult, recording: MuscleRecording) -> None:
     plt.close(fig)
 
 
+# --------------------------------------------------------------------------- limb outputs
+
+def _plant_sections(root: Any) -> list[Any]:
+    """The ``ros__parameters`` mapping nodes of the sections the limb node reads."""
+    sections = []
+    if not isinstance(root, yaml.MappingNode):
+        return sections
+    for key, value in root.value:
+        name = str(key.value)
+        if name != '/**' and name.rstrip('/').split('/')[-1] != 'limb':
+            continue
+        if isinstance(value, yaml.MappingNode):
+            sections += [v for k, v in value.value
+                         if k.value == 'ros__parameters' and isinstance(v, yaml.MappingNode)]
+    return sections
+
+
+def _lookup(mapping: Any, key: str) -> Any:
+    return next((v for k, v in mapping.value if k.value == key), None)
+
+
+def _value_nodes(section: Any, p: PlantParameter) -> list[Any]:
+    """The YAML scalar nodes of ``section`` that hold ``p`` (nested or dotted)."""
+    nodes = []
+    part = _lookup(section, p.part)
+    candidates = [_lookup(section, f'{p.part}.{p.field}')]
+    if isinstance(part, yaml.MappingNode):
+        candidates.append(_lookup(part, p.field))
+    for node in candidates:
+        if p.inner.index is not None and isinstance(node, yaml.SequenceNode):
+            node = node.value[p.inner.index] if p.inner.index < len(node.value) else None
+        if isinstance(node, yaml.ScalarNode):
+            nodes.append(node)
+    return nodes
+
+
+def plant_file_text(text: str, result: FitResult, source: str) -> str | None:
+    """The plant file ``text`` with the fitted values written in place.
+
+    Every other byte stays as it was (comments included); a fitted value's own
+    line comment becomes its standard error and start value. A value the file
+    does not give (a default) is added as a line of its own in the muscle's or
+    the joint's section, or as a dotted name. A header comment names the fit.
+
+    :return: the new text, or ``None`` if the file's layout (flow style) has no
+        place for a missing value
+    """
+    root = yaml.compose(text, Loader=yaml.SafeLoader)
+    sections = _plant_sections(root)
+    if not sections:
+        return None
+    edits: list[tuple[int, int, str]] = []   # (start, end, replacement) character spans
+    lines_at = text.splitlines(keepends=True)
+    for p, x0, x, se in zip(result.parameters, result.start_values, result.estimates,
+                            result.std_errors):
+        note = (f'# fitted by hill-muscle fit: std error {se:.3g} {p.unit} '
+                f'(was {_yaml_value(float(x0))})')
+        nodes = [n for s in sections for n in _value_nodes(s, p)]
+        for node in nodes:
+            start, end = node.start_mark.index, node.end_mark.index
+            line = lines_at[node.end_mark.line]
+            rest = line[node.end_mark.column:]
+            if not rest.strip() or (node.style is None and rest.strip().startswith('#')):
+                # A block value: its line comment becomes the fit's note.
+                end += len(rest.rstrip('\r\n'))
+                edits.append((start, end, f'{_yaml_value(float(x))}  {note}'))
+            else:
+                edits.append((start, end, _yaml_value(float(x))))
+        if nodes:
+            continue
+        # Not in the file: a new line in the last section the node reads.
+        section = sections[-1]
+        part = _lookup(section, p.part)
+        # A list entry brings the whole list (the rest of it as the start gave it).
+        fitted = (p.get(result.params) if p.inner.index is None
+                  else getattr(p._muscle(result.params)[1].params, p.field))
+        if isinstance(part, yaml.MappingNode) and part.value and not part.flow_style:
+            target, key = part, p.field
+        elif section.value and not section.flow_style:
+            target, key = section, f'{p.part}.{p.field}'
+        else:
+            return None
+        first = target.value[0][0].start_mark
+        line_start = first.index - first.column
+        edits.append((line_start, line_start,
+                      f'{" " * first.column}{key}: {_yaml_value(fitted)}  {note}\n'))
+    for start, end, new in sorted(edits, reverse=True):
+        text = text[:start] + new + text[end:]
+    names = ', '.join(p.name for p in result.parameters)
+    return (f'# {names} fitted by `hill-muscle fit` to {source}; every other value is the '
+            'start file\'s.\n' + text)
+
+
+def format_limb_report(result: FitResult, recording: LimbRecording, start_source: str) -> str:
+    """The limb fit in words and tables (Markdown; also what stdout shows)."""
+    r = recording
+    inputs = ', '.join(f'`{r.topics[name]}` ({r.stimulation_kind[name]})'
+                       for name in r.stimulation)
+    torque = (f'`{r.topics["external_torque"]}`' if r.topics['external_torque']
+              else 'none in the bag (0 N m)')
+    lines = [f'# Fit of {", ".join(p.name for p in result.parameters)}', '',
+             f'- bag: {r.bag}',
+             f'- joint angle: `{r.topics["joint_states"]}` (`{r.joint}`), {result.n_samples} '
+             f'samples at {r.rate_hz:g} Hz over {r.sample_t_s[-1] - r.sample_t_s[0]:.3f} s',
+             f'- stimulation: {inputs}; external torque: {torque}',
+             f'- start: {start_source}',
+             f'- least squares: {result.n_evaluations} evaluations; {result.message}',
+             f'- residual RMS: {result.rms_n:.6g} rad (at the start: {result.start_rms_n:.6g} '
+             'rad)', ''] + _estimate_lines(result) + [
+        '', 'Standard errors: sigma^2 (J^T J)^-1 at the estimate, sigma^2 = the sum of '
+            'squared residuals / (samples - parameters); they assume independent '
+            'angle errors of equal variance.']
+    return '\n'.join(lines)
+
+
+def limb_report_data(result: FitResult, recording: LimbRecording) -> dict[str, Any]:
+    """The limb fit's report as plain data (for ``fit_report.yaml``)."""
+    return {
+        'bag': str(recording.bag), 'topics': dict(recording.topics),
+        'joint': recording.joint, 'rate_hz': float(recording.rate_hz),
+        'n_samples': result.n_samples, 'n_evaluations': result.n_evaluations,
+        'message': result.message, 'residual_rms_rad': result.rms_n,
+        'start_residual_rms_rad': result.start_rms_n,
+        'parameters': {p.name: {'unit': p.unit, 'start': float(x0), 'estimate': float(x),
+                                'std_error': float(se)}
+                       for p, x0, x, se in zip(result.parameters, result.start_values,
+                                               result.estimates, result.std_errors)},
+        'correlation': {'names': [p.name for p in result.parameters],
+                        'matrix': [[float(c) for c in row] for row in result.correlation]},
+    }
+
+
+def plot_limb_fit(path: Path, result: FitResult, recording: LimbRecording) -> None:
+    """PNG of the measured and the fitted joint angle, and their difference."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    t = recording.sample_t_s
+    fig, (ax_a, ax_r) = plt.subplots(2, 1, sharex=True, figsize=(8, 6),
+                                     gridspec_kw={'height_ratios': [3, 1]})
+    ax_a.plot(t, recording.angle_rad, color='0.6', lw=2,
+              label=f'measured ({recording.topics["joint_states"]}, {recording.joint})')
+    ax_a.plot(t, result.fitted, color='C0', lw=1, label='fitted model')
+    ax_a.set_ylabel('joint angle [rad]')
+    ax_a.set_title(f'hill-muscle fit: {", ".join(p.name for p in result.parameters)}')
+    ax_a.legend(loc='best')
+    ax_r.plot(t, recording.angle_rad - result.fitted, color='C3', lw=0.8)
+    ax_r.set_ylabel('measured - fitted [rad]')
+    ax_r.set_xlabel('time [s]')
+    for ax in (ax_a, ax_r):
+        ax.grid(True, alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
 # --------------------------------------------------------------------------- CLI
 
 def add_fit_parser(sub: argparse._SubParsersAction) -> None:
     """The ``fit`` subcommand's parser."""
     from .cli import PROG
     fit = sub.add_parser(
-        'fit', help='estimate muscle parameters from a recorded bag (least squares)',
+        'fit', help='estimate muscle or limb parameters from a recorded bag (least squares)',
         description='Replay the stimulation and length recorded in a rosbag2 MCAP bag '
                     'through the model and fit the named parameters to the recorded '
                     'force by least squares. Writes a parameters file that simulate and '
                     'the simulator node load, and reports each estimate with its standard '
-                    'error and the correlations.',
-        epilog='example:\n'
+                    'error and the correlations. With --plant, replay each muscle\'s '
+                    'stimulation through the limb and fit to the recorded joint angle '
+                    '(joint_states); names are then the plant file\'s parameter names, '
+                    'joint.<field> or <muscle>.<field> (e.g. joint.damping_n_m_s_per_rad, '
+                    'quadriceps.f_iso_max_n, quadriceps.moment_arm_m), and the output is '
+                    'the plant file with the fitted values in place.',
+        epilog='examples:\n'
                f'  {PROG} simulate --protocol II --params truth.yaml --bag run_bag\n'
                f'  {PROG} fit --bag run_bag --fit f_iso_max_n,k_se_n_per_m,fv_a_n '
-               '--out fitted.yaml --report fit_report',
+               '--out fitted.yaml --report fit_report\n'
+               f'  {PROG} fit --bag knee_bag --plant config/knee.yaml '
+               '--fit quadriceps.f_iso_max_n,joint.damping_n_m_s_per_rad '
+               '--out knee_fitted.yaml --report knee_fit',
         formatter_class=argparse.RawDescriptionHelpFormatter)
     fit.add_argument('--bag', required=True, type=Path, metavar='DIR',
                      help='the rosbag2 MCAP bag (a directory)')
     fit.add_argument('--fit', required=True, metavar='NAME[,NAME...]', dest='fit_names',
                      help='parameters to estimate, e.g. f_iso_max_n,k_se_n_per_m '
-                          '(a list entry as tau_fatigue_s[0])')
+                          '(a list entry as tau_fatigue_s[0]); with --plant '
+                          f'{JOINT_PART}.<field> or <muscle>.<field>, e.g. '
+                          f'{JOINT_PART}.damping_n_m_s_per_rad,quadriceps.f_iso_max_n')
     fit.add_argument('--params', type=Path, metavar='YAML',
                      help='start values and every parameter not fitted (default: the '
                           "package's config/muscle.yaml)")
+    fit.add_argument('--plant', type=Path, metavar='YAML',
+                     help='fit a limb instead: the plant file (e.g. config/knee.yaml) gives '
+                          'the start values and every parameter not fitted; --out is then '
+                          'that file with the fitted values in place')
     fit.add_argument('--out', required=True, type=Path, metavar='YAML',
-                     help='write the fitted parameters file here')
+                     help='write the fitted parameters (or plant) file here')
     fit.add_argument('--report', type=Path, metavar='DIR',
-                     help=f'also write {REPORT_MARKDOWN}, {REPORT_YAML} and {REPORT_PNG} here')
+                     help=f'also write {REPORT_MARKDOWN}, {REPORT_YAML} and {REPORT_PNG} '
+                          f'({REPORT_ANGLE_PNG} with --plant) here')
     stim = fit.add_mutually_exclusive_group()
     stim.add_argument('--pulse-width-topic', metavar='TOPIC',
                       help=f'stimulation as pulse widths [s] (default: `{PULSE_WIDTH_TOPIC}`, '
-                           f'else `{RECRUITMENT_TOPIC}`)')
+                           f'else `{RECRUITMENT_TOPIC}`; with --plant `{LIMB_PULSE_WIDTH_TOPIC}`, '
+                           f'else `{LIMB_RECRUITMENT_TOPIC}`, {MUSCLE_PLACEHOLDER} standing for '
+                           "each muscle's name)")
     stim.add_argument('--recruitment-topic', metavar='TOPIC',
-                      help='stimulation as recruitment [-]')
+                      help='stimulation as recruitment [-] (with --plant, a topic with '
+                           f'{MUSCLE_PLACEHOLDER})')
+    fit.add_argument('--joint-states-topic', metavar='TOPIC',
+                     help='with --plant: the joint angle, sensor_msgs/JointState position of '
+                          f"the plant's joint.name (default: `{JOINT_STATES_TOPIC}`)")
+    fit.add_argument('--external-torque-topic', metavar='TOPIC',
+                     help='with --plant: the external torque [N m], Float64 (default: '
+                          f'`{EXTERNAL_TORQUE_TOPIC}`, 0 if the bag has none)')
     fit.add_argument('--length-topic', metavar='TOPIC',
                      help='MTU length change [m], Float64 or PointStamped knots (default: '
                           f'`{LENGTH_TOPICS[0]}`, else `{LENGTH_TOPICS[1]}`)')
@@ -760,11 +1292,27 @@ def add_fit_parser(sub: argparse._SubParsersAction) -> None:
                           f'`{FORCE_TOPICS[0]}`, else `{FORCE_TOPICS[1]}`)')
 
 
+#: Options of ``fit`` for one kind of plant only: (attribute, flag).
+MUSCLE_FIT_OPTIONS = (('params', '--params'), ('length_topic', '--length-topic'),
+                      ('force_topic', '--force-topic'))
+LIMB_FIT_OPTIONS = (('joint_states_topic', '--joint-states-topic'),
+                    ('external_torque_topic', '--external-torque-topic'))
+
+
 def cmd_fit(args: argparse.Namespace) -> int:
     """Run ``hill-muscle fit``; user errors raise :class:`~hill_muscle_ros.cli.UserError`."""
     from . import resources
     from .cli import UserError
     from .params_file import load_muscle_params
+    if args.plant is not None:
+        given = [flag for attr, flag in MUSCLE_FIT_OPTIONS if getattr(args, attr) is not None]
+        if given:
+            raise UserError(f'{given[0]} applies to the single muscle, not to a limb '
+                            '(--plant): the plant file gives every start value')
+        return _cmd_fit_limb(args)
+    given = [flag for attr, flag in LIMB_FIT_OPTIONS if getattr(args, attr) is not None]
+    if given:
+        raise UserError(f'{given[0]} applies to a limb: give --plant PLANT.yaml')
     params_path = args.params if args.params is not None else resources.default_params_file()
     try:
         start, node_settings = load_muscle_params(params_path)
@@ -801,3 +1349,67 @@ def cmd_fit(args: argparse.Namespace) -> int:
         print(f'wrote {args.report / REPORT_MARKDOWN}, {args.report / REPORT_YAML}, '
               f'{args.report / REPORT_PNG}')
     return 0
+
+
+def _cmd_fit_limb(args: argparse.Namespace) -> int:
+    """``hill-muscle fit --plant``: the limb's parameters from its joint angle."""
+    from .cli import UserError
+    from .params_file import load_plant
+    try:
+        start, _ = load_plant(args.plant)
+        start_text = args.plant.read_text(encoding='utf-8')
+        parameters = parse_plant_fit_names(args.fit_names, start)
+        recording = load_limb_recording(
+            args.bag, start, joint_states_topic=args.joint_states_topic,
+            pulse_width_topic=args.pulse_width_topic,
+            recruitment_topic=args.recruitment_topic,
+            external_torque_topic=args.external_torque_topic)
+        print(f'fitting {", ".join(p.name for p in parameters)} to the angle of '
+              f'`{recording.joint}` on {recording.topics["joint_states"]} '
+              f'({len(recording.angle_rad)} samples at {recording.rate_hz:g} Hz); each '
+              f'evaluation runs {len(parameters) + 1} limb simulations', file=sys.stderr)
+        result = fit_parameters(LimbReplay(recording), recording.angle_rad, start, parameters,
+                                progress=lambda line: print(line, file=sys.stderr, flush=True),
+                                quantity='joint angle', unit='rad')
+    except (OSError, UnicodeDecodeError) as err:
+        raise UserError(f'{args.plant}: cannot read the plant file: {err}') from None
+    except ValueError as err:   # FitError, and the plant file's own errors
+        raise UserError(str(err)) from None
+    report = format_limb_report(result, recording, str(args.plant))
+    text = plant_file_text(start_text, result, str(args.bag))
+    if text is None or _plant_of(text) != result.params:
+        raise UserError(f'{args.plant}: cannot write the fitted values into this file\'s '
+                        'layout (block-style `ros__parameters` with the muscles\' and the '
+                        'joint\'s sections needed)')
+    try:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(text, encoding='utf-8')
+        if args.report is not None:
+            args.report.mkdir(parents=True, exist_ok=True)
+            (args.report / REPORT_MARKDOWN).write_text(report + '\n', encoding='utf-8')
+            (args.report / REPORT_YAML).write_text(
+                yaml.safe_dump(limb_report_data(result, recording), sort_keys=False),
+                encoding='utf-8')
+            plot_limb_fit(args.report / REPORT_ANGLE_PNG, result, recording)
+    except OSError as err:
+        raise UserError(f'{err.filename}: cannot write: {err.strerror or err}') from None
+    print(report)
+    print(f'wrote {args.out}')
+    if args.report is not None:
+        print(f'wrote {args.report / REPORT_MARKDOWN}, {args.report / REPORT_YAML}, '
+              f'{args.report / REPORT_ANGLE_PNG}')
+    return 0
+
+
+def _plant_of(text: str) -> LimbPlant | None:
+    """The plant a plant file's text gives, as the limb CLI loads it (``None`` if it
+    does not load): the written file is checked against the fitted plant."""
+    import tempfile
+    from .params_file import load_plant
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / 'plant.yaml'
+        path.write_text(text, encoding='utf-8')
+        try:
+            return load_plant(path)[0]
+        except ValueError:
+            return None
