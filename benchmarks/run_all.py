@@ -10,6 +10,7 @@ Usage::
     .venv/bin/python benchmarks/run_all.py --out BENCHMARKS.md [--runs 7]
 
 ``--only fit`` runs only section 8, ``hill-muscle fit`` (``bench_fit.py``).
+``--only gym`` runs only the Gymnasium vector environments (``bench_gym.py``).
 ``--only fes`` runs only section 7, the FES features (``bench_fes.py``, a few
 minutes), and prints its Markdown instead of writing BENCHMARKS.md (or writes
 it to ``--out`` if given)::
@@ -37,6 +38,7 @@ sys.path.insert(0, str(HERE))
 
 import bench_fes  # noqa: E402
 import bench_fit  # noqa: E402
+import bench_gym  # noqa: E402
 import bench_node  # noqa: E402
 # bench_rtf.py (item 6, live); run_all.bench_rtf is the offline item 2.
 import bench_rtf as live_rtf  # noqa: E402
@@ -568,6 +570,7 @@ def write_report(path: Path, runs: int, started: dict, results: dict) -> None:
     bench_fes.write_section(add, results['fes'])
     add('')
     bench_fit.write_section(add, results['fit'])
+    bench_gym.write_section(add, results['gym'])
     add('## Profiles')
     add('')
     add('`benchmarks/profile_simulate.py` writes cProfile and pyinstrument output of '
@@ -582,9 +585,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--out', type=Path, default=None,
                         help='Markdown file to write (default: BENCHMARKS.md; with --only, '
                              'print the section instead)')
-    parser.add_argument('--only', choices=('fes', 'fit'), default=None,
+    parser.add_argument('--only', choices=('fes', 'fit', 'gym'), default=None,
                         help='run one section only: fes = section 7, the FES features; '
-                             'fit = section 8, hill-muscle fit')
+                             'fit = section 8, hill-muscle fit; gym = the Gymnasium '
+                             'vector environments')
     parser.add_argument('--runs', type=int, default=7,
                         help=f'runs per measurement, at least {MIN_RUNS} (default: 7)')
     parser.add_argument('--node-seconds', type=float, default=30.0,
@@ -598,7 +602,7 @@ def main(argv: list[str] | None = None) -> int:
     os.chdir(REPO)
     if args.only is not None:
         lines = []
-        section = {'fes': bench_fes, 'fit': bench_fit}[args.only]
+        section = {'fes': bench_fes, 'fit': bench_fit, 'gym': bench_gym}[args.only]
         measured = section.run(args.runs)
         lines.append(f'<!-- run_all.py --only {args.only} --runs {args.runs}, {started["date"]}, '
                      f'load average {started["load"]} at start, {load_average()} at end, '
@@ -632,6 +636,8 @@ def main(argv: list[str] | None = None) -> int:
     results['fes'] = bench_fes.run(args.runs)
     print('hill-muscle fit', flush=True)
     results['fit'] = bench_fit.run(args.runs)
+    print('Gymnasium vector environments', flush=True)
+    results['gym'] = bench_gym.run(args.runs)
     print('ROS nodes', flush=True)
     results['node_seconds'] = args.node_seconds
     results['nodes'] = bench_nodes(args.node_seconds)

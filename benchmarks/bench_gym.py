@@ -1,0 +1,129 @@
+"""The Gymnasium vector environments: the section "Gymnasium vector
+environments" of BENCHMARKS.md (``make bench``).
+
+For each environment, K = :data:`NUM_ENVS` sub-environments with their default
+settings (ForceTracking-v0: the paper's muscle, every FES feature off;
+KneeAngle-v0: the knee preset, whose muscles have delay, activation and
+fatigue on) stepped with the same seeded random actions, uniform in the
+action Box, by
+
+- the native vector environment, ``gymnasium.make_vec(id, num_envs=K)``
+  (:mod:`hill_muscle_ros.gym.vector`), and
+- ``gymnasium.vector.SyncVectorEnv`` of K single environments, the one
+  gymnasium builds around any environment.
+
+A run is :data:`STEPS` vector steps from a seeded reset (the reset is not
+timed); the two are timed alternately, run by run, so that load from other
+processes falls on both alike. The rate is environment steps (control periods
+of one sub-environment) per second of wall time, and the ratio is that of the
+two medians.
+
+The goal: the native ForceTracking vector environment at least
+:data:`TARGET_RATIO` times as fast as SyncVectorEnv at K = 256.
+
+Run this section alone while developing (prints its Markdown)::
+
+    .venv/bin/python benchmarks/run_all.py --only gym --runs 5
+"""
+from __future__ import annotations
+
+import time
+
+import gymnasium as gym
+import numpy as np
+from gymnasium.vector import SyncVectorEnv
+
+from timing import Stats
+
+import hill_muscle_ros.gym as hgym
+
+#: [-] Sub-environments per vector environment.
+NUM_ENVS = 256
+#: [-] Goal: native over SyncVectorEnv, ForceTracking-v0 at K = NUM_ENVS.
+TARGET_RATIO = 20.0
+#: The single environment's class (SyncVectorEnv gets it bare, no wrappers)
+#: and the vector steps per timed run: ForceTracking 1 s of each episode
+#: (20 ms periods); one period of the knee, whose limb steps cost about a
+#: thousand times more (1000 units with per-unit fatigue, two muscles, the
+#: joint: measured 20-45 ms per period and limb, 6-12 s per vector step).
+ENVS = {hgym.FORCE_TRACKING_ID: (hgym.ForceTrackingEnv, 50),
+        hgym.KNEE_ANGLE_ID: (hgym.KneeAngleEnv, 1)}
+#: Seed of the episodes and of the actions.
+SEED = 20240601
+
+
+def _actions(space: gym.spaces.Box, n_steps: int, seed: int) -> list[np.ndarray]:
+    """``n_steps`` batches of K actions uniform in the single action Box."""
+    rng = np.random.default_rng(seed)
+    return [rng.uniform(space.low, space.high, size=(NUM_ENVS, space.shape[0]))
+            .astype(np.float32) for _ in range(n_steps)]
+
+
+def _timed(env, actions: list[np.ndarray]) -> tuple[float, float]:
+    """Wall and CPU time [s] of stepping ``env`` through ``actions`` from a seeded reset."""
+    env.reset(seed=SEED)
+    c0, t0 = time.process_time(), time.perf_counter()
+    for a in actions:
+        env.step(a)
+    return time.perf_counter() - t0, time.process_time() - c0
+
+
+def _compare(env_id: str, runs: int) -> dict:
+    """Native and SyncVectorEnv rates [env steps/s] of ``env_id``, measured alternately."""
+    single, n_steps = ENVS[env_id]
+    native = gym.make_vec(env_id, num_envs=NUM_ENVS)
+    sync = SyncVectorEnv([single for _ in range(NUM_ENVS)])
+    actions = _actions(sync.single_action_space, n_steps, SEED)
+    _timed(native, actions[:1])   # warm-up: first calls, caches, a compiled kernel if any
+    _timed(sync, actions[:1])
+    wall = {'native': [], 'sync': []}
+    cpu = {'native': [], 'sync': []}
+    for _ in range(runs):
+        for name, env in (('native', native), ('sync', sync)):
+            w, c = _timed(env, actions)
+            wall[name].append(w)
+            cpu[name].append(c)
+    n = NUM_ENVS * len(actions)
+    rates = {name: Stats.of(wall[name], cpu[name]).inverted(n) for name in wall}
+    native.close()
+    sync.close()
+    return {'native': rates['native'], 'sync': rates['sync'],
+            'ratio': rates['native'].median / rates['sync'].median, 'steps': len(actions),
+            'native_class': type(native.unwrapped).__name__}
+
+
+def run(runs: int) -> dict:
+    """Both environments' rates, ForceTracking first."""
+    return {env_id: _compare(env_id, runs) for env_id in ENVS}
+
+
+def write_section(add, results: dict) -> None:
+    """The section of BENCHMARKS.md from :func:`run`'s results."""
+    add('## Gymnasium vector environments')
+    add('')
+    add(f'`benchmarks/bench_gym.py`. K = {NUM_ENVS} sub-environments with default settings '
+        '(ForceTracking-v0: the paper\'s muscle, FES features off; KneeAngle-v0: the knee '
+        'preset, delay, activation and fatigue on), the same seeded random actions (uniform '
+        'in the Box: the recruitment changes every period) for the native vector '
+        'environment (`gymnasium.make_vec`) and for `gymnasium.vector.SyncVectorEnv` of K '
+        'single environments, timed alternately run by run. Rates in environment steps '
+        '(20 ms control periods of one sub-environment, 20 model steps each) per second of '
+        'wall time; CPU time in brackets.')
+    add('')
+    add('| environment | vector steps per run | native [env steps/s] | SyncVectorEnv '
+        '[env steps/s] | native / Sync |')
+    add('| --- | ---: | ---: | ---: | ---: |')
+    for env_id, r in results.items():
+        add(f'| `{env_id}` (`{r["native_class"]}`) | {r["steps"]} | {r["native"].fmt()} '
+            f'[cpu {r["native"].cpu.median:.3g}] | {r["sync"].fmt()} '
+            f'[cpu {r["sync"].cpu.median:.3g}] | **{r["ratio"]:.1f}x** |')
+    add('')
+    ratio = results[hgym.FORCE_TRACKING_ID]['ratio']
+    add(f'- Target: the native ForceTracking-v0 vector environment at least '
+        f'{TARGET_RATIO:g}x SyncVectorEnv at K = {NUM_ENVS}: **{ratio:.1f}x** — '
+        f'{"met" if ratio >= TARGET_RATIO else "NOT met"}.')
+    knee = results[hgym.KNEE_ANGLE_ID]['ratio']
+    add(f'- KneeAngle-v0 (no target): {knee:.1f}x. Its vector environment steps each limb '
+        'with the scalar limb engine (`LimbBatch`), as the single environment does, so it '
+        'saves only the per-environment overhead of SyncVectorEnv.')
+    add('')
