@@ -42,6 +42,9 @@ setup(
         'test': ['pytest', 'hypothesis', 'scipy', 'rosbags'],
         # hill_muscle_ros.gym only (the Gymnasium environments); tested with 1.4.0.
         'gym': ['gymnasium>=1.4.0'],
+        # examples/train_force_tracking.py's training only (tested with 2.9.2 on a
+        # CPU-only torch 2.13.0); the environments themselves do not need it.
+        'rl': ['gymnasium>=1.4.0', 'stable-baselines3>=2.9.2'],
         # `hill-muscle sweep` only; every other command runs without them.
         'sweep': ['dask>=2026.8.0', 'distributed>=2026.8.0', 'pyarrow>=26.0.1'],
     },

@@ -506,3 +506,63 @@ def test_knee_muscle_overrides_change_the_simulated_limb():
 def test_knee_bad_muscle_options_raise_naming_them(kwargs, message):
     with pytest.raises(ValueError, match=message):
         KneeAngleEnv(**kwargs)
+
+
+# -- the RL example (examples/train_force_tracking.py): its evaluation, never its training --
+
+def _example():
+    import importlib.util
+    from pathlib import Path
+    path = Path(__file__).resolve().parents[1] / 'examples' / 'train_force_tracking.py'
+    spec = importlib.util.spec_from_file_location('train_force_tracking', path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_example_rms_error_of_no_stimulation_isometric_is_the_rms_target():
+    # Isometric and unstimulated, F = 0 at every millisecond: the RMS error over
+    # the episode is the RMS of the targets the seed draws.
+    example = _example()
+    env = ForceTrackingEnv(length_max_m=0.0)
+    result = example.evaluate(env, lambda obs: np.zeros(1, dtype=np.float32), seeds=[1000])
+    targets, _ = env.draw_episode(np.random.default_rng(1000), None)
+    assert result['rms_error_n'] == pytest.approx(np.sqrt(np.mean(targets ** 2)), rel=1e-12)
+
+
+def test_example_main_without_training_prints_the_pi_evaluation(capsys):
+    example = _example()
+    assert example.main(['--timesteps', '0', '--eval-seeds', '1000']) == 0
+    env = example.make_env()
+    act, reset = example.pi_policy(env)
+    pi = example.evaluate(env, act, seeds=[1000], reset=reset)
+    assert capsys.readouterr().out == (f'PI controller: RMS force error {pi["rms_error_n"]:.3f} '
+                                       f'N, mean return {pi["mean_return"]:.3f} (1 episodes)\n')
+
+
+def test_example_pi_policy_tracks_far_better_than_no_stimulation():
+    example = _example()
+    env = example.make_env()
+    act, reset = example.pi_policy(env)
+    pi = example.evaluate(env, act, seeds=[1000, 1001], reset=reset)
+    idle = example.evaluate(env, lambda obs: np.zeros(1, dtype=np.float32), seeds=[1000, 1001])
+    assert pi['rms_error_n'] < 0.5 * idle['rms_error_n']
+    assert pi['mean_return'] > idle['mean_return']
+
+
+def test_example_without_stable_baselines3_says_how_to_install_it(capsys):
+    try:
+        import stable_baselines3  # noqa: F401
+        pytest.skip('Stable-Baselines3 is installed')
+    except ImportError:
+        pass
+    assert _example().main(['--timesteps', '10', '--eval-seeds', '1000']) == 1
+    assert 'pip install "hill_muscle_ros[rl]"' in capsys.readouterr().err
+
+
+def test_example_trains_and_evaluates_with_a_tiny_budget(capsys):
+    pytest.importorskip('stable_baselines3')
+    example = _example()
+    assert example.main(['--timesteps', '64', '--num-envs', '1', '--eval-seeds', '1000']) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[1].startswith('PPO (64 steps, ')
