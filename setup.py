@@ -37,6 +37,11 @@ setup(
         'mcap-ros2-support>=0.6.0',
         # `hill-muscle fit` (scipy.optimize.least_squares); Ubuntu 24.04 has 1.11.4.
         'scipy>=1.11',
+        # MuscleBatch's compiled engine (imported only when a batch uses it; the
+        # batch falls back to NumPy without it). Tested: numba 0.68.1 with
+        # numpy 2.4.6 (numba 0.62 requires numpy < 2.4).
+        'numba>=0.68.1',
+        'llvmlite>=0.50.0',
     ],
     extras_require={
         'test': ['pytest', 'hypothesis', 'scipy', 'rosbags'],

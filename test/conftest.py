@@ -97,7 +97,8 @@ OFFLINE_MODULES = frozenset({
     'test_cli', 'test_control_pi', 'test_controller_inputs', 'test_figures',
     'test_install_clean', 'test_recorder_units', 'test_recording_bag',
     'test_recording_offline', 'test_repository_standalone', 'test_joint_controller',
-    'test_gym', 'test_fit', 'test_fit_limb', 'test_recording_joint_state'})
+    'test_gym', 'test_fit', 'test_fit_limb', 'test_recording_joint_state',
+    'test_batch_compiled'})
 #: Names whose presence in a module's namespace means it may start nodes or
 #: join the graph: such a module cannot be an offline one.
 ROS_NAMES = frozenset({'rclpy', 'ros_helpers', 'Probe', 'ProcessGroup', 'node_command',

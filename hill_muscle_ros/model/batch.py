@@ -29,6 +29,7 @@ from typing import NamedTuple, Sequence
 
 import numpy as np
 
+from . import kernels
 from .curves import ECC_PLATEAU, FL_A, FL_B, FL_C
 from .fes_muscle import FesMuscle
 from .memory import UnitMemory
@@ -37,6 +38,9 @@ from .params import MuscleParams
 
 #: Rounding offset of M = floor(N R + 0.5) (doc/model.md section 2).
 _ROUND_HALF = 0.5
+
+#: Values of ``MuscleBatch(engine=...)``.
+ENGINES = ('auto', 'compiled', 'numpy')
 
 
 class BatchOutputs(NamedTuple):
@@ -69,10 +73,17 @@ class MuscleBatch:
     """K independent muscles with their own parameters, stepped together.
 
     :param params: one :class:`MuscleParams` per muscle (K >= 1)
-    :raises ValueError: if ``params`` is empty or holds something else
+    :param engine: ``'compiled'`` (numba), ``'numpy'`` (whole-array NumPy, the
+        reference) or ``'auto'``: compiled if numba imports, else NumPy, with
+        the same results either way (1e-9 N). :attr:`engine` tells which runs.
+    :raises ValueError: if ``params`` is empty or holds something else, or
+        ``engine`` is none of :data:`ENGINES`
+    :raises ImportError: if ``engine='compiled'`` and numba cannot be imported
     """
 
-    def __init__(self, params: Sequence[MuscleParams]) -> None:
+    def __init__(self, params: Sequence[MuscleParams], engine: str = 'auto') -> None:
+        if engine not in ENGINES:
+            raise ValueError(f'`engine` must be one of {", ".join(ENGINES)}, got {engine!r}')
         params = list(params)
         if not params:
             raise ValueError('`params` must hold at least one MuscleParams, got none')
@@ -104,6 +115,25 @@ class MuscleBatch:
                           if p.units == 'multi' and p.length == 'initial'}
         #: Muscles with an FES extension on: their scalar engines, by index.
         self._fes = {i: FesMuscle(p) for i, p in enumerate(params) if not p.fes_defaults}
+        #: The compiled kernels (None on the NumPy engine).
+        self._kernels = None
+        if engine != 'numpy':
+            try:
+                self._kernels = kernels.compiled()
+            except ImportError:
+                if engine == 'compiled':
+                    raise
+        #: [-] the engine in use: ``'compiled'`` or ``'numpy'``.
+        self.engine = 'numpy' if self._kernels is None else 'compiled'
+        if self._kernels is not None:
+            # One row per parameter (kernels.P_*), contiguous per parameter.
+            rows = {kernels.P_K_SE: self._k_se, kernels.P_K_PE: self._k_pe,
+                    kernels.P_L_REST: self._l_rest, kernels.P_L_OPT: self._l_opt,
+                    kernels.P_A: self._a, kernels.P_B: self._b,
+                    kernels.P_A_ECC: self._a_ecc, kernels.P_B_ECC: self._b_ecc}
+            self._param_rows = np.empty((kernels.N_PARAMS, self.size))
+            for row, values in rows.items():
+                self._param_rows[row] = values
         self.reset()
 
     # -- state ---------------------------------------------------------------
@@ -140,7 +170,9 @@ class MuscleBatch:
         return runs
 
     def _vector(self, values, name: str) -> np.ndarray:
-        v = np.asarray(values, dtype=float)
+        # A copy: the batch keeps dl_MT as its state, and a caller who refills
+        # one input array in place between steps must not change that state.
+        v = np.array(values, dtype=float)
         if v.shape == ():
             v = np.full(self.size, float(v))
         if v.shape != (self.size,):
@@ -153,6 +185,11 @@ class MuscleBatch:
         :param recruitment: [-] R in [0, 1] per muscle, shape (K,) or a scalar
         :raises ValueError: if any R is outside [0, 1] or not finite; nothing changes
         """
+        self._set_recruitment(recruitment, release=True)
+
+    def _set_recruitment(self, recruitment, release: bool) -> None:
+        """:meth:`set_recruitment`; ``release=False`` leaves the released CEs
+        where they are, for the compiled step, which releases them itself."""
         r = self._vector(recruitment, 'recruitment')
         bad = ~((r >= 0.0) & (r <= 1.0))   # also true for NaN
         if bad.any():
@@ -160,10 +197,14 @@ class MuscleBatch:
             raise ValueError(f'`recruitment` must be in [0, 1], got {r[i]!r} '
                              f'for muscle {i}')
         self._apply_recruitment(r)
-        # Released muscles: the free CE takes up the slack at once (as Muscle).
-        self.l_ce_m = np.where(self._eff_f_iso(self.l_ce_m) == 0.0,
-                               self._l_rest + self.dl_mt_m, self.l_ce_m)
-        self.command = r.copy()
+        if release:
+            # Released muscles: the free CE takes up the slack at once (as Muscle).
+            self.l_ce_m = np.where(self._eff_f_iso(self.l_ce_m) == 0.0,
+                                   self._l_rest + self.dl_mt_m, self.l_ce_m)
+        elif self._fes:
+            # _copy_state writes into l_ce_m: not into an array already returned.
+            self.l_ce_m = self.l_ce_m.copy()
+        self.command = r
         for i, muscle in self._fes.items():
             muscle.set_recruitment(float(r[i]))
             self._copy_state(i, muscle)
@@ -281,6 +322,8 @@ class MuscleBatch:
         dt = float(dt_s)
         if not (np.isfinite(dt) and dt > 0.0):
             raise ValueError(f'`dt_s` must be positive and finite, got {dt_s!r}')
+        if self._kernels is not None:
+            return self._step_compiled(recruitment, dl1, dt)
         self.set_recruitment(recruitment)
 
         l0, dl0 = self.l_ce_m, self.dl_mt_m
@@ -316,6 +359,36 @@ class MuscleBatch:
                 self._v_ce[i] = out.v_ce_m_per_s
                 f0[i] = out.eff_f_iso_n
         return self._outputs(f0)
+
+    def _step_compiled(self, recruitment, dl1: np.ndarray, dt: float) -> BatchOutputs:
+        """:meth:`step` on the compiled engine (inputs but R validated).
+
+        The recruitment bookkeeping (memories and gains of the muscles whose R
+        changed) is the NumPy engine's own; kernels.step_all does the rest of
+        the step, the same operations per muscle as the array code below it.
+        """
+        self._set_recruitment(recruitment, release=False)
+        out = np.empty((kernels.N_OUTPUTS, self.size))
+        kernels.launch(self._kernels, self.size >= kernels.PARALLEL_MIN_K,
+                       self.l_ce_m, self.dl_mt_m, dl1, dt, self._gain, self._v_ce,
+                       self._v_is_k1, self._initial, self._param_rows, out)
+        l1, v_ce, f0 = out[kernels.OUT_L_CE], out[kernels.OUT_V_CE], out[kernels.OUT_EFF_F_ISO]
+        self.l_ce_m, self.dl_mt_m = l1, dl1
+        self._v_free, self._v_ce = out[kernels.OUT_V_FREE], v_ce
+        self._v_is_k1 = True
+        self.t_s += dt
+        if self._fes:
+            self._v_ce = v_ce.copy()
+            for i, muscle in self._fes.items():
+                res = muscle.step(float(self.command[i]), float(dl1[i]), dt)
+                self._copy_state(i, muscle)
+                self._v_ce[i] = res.v_ce_m_per_s
+                f0[i] = res.eff_f_iso_n
+            return self._outputs(f0)
+        return BatchOutputs(self.t_s, self.recruitment.copy(), self.n_recruited.copy(),
+                            dl1, l1, v_ce, out[kernels.OUT_F_SE], out[kernels.OUT_F_PE],
+                            out[kernels.OUT_FORCE], f0, self.command.copy(),
+                            self.mean_fitness.copy())
 
     def outputs(self) -> BatchOutputs:
         """The outputs of every muscle at the current instant."""

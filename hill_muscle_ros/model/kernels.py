@@ -1,0 +1,248 @@
+"""The batch step of one muscle as plain scalar functions, for Python and numba.
+
+:class:`~hill_muscle_ros.model.batch.MuscleBatch`'s compiled engine runs
+:func:`step_all` compiled by numba; the same functions run unchanged as plain
+Python (slowly: they are for the tests, not for use). They are written once:
+the curves are those of :mod:`.curves` (Eq. 1, the springs, Eq. 3 inverted)
+and the integrator is the RK4 step of :meth:`Muscle.step
+<hill_muscle_ros.model.muscle.Muscle.step>` (recruitment held, MTU length
+ramping linearly, the free CE when Eff.f_iso = 0; doc/model.md section 4).
+
+:func:`compiled` builds the numba versions: numba is imported there and only
+there, so importing this module (or the package) never loads it. Each
+function is compiled from its own code object with the names it calls bound
+to their compiled versions, and cached on disk (``cache=True``), so only the
+first process compiles. numba's cache notices a change of this file but not
+of :mod:`.curves`: after editing the curves, remove this directory's
+``__pycache__/kernels.*.nbi``/``.nbc`` files (the tests compare the compiled
+engine with the NumPy one, so a stale kernel shows up there).
+
+Threads: :func:`step_all` runs its loop over muscles on numba's threads
+(``numba.set_num_threads``, ``NUMBA_NUM_THREADS``; all cores by default) when
+the batch has at least :data:`PARALLEL_MIN_K` muscles. On cores busy with
+other work a second thread can cost more than it gains (BENCHMARKS.md section
+3): set one thread there. numba's ``workqueue`` threading layer aborts the
+process if two Python threads launch a loop at once, so launches are
+serialised by :data:`LAUNCH_LOCK`.
+"""
+from __future__ import annotations
+
+import threading
+import types
+
+from .curves import force_length, force_velocity_inverse, parallel_force, series_force
+
+#: The loop over muscles; the compiled build binds this name to ``numba.prange``.
+prange = range
+
+#: Serialises launches of the parallel loop (see the module docstring).
+LAUNCH_LOCK = threading.Lock()
+
+#: [-] smallest K whose loop runs on every numba thread; smaller batches run
+#: on one. Measured on 2 cores: one thread steps about 20 ns a muscle
+#: vectorised, and a launch on a second thread costs tens of us when idle and
+#: far more when the cores are busy (BENCHMARKS.md section 3), so only a few
+#: thousand muscles repay it.
+PARALLEL_MIN_K = 4096
+
+#: Rows of the parameter matrix of :func:`step_all`, one per muscle parameter
+#: it needs.
+P_K_SE, P_K_PE, P_L_REST, P_L_OPT, P_A, P_B, P_A_ECC, P_B_ECC = range(8)
+N_PARAMS = 8
+
+#: Rows of the output matrix of :func:`step_all`.
+(OUT_L_CE, OUT_V_CE, OUT_EFF_F_ISO, OUT_V_FREE, OUT_F_SE, OUT_F_PE,
+ OUT_FORCE) = range(7)
+N_OUTPUTS = 7
+
+
+def eff_f_iso(l_ce_m: float, gain_n: float, l_opt_m: float, initial: bool) -> float:
+    """[N] Eff.f_iso from the recruitment's gain (see ``Muscle._gain_n``).
+
+    :param l_ce_m: [m] CE length (l_CE), used by the instantaneous variants
+    :param gain_n: [N] Eff.f_iso (initial) or Eff.f_iso / FL (instantaneous)
+    :param l_opt_m: [m] CE optimal length (l_opt)
+    :param initial: True for the ``initial`` length variants
+    """
+    if initial:
+        return gain_n
+    return gain_n * force_length(l_ce_m / l_opt_m)
+
+
+def ce_velocity(l_ce_m: float, dl_mt_m: float, f0_n: float, k_se: float, l_rest_m: float,
+                a: float, b: float, a_ecc: float, b_ecc: float) -> float:
+    """[m/s] d l_CE / dt = FV_inv(f_SE, F0): Eq. 3 inverted at the tendon force.
+
+    :param l_ce_m: [m] CE length (l_CE)
+    :param dl_mt_m: [m] MTU length change from rest (dl_MT)
+    :param f0_n: [N] Eff.f_iso (F0)
+    :param k_se: [N/m] SE stiffness; the rest as :func:`.force_velocity_inverse`
+    """
+    return force_velocity_inverse(series_force(k_se, dl_mt_m, l_ce_m, l_rest_m), f0_n,
+                                  a, b, a_ecc, b_ecc)
+
+
+def step_one(l0: float, dl0: float, dl1: float, dt: float, gain: float, k1_prev: float,
+             have_k1: bool, initial: bool, k_se: float, l_rest: float, l_opt: float,
+             a: float, b: float, a_ecc: float, b_ecc: float) -> tuple:
+    """One muscle's step with the recruitment already applied: what
+    :meth:`MuscleBatch.step <hill_muscle_ros.model.batch.MuscleBatch.step>` does
+    to each muscle after its recruitment bookkeeping.
+
+    Every muscle takes the same operations: the cases (released CE, free CE,
+    RK4) are chosen by conditional expressions after computing both sides,
+    not by branches around the RK4 stages, so that LLVM vectorises the loop
+    over muscles (measured: about 3x faster than the same step with
+    branches). With Eff.f_iso = 0 the unused RK4 stages are finite (Eq. 3
+    inverted gives 0 there), so computing them is harmless.
+
+    :param l0: [m] CE length at the start (l_CE)
+    :param dl0: [m] dl_MT at the start
+    :param dl1: [m] dl_MT at the end
+    :param dt: [s] step length
+    :param gain: [N] the recruitment's gain (see :func:`eff_f_iso`)
+    :param k1_prev: [m/s] v_CE at the end of the last step, the first RK4 stage
+        if ``have_k1`` (recruitment unchanged since)
+    :param initial: True for the ``initial`` length variants
+    :param k_se: [N/m] SE stiffness (k_SE)
+    :param l_rest: [m] CE length at rest (l_rest)
+    :param l_opt: [m] CE optimal length (l_opt)
+    :param a: [N] concentric Hill constant (a)
+    :param b: [m/s] concentric Hill constant (b)
+    :param a_ecc: [N] eccentric constant (a')
+    :param b_ecc: [m/s] eccentric constant (b')
+    :return: ([m] l_CE, [m/s] v_CE, [N] Eff.f_iso, [m/s] v of the free CE) at the end
+    """
+    f0 = eff_f_iso(l0, gain, l_opt, initial)
+    # Released (nothing recruited, or outside the FL range): the free CE takes
+    # up the slack at once, as MuscleBatch.set_recruitment does.
+    l0 = l_rest + dl0 if f0 == 0.0 else l0
+    f0 = eff_f_iso(l0, gain, l_opt, initial)
+    l_free = l_rest + dl1
+    k1 = k1_prev if have_k1 else ce_velocity(l0, dl0, f0, k_se, l_rest, a, b, a_ecc, b_ecc)
+    half_dt = 0.5 * dt
+    dl_mid = 0.5 * (dl0 + dl1)
+    l = l0 + half_dt * k1
+    k2 = ce_velocity(l, dl_mid, eff_f_iso(l, gain, l_opt, initial),
+                     k_se, l_rest, a, b, a_ecc, b_ecc)
+    l = l0 + half_dt * k2
+    k3 = ce_velocity(l, dl_mid, eff_f_iso(l, gain, l_opt, initial),
+                     k_se, l_rest, a, b, a_ecc, b_ecc)
+    l = l0 + dt * k3
+    k4 = ce_velocity(l, dl1, eff_f_iso(l, gain, l_opt, initial),
+                     k_se, l_rest, a, b, a_ecc, b_ecc)
+    l1 = l0 + dt * (k1 + 2.0 * k2 + 2.0 * k3 + k4) / 6.0
+    l1 = l1 if f0 > 0.0 else l_free
+    f0 = eff_f_iso(l1, gain, l_opt, initial)
+    # The instantaneous CE left the FL range within the step: the free CE.
+    l1 = l_free if f0 == 0.0 else l1
+    v_free = (dl1 - dl0) / dt
+    v1 = ce_velocity(l1, dl1, f0, k_se, l_rest, a, b, a_ecc, b_ecc)
+    v1 = v1 if f0 > 0.0 else v_free
+    return l1, v1, f0, v_free
+
+
+def step_all(l0, dl0, dl1, dt: float, gain, k1_prev, have_k1: bool, initial, params,
+             out) -> None:
+    """Step every muscle (:func:`step_one`) and write its outputs.
+
+    :param l0: [m] (K,) CE lengths at the start
+    :param dl0: [m] (K,) dl_MT at the start
+    :param dl1: [m] (K,) dl_MT at the end
+    :param dt: [s] step length
+    :param gain: [N] (K,) the recruitments' gains
+    :param k1_prev: [m/s] (K,) v_CE at the end of the last step
+    :param have_k1: True if ``k1_prev`` is the first RK4 stage of every muscle
+    :param initial: (K,) bool, True for the ``initial`` length variants
+    :param params: (N_PARAMS, K) parameters, one row per ``P_*`` index (rows,
+        not columns: contiguous per parameter, as the vector loop loads them)
+    :param out: (N_OUTPUTS, K) written: l_CE [m], v_CE [m/s], Eff.f_iso [N],
+        v of the free CE [m/s], f_SE [N], f_PE [N], force [N]
+    """
+    for i in prange(l0.shape[0]):
+        k_se, l_rest, d1 = params[P_K_SE, i], params[P_L_REST, i], dl1[i]
+        l1, v1, f0, v_free = step_one(
+            l0[i], dl0[i], d1, dt, gain[i], k1_prev[i], have_k1, initial[i], k_se, l_rest,
+            params[P_L_OPT, i], params[P_A, i], params[P_B, i], params[P_A_ECC, i],
+            params[P_B_ECC, i])
+        f_se = series_force(k_se, d1, l1, l_rest)
+        f_pe = parallel_force(params[P_K_PE, i], d1)
+        out[OUT_L_CE, i] = l1
+        out[OUT_V_CE, i] = v1
+        out[OUT_EFF_F_ISO, i] = f0
+        out[OUT_V_FREE, i] = v_free
+        out[OUT_F_SE, i] = f_se
+        out[OUT_F_PE, i] = f_pe
+        out[OUT_FORCE, i] = f_se + f_pe
+
+
+def launch(kernels: types.SimpleNamespace, parallel: bool, *args) -> None:
+    """Call the compiled :func:`step_all` on all numba threads or on one.
+
+    :param kernels: the compiled kernels (:func:`compiled`)
+    :param parallel: False to run on the calling thread only, e.g. for a
+        small batch; the number of threads is restored afterwards
+    :param args: the arguments of :func:`step_all`
+    """
+    numba, step_all = kernels.numba, kernels.step_all
+    with LAUNCH_LOCK:
+        if parallel:
+            step_all(*args)
+            return
+        threads = numba.get_num_threads()
+        numba.set_num_threads(1)
+        try:
+            step_all(*args)
+        finally:
+            numba.set_num_threads(threads)
+
+
+#: The functions :func:`compiled` compiles, callees before callers.
+_CURVES = (force_length, force_velocity_inverse, series_force, parallel_force)
+_KERNELS = ('eff_f_iso', 'ce_velocity', 'step_one', 'step_all')
+#: The compiled namespace once built (None until then).
+_compiled = None
+
+
+def compiled() -> types.SimpleNamespace:
+    """The numba-compiled kernels: ``step_all`` (parallel over muscles) and the rest.
+
+    Imports numba on the first call and compiles ``step_all``, or loads it from
+    numba's on-disk cache (BENCHMARKS.md section 3 gives both costs).
+
+    :raises ImportError: if numba cannot be imported
+    """
+    global _compiled
+    if _compiled is not None:
+        return _compiled
+    import numba   # lazily: never at package import
+
+    # error_model='numpy': a division gives inf/nan instead of raising, so the
+    # loop has no exception paths and vectorises (no division here can be by
+    # zero for valid parameters). inline='always': the helpers are inlined in
+    # numba's IR, so LLVM sees one loop body.
+    helper = numba.njit(cache=True, error_model='numpy', inline='always')
+    scope = dict(globals())
+    scope['prange'] = numba.prange
+    for fn in _CURVES:
+        # The curves keep their own module's globals (the FL coefficients).
+        scope[fn.__name__] = helper(fn)
+    for name in _KERNELS:
+        fn = globals()[name]
+        # Same code, but the names it calls resolve to the compiled versions.
+        rebound = types.FunctionType(fn.__code__, scope, fn.__name__, fn.__defaults__,
+                                     fn.__closure__)
+        rebound.__qualname__ = fn.__qualname__
+        rebound.__doc__ = fn.__doc__
+        if name == 'step_all':
+            # With its signature: compiled (or loaded from the cache) here, once,
+            # and never again for other argument types.
+            f8, c1, c2 = numba.float64, numba.float64[::1], numba.float64[:, ::1]
+            signature = numba.void(c1, c1, c1, f8, c1, c1, numba.boolean,
+                                   numba.boolean[::1], c2, c2)
+            scope[name] = numba.njit(signature, cache=True, error_model='numpy',
+                                     parallel=True)(rebound)
+        else:
+            scope[name] = helper(rebound)
+    _compiled = types.SimpleNamespace(numba=numba, **{n: scope[n] for n in _KERNELS})
+    return _compiled

@@ -1,0 +1,238 @@
+"""The compiled batch engine (numba) steps muscles exactly like the NumPy one.
+
+The NumPy engine of :class:`MuscleBatch` is the reference (it is checked against
+separate `Muscle` runs in test_model_batch.py); the compiled engine must agree
+with it and with separate `Muscle` runs to 1e-9 N, on all four variants, with
+the recruitment held and changing. Without numba, the batch falls back to the
+NumPy engine, and importing the package never imports numba.
+
+numba is a runtime requirement, so these tests do not skip without it: they fail.
+Compile time: the kernel is compiled once per checkout and then loaded from
+numba's on-disk cache (``cache=True``); every test here shares it.
+"""
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from hill_muscle_ros.model import Muscle, MuscleParams, kernels
+from hill_muscle_ros.model.batch import MuscleBatch
+
+from test_model_fastpath import muscle_params
+
+#: [N] bound on compiled vs NumPy batch and vs separate muscles (as test_model_batch).
+ATOL_N = 1e-9
+#: [m], [m/s] bounds on CE length and velocity (as test_model_batch).
+ATOL_STATE = 1e-12
+#: Output fields that are forces [N].
+FORCE_FIELDS = ('f_se_n', 'f_pe_n', 'force_n', 'eff_f_iso_n')
+#: Output fields that must be identical: counts and the inputs echoed.
+EXACT_FIELDS = ('recruitment', 'n_recruited', 'dl_mt_m', 'command', 'mean_fitness')
+
+
+@st.composite
+def batch_case(draw, max_hold: int):
+    """K parameter sets (variants mixed) and (T, K) inputs, each muscle's R held
+    for 1..``max_hold`` steps (1: R may change on every step)."""
+    k = draw(st.integers(1, 6))
+    params = draw(st.lists(muscle_params(), min_size=k, max_size=k))
+    n_steps = draw(st.integers(1, 60))
+    r = np.empty((n_steps, k))
+    dl = np.empty((n_steps, k))
+    levels = st.floats(0.0, 1.0) | st.just(0.0) | st.just(1.0)
+    for j in range(k):
+        t = 0
+        while t < n_steps:
+            hold = draw(st.integers(1, max_hold))
+            r[t:t + hold, j] = draw(levels)
+            dl[t:t + hold, j] = draw(st.floats(-0.02, 0.02))
+            t += hold
+    dt = draw(st.sampled_from([1e-4, 1e-3]))
+    return params, r, dl, dt
+
+
+def assert_outputs_agree(out, ref, label=''):
+    """Two BatchOutputs (or a batch row and a MuscleOutputs) agree to the bounds."""
+    for name in FORCE_FIELDS:
+        np.testing.assert_allclose(getattr(out, name), getattr(ref, name), rtol=0,
+                                   atol=ATOL_N, err_msg=f'{name} {label}')
+    for name in ('l_ce_m', 'v_ce_m_per_s'):
+        np.testing.assert_allclose(getattr(out, name), getattr(ref, name), rtol=0,
+                                   atol=ATOL_STATE, err_msg=f'{name} {label}')
+    for name in EXACT_FIELDS:
+        np.testing.assert_array_equal(getattr(out, name), getattr(ref, name),
+                                      err_msg=f'{name} {label}')
+    assert out.t_s == ref.t_s
+
+
+def run_three_ways(case):
+    """Step the compiled batch, the NumPy batch and separate muscles alike."""
+    params, r, dl, dt = case
+    compiled = MuscleBatch(params, engine='compiled')
+    reference = MuscleBatch(params, engine='numpy')
+    muscles = [Muscle(p) for p in params]
+    for k, (rk, dlk) in enumerate(zip(r, dl)):
+        out = compiled.step(rk, dlk, dt)
+        assert_outputs_agree(out, reference.step(rk, dlk, dt), f'step {k}')
+        for i, m in enumerate(muscles):
+            ref = m.step(rk[i], dlk[i], dt)
+            assert out.force_n[i] == pytest.approx(ref.force_n, abs=ATOL_N)
+            assert out.eff_f_iso_n[i] == pytest.approx(ref.eff_f_iso_n, abs=ATOL_N)
+            assert out.l_ce_m[i] == pytest.approx(ref.l_ce_m, abs=ATOL_STATE)
+            assert out.n_recruited[i] == ref.n_recruited
+    np.testing.assert_array_equal(compiled.n_runs, reference.n_runs)
+    np.testing.assert_array_equal(compiled.n_runs, [m.n_runs for m in muscles])
+    assert_outputs_agree(compiled.outputs(), reference.outputs(), 'outputs()')
+
+
+@settings(max_examples=80, deadline=None)
+@given(batch_case(max_hold=10))
+def test_compiled_equals_numpy_and_separate_muscles_with_recruitment_held(case):
+    run_three_ways(case)
+
+
+@settings(max_examples=80, deadline=None)
+@given(batch_case(max_hold=1))
+def test_compiled_equals_numpy_and_separate_muscles_with_recruitment_changing(case):
+    run_three_ways(case)
+
+
+def test_all_four_variants_on_the_compiled_engine_follow_their_own_model():
+    variants = [MuscleParams(units=u, length=length)
+                for u in ('multi', 'single') for length in ('initial', 'instantaneous')]
+    batch = MuscleBatch(variants, engine='compiled')
+    muscles = [Muscle(p) for p in variants]
+    for k in range(3000):
+        r = 0.5 if k < 1500 else 1.0   # Protocol II's step in recruitment
+        dl = 0.01 * math.sin(k * 1e-3)
+        out = batch.step(r, dl, 1e-3)
+        refs = [m.step(r, dl, 1e-3) for m in muscles]
+        np.testing.assert_allclose(out.force_n, [x.force_n for x in refs], rtol=0, atol=ATOL_N)
+    assert np.ptp(out.force_n) > 1.0   # the variants really differ
+
+
+def test_fes_muscles_in_a_compiled_batch_follow_their_scalar_engine():
+    params = [MuscleParams(), MuscleParams(fatigue='riener', tau_fatigue_s=[0.5]),
+              MuscleParams(units='single', tau_act_s=0.03, tau_deact_s=0.05)]
+    compiled = MuscleBatch(params, engine='compiled')
+    reference = MuscleBatch(params, engine='numpy')
+    for k in range(600):
+        r = 0.0 if k < 50 else (0.8 if k < 400 else 0.3)
+        dl = 0.004 * math.sin(2 * math.pi * k / 300)
+        assert_outputs_agree(compiled.step(r, dl, 1e-3), reference.step(r, dl, 1e-3),
+                             f'step {k}')
+    assert compiled.mean_fitness[1] < 1.0   # fatigue really ran
+
+
+@pytest.mark.parametrize('engine', ['compiled', 'numpy'])
+def test_outputs_and_state_are_not_shared_with_the_callers_arrays(engine):
+    params = [MuscleParams(), MuscleParams(length='instantaneous'),
+              MuscleParams(fatigue='riener', tau_fatigue_s=[0.5])]
+    batch = MuscleBatch(params, engine=engine)
+    fresh = MuscleBatch(params, engine=engine)
+    r, dl = np.zeros(3), np.zeros(3)
+    kept = []
+    for k in range(200):
+        # One input array refilled in place, as a control loop does.
+        r[:] = 0.0 if k % 50 < 5 else 0.6
+        dl[:] = 0.003 * math.sin(k / 20)
+        out = batch.step(r, dl, 1e-3)
+        kept.append(np.copy(out.l_ce_m))
+        ref = fresh.step(r.copy(), dl.copy(), 1e-3)
+        assert_outputs_agree(out, ref, f'step {k}')
+        if k > 0:
+            # The previous step's outputs are untouched by this step.
+            np.testing.assert_array_equal(previous.l_ce_m, kept[-2])
+        previous = out
+
+
+def test_one_thread_and_all_threads_give_the_same_numbers():
+    import numba
+    k = kernels.PARALLEL_MIN_K   # large enough to run on every thread
+    rng = np.random.default_rng(3)
+    params = [MuscleParams(units=('multi', 'single')[i % 2],
+                           length=('initial', 'instantaneous')[i // 2 % 2],
+                           f_iso_max_n=float(f)) for i, f in enumerate(rng.uniform(30, 60, k))]
+    before = numba.get_num_threads()
+    outs = {}
+    try:
+        for threads in (1, numba.config.NUMBA_NUM_THREADS):
+            numba.set_num_threads(threads)
+            batch = MuscleBatch(params, engine='compiled')
+            inputs = np.random.default_rng(4)
+            for j in range(20):
+                r = inputs.uniform(0, 1, k) if j % 5 == 0 else batch.recruitment
+                out = batch.step(r, 0.001 * j, 1e-3)
+            outs[threads] = out
+    finally:
+        numba.set_num_threads(before)
+    for a, b in zip(*outs.values()):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_a_small_batch_leaves_the_number_of_threads_as_it_was():
+    import numba
+    batch = MuscleBatch([MuscleParams()] * 3, engine='compiled')
+    before = numba.get_num_threads()
+    batch.step(0.5, 0.001, 1e-3)
+    assert numba.get_num_threads() == before
+
+
+def test_the_kernel_runs_as_plain_python_with_the_compiled_results():
+    # Written once: the same functions, not compiled, give the same numbers.
+    params = [MuscleParams(units=u, length=length, f_iso_max_n=40.0 + i)
+              for i, (u, length) in enumerate([('multi', 'initial'), ('single', 'initial'),
+                                               ('multi', 'instantaneous'),
+                                               ('single', 'instantaneous')] * 2)]
+    batch = MuscleBatch(params, engine='compiled')
+    rng = np.random.default_rng(5)
+    batch.step(rng.uniform(0.0, 1.0, len(params)), 0.002, 1e-3)
+    args = (batch.l_ce_m, batch.dl_mt_m, rng.uniform(-0.01, 0.01, len(params)), 1e-3,
+            batch._gain, batch._v_ce, True, batch._initial, batch._param_rows)
+    python_out = np.empty((kernels.N_OUTPUTS, len(params)))
+    compiled_out = np.empty_like(python_out)
+    kernels.step_all(*args, python_out)
+    kernels.compiled().step_all(*args, compiled_out)
+    np.testing.assert_array_equal(python_out, compiled_out)
+
+
+def test_without_numba_auto_falls_back_to_numpy_with_the_same_results(monkeypatch):
+    params = [MuscleParams(units=u, length=length)
+              for u in ('multi', 'single') for length in ('initial', 'instantaneous')]
+    compiled = MuscleBatch(params)
+    assert compiled.engine == 'compiled'
+    monkeypatch.setitem(sys.modules, 'numba', None)   # import numba raises ImportError
+    monkeypatch.setattr(kernels, '_compiled', None)
+    fallback = MuscleBatch(params)
+    assert fallback.engine == 'numpy'
+    for k in range(300):
+        r = 0.3 if k < 150 else 0.9
+        assert_outputs_agree(fallback.step(r, 0.002, 1e-3), compiled.step(r, 0.002, 1e-3))
+
+
+def test_without_numba_the_compiled_engine_asked_for_raises(monkeypatch):
+    monkeypatch.setitem(sys.modules, 'numba', None)
+    monkeypatch.setattr(kernels, '_compiled', None)
+    with pytest.raises(ImportError, match='numba'):
+        MuscleBatch([MuscleParams()], engine='compiled')
+
+
+def test_an_unknown_engine_is_refused_by_name():
+    with pytest.raises(ValueError, match="`engine` must be one of auto, compiled, numpy, "
+                                         "got 'cuda'"):
+        MuscleBatch([MuscleParams()], engine='cuda')
+
+
+def test_package_import_and_a_numpy_batch_import_no_numba():
+    code = ('import sys; import hill_muscle_ros; from hill_muscle_ros import cli; '
+            'cli.build_parser(); import hill_muscle_ros.model.batch as b; '
+            'from hill_muscle_ros.model import MuscleParams; '
+            'b.MuscleBatch([MuscleParams()], engine="numpy").step(0.5, 0.0, 1e-3); '
+            'print("numba" in sys.modules, "llvmlite" in sys.modules)')
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                         check=True).stdout
+    assert out.strip() == 'False False'
