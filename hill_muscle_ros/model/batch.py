@@ -1,4 +1,4 @@
-"""Many independent muscles stepped at once, vectorised over muscles with NumPy.
+"""Many independent muscles stepped at once: compiled with numba, or NumPy arrays.
 
 For parameter sweeps and controller tuning: K muscles, each with its own
 :class:`~hill_muscle_ros.model.params.MuscleParams` (the four variants may be
@@ -8,14 +8,29 @@ Each muscle follows exactly the step of :meth:`Muscle.step
 length ramping linearly, the free CE when Eff.f_iso = 0); the tests check the
 two agree to 1e-9 N.
 
-Cost: the integration is a fixed number of whole-array operations a step, so
-it scales with K, not with the number of units. The motor-unit memory of
-``multi``/``initial`` muscles stays the per-muscle LIFO stack of
-:class:`~hill_muscle_ros.model.memory.UnitMemory`: it is touched only for the
-muscles whose recruitment changed in that step, which is cheap when the
-recruitment is held most of the time (the usual FES case: a new pulse width
-every few to hundreds of steps) and costs about a microsecond per changing
-muscle otherwise.
+Two engines, chosen by ``MuscleBatch(params, engine=...)``:
+
+- ``'numpy'``, the reference: the integration is a fixed number of
+  whole-array operations a step, so it scales with K, not with the number of
+  units.
+- ``'compiled'``: the per-muscle step of :mod:`.kernels` (scalar functions on
+  the curves of :mod:`.curves`), compiled by numba into one loop over the
+  muscles, vectorised and run on numba's threads for large K; several times
+  faster than NumPy at K = 10,000 (BENCHMARKS.md section 3). numba is imported
+  when the first compiled batch is built, never with the package; the kernel
+  is compiled once and cached on disk. It agrees with the NumPy engine and with
+  separate muscles to 1e-9 N (test/test_batch_compiled.py).
+
+The default, ``'auto'``, is the compiled engine if numba can be imported and
+the NumPy engine otherwise, with the same results; :attr:`MuscleBatch.engine`
+says which one runs.
+
+On both engines the motor-unit memory of ``multi``/``initial`` muscles stays the
+per-muscle LIFO stack of :class:`~hill_muscle_ros.model.memory.UnitMemory`, in
+Python: it is touched only for the muscles whose recruitment changed in that
+step, which is cheap when the recruitment is held most of the time (the usual
+FES case: a new pulse width every few to hundreds of steps) and costs about a
+microsecond per changing muscle otherwise.
 
 Muscles with any FES extension switched on (delay, activation, fatigue, fibre
 types, unit lengths: doc/model.md section 7) are stepped by their own
