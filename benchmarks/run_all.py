@@ -11,6 +11,7 @@ Usage::
 
 ``--only fit`` runs only section 8, ``hill-muscle fit`` (``bench_fit.py``).
 ``--only gym`` runs only the Gymnasium vector environments (``bench_gym.py``).
+``--only batch`` runs only section 3, the batch engines (``bench_batch.py``).
 ``--only fes`` runs only section 7, the FES features (``bench_fes.py``, a few
 minutes), and prints its Markdown instead of writing BENCHMARKS.md (or writes
 it to ``--out`` if given)::
@@ -36,6 +37,7 @@ HERE = Path(__file__).resolve().parent
 REPO = HERE.parent
 sys.path.insert(0, str(HERE))
 
+import bench_batch as bench_batch_module  # noqa: E402
 import bench_fes  # noqa: E402
 import bench_fit  # noqa: E402
 import bench_gym  # noqa: E402
@@ -47,7 +49,6 @@ from timing import Stats, load_average, machine, repeat  # noqa: E402
 
 from hill_muscle_ros import cli  # noqa: E402
 from hill_muscle_ros.model import Muscle, MuscleParams, Protocol, simulate  # noqa: E402
-from hill_muscle_ros.model.batch import MuscleBatch  # noqa: E402
 from hill_muscle_ros.model.simulate import sample_times  # noqa: E402
 from hill_muscle_ros.resources import protocol_path  # noqa: E402
 
@@ -56,10 +57,6 @@ DT_S = 1e-3
 RATE_HZ = 1000.0
 UNIT_COUNTS = (1, 1_000, 1_000_000)
 VARIANTS = tuple(itertools.product(('multi', 'single'), ('initial', 'instantaneous')))
-BATCH_SIZES = (1, 100, 10_000)
-#: Protocol II window replayed by the batch benchmark: it contains the step
-#: of R at 3 s, so every muscle's memory changes once.
-BATCH_WINDOW_S = (2.5, 3.5)
 PROTOCOL_60S = HERE / 'protocol_60s.yaml'
 PROTOCOL_STARTUP = HERE / 'protocol_startup.yaml'
 SEED = 20240601
@@ -69,7 +66,6 @@ TARGET_NAIVE_RATIO_1E6 = 50.0
 TARGET_NAIVE_FRACTION_1E3 = 0.5
 TARGET_N_SCALING = 1.5
 TARGET_RTF = 500.0
-TARGET_BATCH_RATE = 1e7
 
 
 def protocol_inputs(protocol: Protocol, rate_hz: float = RATE_HZ,
@@ -210,38 +206,8 @@ def bench_rtf(runs):
 
 
 def bench_batch(runs, protocol):
-    t = sample_times(protocol.duration_s, RATE_HZ)
-    window = (t >= BATCH_WINDOW_S[0]) & (t <= BATCH_WINDOW_S[1])
-    r = protocol.recruitment(t[window], MuscleParams().pw_max_s)
-    dl = protocol.dl_mt(t[window])
-    n_steps = len(dl) - 1
-    rng = np.random.default_rng(SEED)
-    rows = {}
-    for k in BATCH_SIZES:
-        f_iso = rng.uniform(30.0, 60.0, k)
-        k_se = rng.uniform(5e3, 2e4, k)
-        sets = {
-            'multi/initial, f_iso_max and k_se varied': [
-                MuscleParams(f_iso_max_n=float(f), k_se_n_per_m=float(s))
-                for f, s in zip(f_iso, k_se)],
-            'four variants mixed': [
-                MuscleParams(units=VARIANTS[i % 4][0], length=VARIANTS[i % 4][1],
-                             f_iso_max_n=float(f_iso[i])) for i in range(k)],
-        }
-        for name, params in sets.items():
-            batch = MuscleBatch(params)
-            r_k = [np.full(k, x) for x in r]
-            dl_k = [np.full(k, x) for x in dl]
-
-            def run():
-                step = batch.step
-                for j in range(n_steps):
-                    step(r_k[j], dl_k[j + 1], DT_S)
-
-            s = repeat(run, runs, setup=batch.reset)
-            rows[(name, k)] = s.inverted(k * n_steps)   # [muscle-steps/s]
-            print(f'  batch {name} K={k}: {rows[(name, k)].fmt()} muscle-steps/s', flush=True)
-    return rows
+    """Section 3: both batch engines (``bench_batch.py``, which reads Protocol II itself)."""
+    return bench_batch_module.run(runs)
 
 
 #: Executors the simulator runs under in items 4 and 5: the package's default
@@ -543,22 +509,7 @@ def write_report(path: Path, runs: int, started: dict, results: dict) -> None:
             'passes.')
     add('')
 
-    add('## 3. Many muscles at once (`hill_muscle_ros.model.batch.MuscleBatch`)')
-    add('')
-    add(f'K muscles with their own parameters stepped together ({BATCH_WINDOW_S[0]:g} s to '
-        f'{BATCH_WINDOW_S[1]:g} s of Protocol II, 1 ms steps, which includes the step of R '
-        'at 3 s, so every multi/initial memory changes once). Muscle-steps per second = '
-        'K x steps / wall time.')
-    add('')
-    add('| parameter sets | K | muscle-steps/s (wall) | by CPU time |')
-    add('| --- | ---: | ---: | ---: |')
-    for (name, k), s in batch.items():
-        add(f'| {name} | {k:,} | {s.fmt()} | {cpu(s)} |')
-    best = min(s.median for (name, k), s in batch.items() if k == 10_000)
-    add('')
-    add(f'- Target: at least 1e7 muscle-steps/s at K = 10,000: **{best:.3g}** (slower of the '
-        f'two sets) — {met(best >= TARGET_BATCH_RATE)}.')
-    add('- At K = 1 the batch is dominated by NumPy call overhead; use `Muscle` for one muscle.')
+    bench_batch_module.write_section(add, batch)
     add('')
 
     write_node_sections(add, results['nodes'], results['node_seconds'])
@@ -585,8 +536,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--out', type=Path, default=None,
                         help='Markdown file to write (default: BENCHMARKS.md; with --only, '
                              'print the section instead)')
-    parser.add_argument('--only', choices=('fes', 'fit', 'gym'), default=None,
-                        help='run one section only: fes = section 7, the FES features; '
+    parser.add_argument('--only', choices=('batch', 'fes', 'fit', 'gym'), default=None,
+                        help='run one section only: batch = section 3, the batch '
+                             'engines; fes = section 7, the FES features; '
                              'fit = section 8, hill-muscle fit; gym = the Gymnasium '
                              'vector environments')
     parser.add_argument('--runs', type=int, default=7,
@@ -602,7 +554,8 @@ def main(argv: list[str] | None = None) -> int:
     os.chdir(REPO)
     if args.only is not None:
         lines = []
-        section = {'fes': bench_fes, 'fit': bench_fit, 'gym': bench_gym}[args.only]
+        section = {'batch': bench_batch_module, 'fes': bench_fes, 'fit': bench_fit,
+                   'gym': bench_gym}[args.only]
         measured = section.run(args.runs)
         lines.append(f'<!-- run_all.py --only {args.only} --runs {args.runs}, {started["date"]}, '
                      f'load average {started["load"]} at start, {load_average()} at end, '
