@@ -27,6 +27,7 @@ muscle batch steps one by one with the scalar engine.
 """
 from __future__ import annotations
 
+import math
 from typing import NamedTuple, Sequence
 
 import numpy as np
@@ -148,13 +149,15 @@ class LimbBatch:
                     float(pw[k, i]), muscle.params, f'pulse_width_s[{k}, {i}] ({muscle.name})')
         return out
 
-    def _checked_commands(self, commands) -> np.ndarray:
-        u = self._matrix(commands, 'commands')
-        bad = ~((u >= 0.0) & (u <= 1.0))   # also true for NaN
-        if bad.any():
-            k, i = (int(j) for j in np.argwhere(bad)[0])
-            raise ValueError(f'`commands[{k}, {i}]` ({self.muscle_names[i]}) must be in '
-                             f'[0, 1], got {float(u[k, i])!r}')
+    def _checked_commands(self, commands) -> list[list[float]]:
+        """Commands as one list per limb, each u in [0, 1]. Checked in Python:
+        for a few limbs a step's NumPy calls would cost more than the loop."""
+        u = self._matrix(commands, 'commands').tolist()
+        for k, row in enumerate(u):
+            for i, value in enumerate(row):
+                if not 0.0 <= value <= 1.0:   # also true for NaN
+                    raise ValueError(f'`commands[{k}, {i}]` ({self.muscle_names[i]}) must '
+                                     f'be in [0, 1], got {value!r}')
         return u
 
     def give_commands(self, commands) -> None:
@@ -166,11 +169,14 @@ class LimbBatch:
         :param commands: [-] u in [0, 1] per limb and muscle, (K, M), (M,) or scalar
         :raises ValueError: naming the limb and the muscle on a bad value; nothing changes
         """
-        u = self._checked_commands(commands)
-        for k, limb in enumerate(self._limbs):
-            for i, muscle in enumerate(limb.muscles):
-                if u[k, i] != muscle.command:
-                    muscle.give_command(float(u[k, i]))
+        self._give(self._checked_commands(commands))
+
+    def _give(self, u: list[list[float]]) -> None:
+        """:meth:`give_commands` of validated commands, one list per limb."""
+        for limb, row in zip(self._limbs, u):
+            for muscle, value in zip(limb.muscles, row):
+                if value != muscle.command:
+                    muscle.give_command(value)
 
     def set_pulse_widths(self, pulse_width_s) -> None:
         """:meth:`give_commands` of pulse widths through each muscle's curve."""
@@ -198,20 +204,26 @@ class LimbBatch:
         if tau.shape != (self.size,):
             raise ValueError(f'`external_torque_n_m` must have shape ({self.size},), '
                              f'got {tau.shape}')
-        bad = ~(np.abs(tau) <= TORQUE_LIMIT_N_M)
-        if bad.any():
-            k = int(np.flatnonzero(bad)[0])
-            raise ValueError(f'`external_torque_n_m[{k}]` must be finite and within '
-                             f'±{TORQUE_LIMIT_N_M:g} N m, got {float(tau[k])!r}')
+        taus = tau.tolist()
+        for k, value in enumerate(taus):
+            if not abs(value) <= TORQUE_LIMIT_N_M:   # also true for NaN
+                raise ValueError(f'`external_torque_n_m[{k}]` must be finite and within '
+                                 f'±{TORQUE_LIMIT_N_M:g} N m, got {value!r}')
         dt = float(dt_s)
-        if not (np.isfinite(dt) and dt > 0.0):
+        if not (math.isfinite(dt) and dt > 0.0):
             raise ValueError(f'`dt_s` must be positive and finite, got {dt_s!r}')
+        return self._gather(self._advance(u, taus, dt))
+
+    def _advance(self, u: list[list[float]], tau: list[float], dt: float) -> list:
+        """Step every limb with validated inputs (Python lists: no NumPy scalars
+        in the scalar limbs' arithmetic); returns each limb's outputs."""
+        outs = []
         for k, limb in enumerate(self._limbs):
             try:
-                limb.step(u[k], float(tau[k]), dt)
+                outs.append(limb.step(u[k], tau[k], dt))
             except ValueError as err:
                 raise LimbOutOfRange(k, str(err)) from None
-        return self.outputs()
+        return outs
 
     def step(self, pulse_width_s, external_torque_n_m, dt_s: float) -> LimbBatchOutputs:
         """Advance every limb one step with pulse widths held over it
@@ -226,7 +238,10 @@ class LimbBatch:
 
     def outputs(self) -> LimbBatchOutputs:
         """The outputs of every limb at the current instant."""
-        outs = [limb.outputs() for limb in self._limbs]
+        return self._gather([limb.outputs() for limb in self._limbs])
+
+    def _gather(self, outs: list) -> LimbBatchOutputs:
+        """The limbs' :class:`~hill_muscle_ros.model.limb.LimbOutputs` as arrays."""
         per_limb = np.array([(o.theta_rad, o.omega_rad_per_s, o.muscle_torque_n_m)
                              for o in outs], dtype=float).reshape(self.size, 3)
         per_muscle = np.array([(o.command, o.recruitment, o.dl_mt_m, o.l_ce_m, o.force_n)
@@ -271,12 +286,20 @@ def simulate_limb_batch(plants: Sequence[LimbPlant], protocol: LimbProtocol,
         theta[:, j] = out.theta_rad
         force[:, :, j] = out.force_n
 
-    batch.give_commands(u[0])
+    # Validated once, as the steps would (commands in [0, 1], the torque in range).
+    for row, torque in zip(u, tau):
+        batch._checked_commands(row)
+        if not abs(torque) <= TORQUE_LIMIT_N_M:
+            raise ValueError(f'`external_torque_n_m` must be finite and within '
+                             f'±{TORQUE_LIMIT_N_M:g} N m, got {float(torque)!r}')
+    u_rows = u.tolist()
+    tau_rows = [[value] * batch.size for value in tau.tolist()]
+    batch._give(u_rows[0])
     if 0 in wanted:
         record(wanted[0])
     for k in range(last):
-        batch.step_commands(u[k], tau[k], dt)
-        batch.give_commands(u[k + 1])
+        batch._advance(u_rows[k], tau_rows[k], dt)
+        batch._give(u_rows[k + 1])
         if k + 1 in wanted:
             record(wanted[k + 1])
     return theta, force
