@@ -178,11 +178,15 @@ class ForceTrackingVectorEnv(TrackingVectorEnv):
         t = self.template
         self.params = t.params
         self.batch = MuscleBatch([t.params] * self.num_envs)
-        self._dl = np.zeros((self.num_envs, t.n_periods * t.n_steps + 1))
+        # [m] dl_MT at every model step boundary (rows) of every sub-environment
+        # (columns): a step reads one contiguous row.
+        self._dl = np.zeros((t.n_periods * t.n_steps + 1, self.num_envs))
         self._fitness = np.ones(self.num_envs)
+        #: [N] every sub-environment's force at each model step of a period
+        self._forces = np.zeros((t.n_steps, self.num_envs))
 
     def _set_episode(self, i: int, episode: tuple[np.ndarray, np.ndarray]) -> None:
-        self._targets[i], self._dl[i] = episode
+        self._targets[i], self._dl[:, i] = episode
 
     def _restart_engines(self) -> np.ndarray:
         self.batch.reset()
@@ -194,15 +198,16 @@ class ForceTrackingVectorEnv(TrackingVectorEnv):
                  next_target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         p, n = self.params, self.template.n_steps
         u = np.array([command_from_pulse_width(w, p) for w in pw[:, 0].tolist()])
-        target = self._targets[:, k]
-        squared = np.zeros(self.num_envs)
-        for j in range(k * n + 1, (k + 1) * n + 1):
-            out = self.batch.step(u, self._dl[:, j], MODEL_DT_S)
-            squared += ((out.force_n - target) / p.f_iso_max_n) ** 2
+        forces = self._forces
+        for i, j in enumerate(range(k * n + 1, (k + 1) * n + 1)):
+            out = self.batch.step(u, self._dl[j], MODEL_DT_S)
+            forces[i] = out.force_n
+        # One whole-array pass for the period, not one per model step.
+        errors = (forces - self._targets[:, k]) / p.f_iso_max_n
         self._fitness = out.mean_fitness
-        sample = np.stack([out.force_n, next_target, out.l_ce_m, self._dl[:, (k + 1) * n]],
+        sample = np.stack([out.force_n, next_target, out.l_ce_m, self._dl[(k + 1) * n]],
                           axis=1)
-        return squared / n, sample
+        return np.mean(errors * errors, axis=0), sample
 
     def _observation(self) -> np.ndarray:
         obs = super()._observation()
