@@ -12,6 +12,7 @@ Usage::
 ``--only fit`` runs only section 8, ``hill-muscle fit`` (``bench_fit.py``).
 ``--only gym`` runs only the Gymnasium vector environments (``bench_gym.py``).
 ``--only batch`` runs only section 3, the batch engines (``bench_batch.py``).
+``--only sweep`` runs only section 9, ``hill-muscle sweep``'s throughput (``bench_sweep.py``).
 ``--only fes`` runs only section 7, the FES features (``bench_fes.py``, a few
 minutes), and prints its Markdown instead of writing BENCHMARKS.md (or writes
 it to ``--out`` if given)::
@@ -42,6 +43,7 @@ import bench_fes  # noqa: E402
 import bench_fit  # noqa: E402
 import bench_gym  # noqa: E402
 import bench_node  # noqa: E402
+import bench_sweep  # noqa: E402
 # bench_rtf.py (item 6, live); run_all.bench_rtf is the offline item 2.
 import bench_rtf as live_rtf  # noqa: E402
 from naive import NaiveMuscle  # noqa: E402
@@ -522,6 +524,7 @@ def write_report(path: Path, runs: int, started: dict, results: dict) -> None:
     add('')
     bench_fit.write_section(add, results['fit'])
     bench_gym.write_section(add, results['gym'])
+    bench_sweep.write_section(add, results['sweep'])
     add('## Profiles')
     add('')
     add('`benchmarks/profile_simulate.py` writes cProfile and pyinstrument output of '
@@ -536,11 +539,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--out', type=Path, default=None,
                         help='Markdown file to write (default: BENCHMARKS.md; with --only, '
                              'print the section instead)')
-    parser.add_argument('--only', choices=('batch', 'fes', 'fit', 'gym'), default=None,
+    parser.add_argument('--only', choices=('batch', 'fes', 'fit', 'gym', 'sweep'), default=None,
                         help='run one section only: batch = section 3, the batch '
                              'engines; fes = section 7, the FES features; '
                              'fit = section 8, hill-muscle fit; gym = the Gymnasium '
-                             'vector environments')
+                             'vector environments; sweep = section 9, hill-muscle sweep')
     parser.add_argument('--runs', type=int, default=7,
                         help=f'runs per measurement, at least {MIN_RUNS} (default: 7)')
     parser.add_argument('--node-seconds', type=float, default=30.0,
@@ -555,7 +558,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.only is not None:
         lines = []
         section = {'batch': bench_batch_module, 'fes': bench_fes, 'fit': bench_fit,
-                   'gym': bench_gym}[args.only]
+                   'gym': bench_gym, 'sweep': bench_sweep}[args.only]
         measured = section.run(args.runs)
         lines.append(f'<!-- run_all.py --only {args.only} --runs {args.runs}, {started["date"]}, '
                      f'load average {started["load"]} at start, {load_average()} at end, '
@@ -591,6 +594,8 @@ def main(argv: list[str] | None = None) -> int:
     results['fit'] = bench_fit.run(args.runs)
     print('Gymnasium vector environments', flush=True)
     results['gym'] = bench_gym.run(args.runs)
+    print('hill-muscle sweep', flush=True)
+    results['sweep'] = bench_sweep.run(args.runs)
     print('ROS nodes', flush=True)
     results['node_seconds'] = args.node_seconds
     results['nodes'] = bench_nodes(args.node_seconds)

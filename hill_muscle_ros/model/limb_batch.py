@@ -133,7 +133,8 @@ class LimbBatch:
 
     def commands_from_pulse_widths(self, pulse_width_s) -> np.ndarray:
         """[-] recruitment commands u of pulse widths, each through its own
-        muscle's recruitment curve (:func:`~hill_muscle_ros.model.stimulus.command_from_pulse_width`).
+        muscle's recruitment curve
+        (:func:`~hill_muscle_ros.model.stimulus.command_from_pulse_width`).
 
         :param pulse_width_s: [s] pulse width (PW) per limb and muscle, (K, M),
             a (M,) row for every limb, or a scalar
