@@ -277,7 +277,8 @@ def _held(stamps_ns: np.ndarray, values: np.ndarray, grid_ns: np.ndarray) -> np.
 def load_muscle_recording(bag_dir: str | Path, *, pulse_width_topic: str | None = None,
                           recruitment_topic: str | None = None,
                           length_topic: str | None = None,
-                          force_topic: str | None = None) -> MuscleRecording:
+                          force_topic: str | None = None,
+                          lead_s: float = 0.0) -> MuscleRecording:
     """Read a bag's stimulation, length and force onto one time grid.
 
     Without topic options, the stimulation is ``pulse_width`` or else
@@ -285,6 +286,9 @@ def load_muscle_recording(bag_dir: str | Path, *, pulse_width_topic: str | None 
     ``length_command``, the force ``wrench`` or else ``force`` (each the first
     with messages; relative names find the topic in any one namespace).
 
+    :param lead_s: [s] start the grid this much earlier (the inputs at rest there),
+        so that the first stimulation change can be moved earlier than its stamp
+        (:func:`align_stimulation_edges`)
     :raises FitError: naming the bag and the topic if a topic is missing, a value
         is out of range, or the inputs and the force do not overlap in time
     """
@@ -339,7 +343,7 @@ def load_muscle_recording(bag_dir: str | Path, *, pulse_width_topic: str | None 
         raise FitError(f'{bag_dir}: the samples of `{force.name}` share one stamp')
     # The muscle is at rest where every input has started; the grid starts at
     # the force sample at or just before that instant.
-    start_ns = max(int(stim_t[0]), int(length_t[0]))
+    start_ns = max(int(stim_t[0]), int(length_t[0])) - round(lead_s * NS_PER_S)
     first = max(int(np.searchsorted(force_t, start_ns, side='right')) - 1, 0)
     force_t, force_v = force_t[first:], force_v[first:]
     t0 = int(force_t[0])
@@ -428,6 +432,88 @@ class MuscleReplay:
         # constant moved off its default) would turn that into a false slope.
         fes = not all(p.fes_defaults for p in params)
         return np.array([self.force(p, fes)[index] for p in params])
+
+
+def stimulation_edges(stimulation: np.ndarray) -> np.ndarray:
+    """Grid indices where the held stimulation changes (the first step it acts on)."""
+    return np.flatnonzero(stimulation[1:] != stimulation[:-1]) + 1
+
+
+def _moved_edge(stimulation: np.ndarray, edge: int, shift: int) -> np.ndarray:
+    """The stimulation with the change at ``edge`` moved by ``shift`` steps."""
+    out = stimulation.copy()
+    if shift > 0:
+        out[edge:edge + shift] = stimulation[edge - 1]
+    elif shift < 0:
+        out[edge + shift:edge] = stimulation[edge]
+    return out
+
+
+def align_stimulation_edges(recording: MuscleRecording, params: MuscleParams,
+                            max_shift_steps: int) -> tuple[MuscleRecording, list[int]]:
+    """Each stimulation change moved to the step that best explains the force.
+
+    A live recording stamps the stimulation with the recorder's receive time,
+    while the simulator applied each message from the first step of its next
+    tick: a change can act some steps before or after its stamp (measured: up
+    to 13 ms on a loaded machine). With the force of the paper's model jumping
+    at each change, one step off leaves a residual of the size of the jump and
+    biases the fit. Each change, in order, is moved by the whole number of steps
+    within ±``max_shift_steps`` (never past its neighbours) that gives the least
+    sum of squared residuals with ``params``; a tie keeps the smallest move.
+
+    :return: the recording with the changes moved, and each change's move [steps]
+    """
+    stim = recording.stimulation
+    edges = [int(c) for c in stimulation_edges(stim)]
+    shifts = []
+    for j, edge in enumerate(edges):
+        low = (edges[j - 1] + shifts[j - 1] + 1) if j else 1
+        high = edges[j + 1] - 1 if j + 1 < len(edges) else len(stim) - 1
+        best = None
+        for shift in sorted(range(-max_shift_steps, max_shift_steps + 1), key=abs):
+            if not low <= edge + shift <= high:
+                continue
+            moved = dataclasses.replace(recording, stimulation=_moved_edge(stim, edge, shift))
+            residual = MuscleReplay(moved).predict([params])[0] - recording.force_n
+            sse = float(residual @ residual)
+            if best is None or sse < best[0]:
+                best = (sse, shift)
+        shift = best[1] if best is not None else 0
+        stim = _moved_edge(stim, edge, shift)
+        shifts.append(shift)
+    return dataclasses.replace(recording, stimulation=stim), shifts
+
+
+#: Most rounds of fitting and aligning the stimulation changes: the moves settle
+#: in one or two (a move found with the first estimates is rarely revised).
+MAX_ALIGN_ROUNDS = 4
+
+
+def fit_with_aligned_edges(recording: MuscleRecording, start: MuscleParams,
+                           parameters: Sequence[FitParameter], max_shift_steps: int,
+                           progress: Callable[[str], None] | None = None,
+                           ) -> tuple['FitResult', MuscleRecording, list[int]]:
+    """Fit, move the stimulation changes to the fitted model, and fit again from
+    ``start``, until the moves stay the same (:func:`align_stimulation_edges`).
+
+    :return: the last fit, the recording it used, and the moves [steps]
+    """
+    used = recording
+    shifts = [0] * len(stimulation_edges(recording.stimulation))
+    for _ in range(MAX_ALIGN_ROUNDS):
+        result = fit_parameters(MuscleReplay(used), recording.force_n, start, parameters,
+                                progress=progress)
+        fitted_with = (used, shifts)
+        aligned, new_shifts = align_stimulation_edges(recording, result.params,
+                                                      max_shift_steps)
+        if progress is not None:
+            progress('stimulation changes moved by ' + (', '.join(
+                f'{s * 1e3 / recording.rate_hz:+g} ms' for s in new_shifts) or 'nothing'))
+        if new_shifts == shifts:
+            break
+        used, shifts = aligned, new_shifts
+    return (result, *fitted_with)   # if the moves never settled: the last fit's
 
 
 # --------------------------------------------------------------------------- fitting
@@ -989,8 +1075,13 @@ def params_file_text(result: FitResult, node_settings: dict[str, Any], source: s
     return '\n'.join(lines) + '\n'
 
 
-def format_report(result: FitResult, recording: MuscleRecording, start_source: str) -> str:
-    """The fit in words and tables (Markdown; also what stdout shows)."""
+def format_report(result: FitResult, recording: MuscleRecording, start_source: str,
+                  shifts: Sequence[int] | None = None, edge_search_s: float = 0.0) -> str:
+    """The fit in words and tables (Markdown; also what stdout shows).
+
+    :param shifts: [steps] the moves of the stimulation changes, if they were searched
+    :param edge_search_s: [s] the search window, ±
+    """
     r = recording
     names = [p.name for p in result.parameters]
     lines = [f'# Fit of {", ".join(names)}', '',
@@ -998,7 +1089,11 @@ def format_report(result: FitResult, recording: MuscleRecording, start_source: s
              f'- force: `{r.topics["force"]}`, {result.n_samples} samples at '
              f'{r.rate_hz:g} Hz over {r.sample_t_s[-1] - r.sample_t_s[0]:.3f} s',
              f'- inputs: `{r.topics["stimulation"]}` ({r.stimulation_kind}), '
-             f'`{r.topics["length"]}`',
+             f'`{r.topics["length"]}`'] + ([
+                 f'- stimulation changes moved by '
+                 f'{", ".join(f"{s * 1e3 / r.rate_hz:+g}" for s in shifts) or "nothing"} ms '
+                 f'(searched within ±{edge_search_s:g} s of their stamps)']
+                 if shifts is not None else []) + [
              f'- start: {start_source}',
              f'- least squares: {result.n_evaluations} evaluations; {result.message}',
              f'- residual RMS: {result.rms_n:.6g} N (at the start: {result.start_rms_n:.6g} N)',
@@ -1284,6 +1379,12 @@ def add_fit_parser(sub: argparse._SubParsersAction) -> None:
     fit.add_argument('--external-torque-topic', metavar='TOPIC',
                      help='with --plant: the external torque [N m], Float64 (default: '
                           f'`{EXTERNAL_TORQUE_TOPIC}`, 0 if the bag has none)')
+    fit.add_argument('--edge-search', type=_edge_search, metavar='S',
+                     help='single muscle, for live bags: move each change of the stimulation '
+                          'by whole steps within +-S seconds of its stamp to where it best '
+                          'explains the force, fitting again until the moves settle (a plain '
+                          'stimulation topic reaches the simulator some ms off the '
+                          "recorder's stamp; e.g. 0.03). Default: the stamps as they are")
     fit.add_argument('--length-topic', metavar='TOPIC',
                      help='MTU length change [m], Float64 or PointStamped knots (default: '
                           f'`{LENGTH_TOPICS[0]}`, else `{LENGTH_TOPICS[1]}`)')
@@ -1292,9 +1393,26 @@ def add_fit_parser(sub: argparse._SubParsersAction) -> None:
                           f'`{FORCE_TOPICS[0]}`, else `{FORCE_TOPICS[1]}`)')
 
 
+#: [s] Largest --edge-search: a second is far beyond any delivery delay, and the
+#: search costs one replay per step of the window and change.
+MAX_EDGE_SEARCH_S = 1.0
+
+
+def _edge_search(text: str) -> float:
+    """argparse type for ``--edge-search``: seconds in [0, MAX_EDGE_SEARCH_S]."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'must be a number of seconds, got {text!r}') from None
+    if not 0.0 <= value <= MAX_EDGE_SEARCH_S:
+        raise argparse.ArgumentTypeError(f'must be in [0, {MAX_EDGE_SEARCH_S:g}] s, '
+                                         f'got {text!r}')
+    return value
+
+
 #: Options of ``fit`` for one kind of plant only: (attribute, flag).
 MUSCLE_FIT_OPTIONS = (('params', '--params'), ('length_topic', '--length-topic'),
-                      ('force_topic', '--force-topic'))
+                      ('force_topic', '--force-topic'), ('edge_search', '--edge-search'))
 LIMB_FIT_OPTIONS = (('joint_states_topic', '--joint-states-topic'),
                     ('external_torque_topic', '--external-torque-topic'))
 
@@ -1317,19 +1435,27 @@ def cmd_fit(args: argparse.Namespace) -> int:
     try:
         start, node_settings = load_muscle_params(params_path)
         parameters = parse_fit_names(args.fit_names, start)
+        edge_search_s = args.edge_search or 0.0
         recording = load_muscle_recording(
             args.bag, pulse_width_topic=args.pulse_width_topic,
             recruitment_topic=args.recruitment_topic, length_topic=args.length_topic,
-            force_topic=args.force_topic)
+            force_topic=args.force_topic, lead_s=edge_search_s)
         print(f'fitting {", ".join(p.name for p in parameters)} to '
               f'{recording.topics["force"]} ({len(recording.force_n)} samples at '
               f'{recording.rate_hz:g} Hz); each evaluation runs {len(parameters) + 1} '
               'simulations', file=sys.stderr)
-        result = fit_parameters(MuscleReplay(recording), recording.force_n, start, parameters,
-                                progress=lambda line: print(line, file=sys.stderr, flush=True))
+        progress = lambda line: print(line, file=sys.stderr, flush=True)  # noqa: E731
+        shifts = None
+        if edge_search_s > 0.0:
+            result, recording, shifts = fit_with_aligned_edges(
+                recording, start, parameters, round(edge_search_s * recording.rate_hz),
+                progress)
+        else:
+            result = fit_parameters(MuscleReplay(recording), recording.force_n, start,
+                                    parameters, progress=progress)
     except ValueError as err:   # FitError, and the params file's own errors
         raise UserError(str(err)) from None
-    report = format_report(result, recording, str(params_path))
+    report = format_report(result, recording, str(params_path), shifts, edge_search_s)
     try:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(params_file_text(result, node_settings, str(args.bag)),

@@ -358,3 +358,67 @@ def test_console_script_fits_and_writes_the_report(truth_run, tmp_path):
     np.testing.assert_allclose(corr, corr.T, rtol=0, atol=1e-12)
     assert report['correlation']['names'] == list(TRUTH)
     assert read_bag(bag).topic('wrench').count == report['n_samples']
+
+
+# --------------------------------------------------------------------------- live timing
+
+#: [steps] how late the bag stamps the step of the stimulation at 3 s (5 ms at 1 kHz):
+#: as a live bag does, stamped on receipt while the simulator acted on it earlier.
+LATE_STEPS = 5
+
+
+def _late_change_bag(path, protocol, result, params):
+    """The run with the pulse width sent only when it changes, the change at 3 s
+    stamped LATE_STEPS steps after the step it acted on; plain length, force."""
+    pw = np.array([protocol.stimulation_command(float(t), 'pulse_width', params)
+                   for t in result.t_s[:-1]] + [0.0])
+    changes = np.flatnonzero(np.r_[True, np.diff(pw) != 0.0])
+    with BagWriter(path) as writer:
+        for topic in ('/pulse_width', '/length_command', '/force'):
+            writer.add_topic(topic, 'std_msgs/msg/Float64')
+        for k in changes:
+            late = LATE_STEPS if result.t_s[k] == 3.0 else 0
+            writer.write('/pulse_width', serialize_message(Float64(data=float(pw[k]))),
+                         round(result.t_s[k + late] * NS_PER_S))
+        for t, force in zip(result.t_s, result.force_n):
+            t_ns = round(t * NS_PER_S)
+            writer.write('/length_command',
+                         serialize_message(Float64(data=float(protocol.dl_mt(t)))), t_ns)
+            writer.write('/force', serialize_message(Float64(data=float(force))), t_ns)
+
+
+@pytest.fixture(scope='module')
+def late_change_bag(tmp_path_factory, protocol_paths):
+    protocol = Protocol.from_yaml(protocol_paths['II'])
+    truth = MuscleParams(**TRUTH)
+    path = tmp_path_factory.mktemp('fit_late') / 'bag'
+    _late_change_bag(path, protocol, simulate(protocol, truth, RATE_HZ), truth)
+    return path
+
+
+def test_a_change_stamped_late_biases_the_plain_fit(late_change_bag, tmp_path, capsys):
+    # The premise of --edge-search: 5 ms moves the tendon's stiffness by about 1.4 %.
+    status, _, err = _fit(capsys, '--bag', late_change_bag, '--fit', FITTED,
+                          '--out', tmp_path / 'fitted.yaml')
+    assert status == 0, err
+    k_se = _estimates(tmp_path / 'fitted.yaml')['k_se_n_per_m']
+    assert abs(k_se / TRUTH['k_se_n_per_m'] - 1.0) > 0.01
+
+
+def test_edge_search_moves_the_late_change_back_and_recovers_the_parameters(
+        late_change_bag, tmp_path, capsys):
+    status, out, err = _fit(capsys, '--bag', late_change_bag, '--fit', FITTED,
+                            '--edge-search', '0.02', '--out', tmp_path / 'fitted.yaml')
+    assert status == 0, err
+    for name, value in _estimates(tmp_path / 'fitted.yaml').items():
+        assert value == pytest.approx(TRUTH[name], rel=1e-6), name
+    assert ('- stimulation changes moved by -5, +0 ms (searched within ±0.02 s of their '
+            'stamps)') in out
+
+
+def test_edge_search_is_refused_with_a_plant(late_change_bag, tmp_path, capsys):
+    status, _, err = _fit(capsys, '--bag', late_change_bag, '--fit', 'joint.mass_kg',
+                          '--plant', 'config/ankle.yaml', '--edge-search', '0.02',
+                          '--out', tmp_path / 'fitted.yaml')
+    assert status == cli.EXIT_USAGE
+    assert '--edge-search applies to the single muscle' in err
