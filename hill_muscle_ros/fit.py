@@ -606,9 +606,9 @@ def check_identifiable(parameters: Sequence[Any], x: np.ndarray,
         names = [p.name for p, w in zip(parameters, share) if w >= VARIANCE_PROPORTION]
         listed = _and(names)
         raise NotIdentifiableError(names, f'not identifiable from this recording: {listed} '
-                                          f'(J^T J is near-singular: the {quantity} determines only '
-                                          'a combination of them; fit fewer of them or use a '
-                                          'recording that separates them)')
+                                          f'(J^T J is near-singular: the {quantity} determines '
+                                          'only a combination of them; fit fewer of them or use '
+                                          'a recording that separates them)')
 
 
 def fit_parameters(model: ForceModel, measured: np.ndarray, start: Any,
