@@ -13,27 +13,36 @@ there, so importing this module (or the package) never loads it. Each
 function is compiled from its own code object with the names it calls bound
 to their compiled versions, and cached on disk (``cache=True``), so only the
 first process compiles. numba's cache notices a change of this file but not
-of :mod:`.curves`: after editing the curves, remove this directory's
-``__pycache__/kernels.*.nbi``/``.nbc`` files (the tests compare the compiled
-engine with the NumPy one, so a stale kernel shows up there).
+of :mod:`.curves`, which the kernels inline: so the kernels' cache entries
+carry a digest of ``curves.py`` in their names, and an edited curve compiles
+anew.
 
 Threads: :func:`step_all` runs its loop over muscles on numba's threads
 (``numba.set_num_threads``, ``NUMBA_NUM_THREADS``; all cores by default) when
 the batch has at least :data:`PARALLEL_MIN_K` muscles. On cores busy with
-other work a second thread can cost more than it gains (BENCHMARKS.md section
-3): set one thread there. numba's ``workqueue`` threading layer aborts the
-process if two Python threads launch a loop at once, so launches are
-serialised by :data:`LAUNCH_LOCK`.
+other work a second thread gains nothing (BENCHMARKS.md section 3): set one
+thread there. The OpenMP layer's threads wait passively
+(``OMP_WAIT_POLICY=PASSIVE`` unless set: :func:`compiled`), since spinning
+ones made things far worse on busy cores. numba's ``workqueue`` threading
+layer aborts the process if two Python threads launch a loop at once, so
+launches are serialised by :data:`LAUNCH_LOCK`.
 """
 from __future__ import annotations
 
+import hashlib
+import os
 import threading
 import types
+from pathlib import Path
 
+from . import curves
 from .curves import force_length, force_velocity_inverse, parallel_force, series_force
 
 #: The loop over muscles; the compiled build binds this name to ``numba.prange``.
 prange = range
+
+#: The OpenMP runtime's setting that :func:`compiled` defaults to ``PASSIVE``.
+OMP_WAIT_POLICY = 'OMP_WAIT_POLICY'
 
 #: Serialises launches of the parallel loop (see the module docstring).
 LAUNCH_LOCK = threading.Lock()
@@ -197,6 +206,10 @@ def launch(kernels: types.SimpleNamespace, parallel: bool, *args) -> None:
             numba.set_num_threads(threads)
 
 
+#: Hex digits of the digest of curves.py in the kernels' cache names: enough
+#: that two versions of the file practically never share one.
+CACHE_DIGEST_CHARS = 12
+
 #: The functions :func:`compiled` compiles, callees before callers.
 _CURVES = (force_length, force_velocity_inverse, series_force, parallel_force)
 _KERNELS = ('eff_f_iso', 'ce_velocity', 'step_one', 'step_all')
@@ -215,12 +228,19 @@ def compiled() -> types.SimpleNamespace:
     global _compiled
     if _compiled is not None:
         return _compiled
+    # numba's default threading layer here is GNU OpenMP, whose idle threads
+    # spin while they wait: on cores busy with other processes that made 2
+    # threads 5x slower than 1 (measured at K = 10,000: 4.9-5.5 ms a step
+    # against 0.8-1.1 ms; with passive waiting 0.58-0.71 ms against 0.52-0.58).
+    # The runtime reads this when numba first loads it; a value the user set wins.
+    os.environ.setdefault(OMP_WAIT_POLICY, 'PASSIVE')
     import numba   # lazily: never at package import
 
     # error_model='numpy': a division gives inf/nan instead of raising, so the
     # loop has no exception paths and vectorises (no division here can be by
     # zero for valid parameters). inline='always': the helpers are inlined in
     # numba's IR, so LLVM sees one loop body.
+    digest = hashlib.sha256(Path(curves.__file__).read_bytes()).hexdigest()[:CACHE_DIGEST_CHARS]
     helper = numba.njit(cache=True, error_model='numpy', inline='always')
     scope = dict(globals())
     scope['prange'] = numba.prange
@@ -232,7 +252,7 @@ def compiled() -> types.SimpleNamespace:
         # Same code, but the names it calls resolve to the compiled versions.
         rebound = types.FunctionType(fn.__code__, scope, fn.__name__, fn.__defaults__,
                                      fn.__closure__)
-        rebound.__qualname__ = fn.__qualname__
+        rebound.__qualname__ = f'{fn.__qualname__}_{digest}'   # the cache file's name
         rebound.__doc__ = fn.__doc__
         if name == 'step_all':
             # With its signature: compiled (or loaded from the cache) here, once,
