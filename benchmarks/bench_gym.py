@@ -12,8 +12,8 @@ action Box, by
 - ``gymnasium.vector.SyncVectorEnv`` of K single environments, the one
   gymnasium builds around any environment.
 
-A run is :data:`STEPS` vector steps from a seeded reset (the reset is not
-timed); the two are timed alternately, run by run, so that load from other
+A run is the timed vector steps of :data:`ENVS` after a seeded reset and its
+untimed steps; the two are timed alternately, run by run, so that load from other
 processes falls on both alike. The rate is environment steps (control periods
 of one sub-environment) per second of wall time, and the ratio is that of the
 two medians.
