@@ -10,26 +10,53 @@ written by ``hill-muscle simulate --bag``, started from the defaults:
 
 The goal: the whole fit within :data:`FIT_TARGET_S` on this 2-core machine.
 
+The limb (``hill-muscle fit --plant``), timed the same way: the ankle preset
+(config/ankle.yaml) with three values off the preset (``tibialis_anterior.f_iso_max_n``,
+``joint.damping_n_m_s_per_rad``, ``joint.stiffness_n_m_per_rad``), a 6 s protocol of
+two lifts of the foot at 1 kHz, its bag written as the limb node publishes
+(``joint_states``, ``tibialis_anterior/pulse_width``), the fit started from the
+preset. One limb simulation costs what a few hundred of the single muscle do, so
+it runs ``runs`` times without a warm-up.
+
 Run this section alone while developing (prints its Markdown)::
 
     .venv/bin/python benchmarks/run_all.py --only fit --runs 5
 """
 from __future__ import annotations
 
+import dataclasses
 import tempfile
 from pathlib import Path
 
 import yaml
+from rclpy.serialization import serialize_message
+from rclpy.time import Time
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64
 
 from timing import repeat
 
-from hill_muscle_ros import cli, fit
+from hill_muscle_ros import cli, fit, resources
 from hill_muscle_ros.model import MuscleParams
+from hill_muscle_ros.model.limb import LimbProtocol, simulate_limb
+from hill_muscle_ros.params_file import load_plant
+from hill_muscle_ros.recording.bag_writer import BagWriter
+from hill_muscle_ros.timebase import NS_PER_S
 
 #: The parameters of the simulated subject, off the defaults (45 N, 10 kN/m, 10 N).
 TRUTH = {'f_iso_max_n': 52.0, 'k_se_n_per_m': 8000.0, 'fv_a_n': 13.0}
 #: [s] goal for the three-parameter fit of a 6 s protocol.
 FIT_TARGET_S = 10.0
+#: The limb's subject: the ankle preset's 600 N, 0.82 N m s/rad and 20.4 N m/rad moved.
+LIMB_TRUTH = {'tibialis_anterior.f_iso_max_n': 520.0, 'joint.damping_n_m_s_per_rad': 1.0,
+              'joint.stiffness_n_m_per_rad': 17.0}
+#: [Hz] the limb's step rate (the preset's).
+LIMB_RATE_HZ = 1000.0
+#: 6 s: the foot lifted by 370 us pulses for 1.5 s, let fall, lifted again by 300 us.
+LIMB_PROTOCOL = {'name': 'two ankle lifts', 'duration_s': 6.0,
+                 'muscles': {'tibialis_anterior': {'pulse_width_s': [
+                     [0.5, 0.0], [0.5, 0.00037], [2.0, 0.00037], [2.0, 0.0],
+                     [3.5, 0.0], [3.5, 0.0003], [5.0, 0.0003], [5.0, 0.0]]}}}
 
 
 def _truth_bag(root: Path) -> Path:
@@ -40,6 +67,56 @@ def _truth_bag(root: Path) -> Path:
                  str(bag), '--csv', str(root / 'run.csv')]) != 0:
         raise RuntimeError('hill-muscle simulate --bag failed')
     return bag
+
+
+def _limb_bag(root: Path) -> Path:
+    """The truth ankle's run written as the limb node publishes it, in simulated time."""
+    start, _ = load_plant(resources.config_dir() / 'ankle.yaml')
+    (ta,) = start.muscles
+    truth = dataclasses.replace(
+        start, joint=dataclasses.replace(start.joint, damping_n_m_s_per_rad=1.0,
+                                         stiffness_n_m_per_rad=17.0),
+        muscles=(dataclasses.replace(ta, params=ta.params.replace(f_iso_max_n=520.0)),))
+    protocol = LimbProtocol.from_mapping(LIMB_PROTOCOL)
+    result = simulate_limb(truth, protocol, LIMB_RATE_HZ)
+    _, knots = protocol.stimulation['tibialis_anterior']
+    bag = root / 'limb_bag'
+    with BagWriter(bag) as writer:
+        writer.add_topic('/joint_states', 'sensor_msgs/msg/JointState')
+        writer.add_topic('/tibialis_anterior/pulse_width', 'std_msgs/msg/Float64')
+        state = JointState()
+        state.name = [truth.joint.name]
+        for k, t in enumerate(result.t_s):
+            t_ns = round(float(t) * NS_PER_S)
+            pw = float(knots(float(t))) if t < protocol.duration_s else 0.0
+            writer.write('/tibialis_anterior/pulse_width',
+                         serialize_message(Float64(data=pw)), t_ns)
+            state.header.stamp = Time(nanoseconds=t_ns).to_msg()
+            state.position = [float(result['theta_rad'][k])]
+            writer.write('/joint_states', serialize_message(state), t_ns, t_ns)
+    return bag
+
+
+def run_limb(runs: int) -> dict:
+    """The limb's load and fit, ``runs`` times each (no warm-up: each fit is long)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        bag = _limb_bag(Path(tmp))
+        start, _ = load_plant(resources.config_dir() / 'ankle.yaml')
+        load = repeat(lambda: fit.load_limb_recording(bag, start), runs)
+        recording = fit.load_limb_recording(bag, start)
+        names = fit.parse_plant_fit_names(','.join(LIMB_TRUTH), start)
+        replay = fit.LimbReplay(recording)
+        simulation = repeat(lambda: replay.angle(start), runs, warmup=0)
+        last = {}
+
+        def one_fit():
+            last['result'] = fit.fit_parameters(replay, recording.angle_rad, start, names,
+                                                quantity='joint angle', unit='rad')
+        solve = repeat(one_fit, runs, warmup=0)
+    result = last['result']
+    return {'load': load, 'simulation': simulation, 'fit': solve,
+            'samples': len(recording.angle_rad), 'estimates': list(result.estimates),
+            'evaluations': result.n_evaluations}
 
 
 def run(runs: int) -> dict:
@@ -58,7 +135,8 @@ def run(runs: int) -> dict:
         solve = repeat(one_fit, runs)
     result = last['result']
     return {'load': load, 'fit': solve, 'samples': len(recording.force_n),
-            'estimates': list(result.estimates), 'evaluations': result.n_evaluations}
+            'estimates': list(result.estimates), 'evaluations': result.n_evaluations,
+            'limb': run_limb(runs)}
 
 
 def write_section(add, results: dict) -> None:
@@ -82,4 +160,29 @@ def write_section(add, results: dict) -> None:
     ok = total <= FIT_TARGET_S
     add(f'- Target: the three-parameter fit of a 6 s protocol within {FIT_TARGET_S:g} s: '
         f'**{total:.2f} s** (medians of both parts) — {"met" if ok else "NOT met"}.')
+    add('')
+    limb = results['limb']
+    limb_total = limb['load'].median + limb['fit'].median
+    add('The limb, `hill-muscle fit --plant`: the ankle preset with '
+        f'{", ".join(f"`{k}` = {v:g}" for k, v in LIMB_TRUTH.items())}, a 6 s protocol '
+        '(two lifts of the foot) at 1 kHz written as the limb node publishes it; the fit '
+        f'of those three from the preset, on {limb["samples"]} joint angles '
+        '(median, min to max of the runs, no warm-up).')
+    add('')
+    add('| part | wall [s] | CPU [s] |')
+    add('| --- | ---: | ---: |')
+    add(f'| reading the bag (`load_limb_recording`) | {limb["load"].fmt()} | '
+        f'{limb["load"].cpu.median:.3f} |')
+    add(f'| one simulation of the 6 s (`simulate_limb`) | {limb["simulation"].fmt()} | '
+        f'{limb["simulation"].cpu.median:.3f} |')
+    add(f'| the least squares (`fit_parameters`, {limb["evaluations"]} evaluations of '
+        f'4 simulations) | {limb["fit"].fmt()} | {limb["fit"].cpu.median:.3f} |')
+    add('')
+    add(f'- Estimates: {", ".join(f"{v:.6g}" for v in limb["estimates"])} '
+        f'(truth {", ".join(f"{v:g}" for v in LIMB_TRUTH.values())}).')
+    limb_ok = limb_total <= FIT_TARGET_S
+    add(f'- The same {FIT_TARGET_S:g} s goal for the limb: **{limb_total:.2f} s** — '
+        f'{"met" if limb_ok else "NOT met"}: every evaluation runs the limb four times '
+        '(the estimate and one forward difference per parameter), each in pure Python '
+        '(RK4 of the joint and the CE on sub-steps).')
     add('')

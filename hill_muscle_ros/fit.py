@@ -1115,11 +1115,12 @@ def _estimate_lines(result: FitResult) -> list[str]:
                             result.std_errors):
         lines.append(f'| {p.name:<{width}} | {x0:12.6g} | {x:14.8g} | {se:10.3g} | '
                      f'{p.unit} |')
+    col = max([12] + [len(n) for n in names])   # 12: the muscle's names fit
     lines += ['', 'Correlation of the estimates:', '',
-              '| ' + ' | '.join([' ' * width] + [f'{n:>12}' for n in names]) + ' |',
-              '|' + '|'.join(['-' * (width + 2)] + ['-' * 14] * len(names)) + '|']
+              '| ' + ' | '.join([' ' * width] + [f'{n:>{col}}' for n in names]) + ' |',
+              '|' + '|'.join(['-' * (width + 2)] + ['-' * (col + 2)] * len(names)) + '|']
     for name, row in zip(names, result.correlation):
-        lines.append('| ' + ' | '.join([f'{name:<{width}}'] + [f'{c:12.4f}' for c in row])
+        lines.append('| ' + ' | '.join([f'{name:<{width}}'] + [f'{c:{col}.4f}' for c in row])
                      + ' |')
     return lines
 
