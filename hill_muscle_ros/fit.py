@@ -6,13 +6,25 @@ model from rest, on the time grid of the recorded force, and the named
 :func:`scipy.optimize.least_squares` until the simulated force matches the
 recorded one. The rest of the parameters stay as the start file gives them.
 
-The pieces are kept apart so that another plant (the limb) can be fitted the
-same way later: :func:`load_muscle_recording` turns a bag into arrays,
-:class:`MuscleReplay` predicts the force of several parameter sets at once
-(its ``predict`` is all :func:`fit_parameters` asks of a model), and
-:func:`fit_parameters` runs the optimiser, checks identifiability and computes
-the standard errors. The CLI glue (:func:`cmd_fit`) writes the parameters file
-and the report.
+The pieces are kept apart so that the limb is fitted the same way:
+:func:`load_muscle_recording` turns a bag into arrays, :class:`MuscleReplay`
+predicts the force of several parameter sets at once (its ``predict`` is all
+:func:`fit_parameters` asks of a model), and :func:`fit_parameters` runs the
+optimiser, checks identifiability and computes the standard errors. The CLI
+glue (:func:`cmd_fit`) writes the parameters file and the report.
+
+The limb (``--plant``): :func:`load_limb_recording` reads ``joint_states``
+(the plant's joint by name) and each muscle's stimulation onto the joint
+states' grid, :class:`LimbReplay` runs them through
+:func:`~hill_muscle_ros.model.limb.simulate_limb` from the plant's initial
+state, and :class:`PlantParameter` names what is fitted as the plant file
+does (``joint.damping_n_m_s_per_rad``, ``quadriceps.f_iso_max_n``);
+:func:`plant_file_text` writes the fitted values into the start plant file.
+
+Live bags (``--edge-search``): the stimulation's stamps are the recorder's
+receive times, some steps off the step the simulator acted on;
+:func:`fit_with_aligned_edges` moves each change to the step that best explains
+the force and fits again.
 
 Replaying: the force samples define the grid (step dt = their median
 spacing). The stimulation holds its last message (zero before the first),
@@ -34,7 +46,10 @@ uses: on Protocol II at 1 kHz one run takes about 12 ms, where
 :class:`~hill_muscle_ros.model.batch.MuscleBatch` takes about 0.5 s for K = 4
 (its per-step NumPy overhead only pays off for hundreds of muscles). Muscles
 with FES extensions on run :class:`~hill_muscle_ros.model.fes_muscle.FesMuscle`,
-which is several times slower per step.
+which is several times slower per step. A limb run is far dearer (the joint and
+every CE integrated together on sub-steps, in Python): 6 s of the ankle preset
+cost about 0.65 s of CPU, so a three-parameter limb fit takes tens of seconds
+(BENCHMARKS.md, section 8).
 """
 from __future__ import annotations
 
