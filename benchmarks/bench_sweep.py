@@ -201,6 +201,15 @@ def write_section(add, results: dict) -> None:
         add(f'| {labels[name]} | {n} | {chunks} | {local.fmt()} | {sim.fmt()} | '
             f'{whole.fmt()} | {rows["warm"].fmt()} |')
     add('')
+    for name, rows in results['throughput'].items():
+        local, warm = rows[0][0].median, rows['warm'].median
+        add(f'- {name}: 2 warm workers run {warm / local:.2f}x the in-process rate (wall '
+            'medians).')
+    add('- Two workers can only gain where two cores are free: with a load average above the '
+        'core count (the comment above) they compete with the rest of the machine for the '
+        'same cores, and a fresh cluster also pays for its start and for importing the '
+        'package in each worker.')
+    add('')
     add('### A batch of limbs against separate limbs')
     add('')
     add('`LimbBatch.step_commands` on K knee plants (the quadriceps\' `f_iso_max_n` from '

@@ -803,8 +803,8 @@ def add_parser(sub) -> None:
     p.add_argument('--chunk', type=_chunk, metavar='SETS',
                    help=f'parameter sets per task (default: an equal share per worker, '
                         f'at most {MAX_AUTO_CHUNK}, {MAX_AUTO_LIMB_CHUNK} for a limb); smaller '
-                        f'chunks move the progress bar '
-                        f'more often but run slower')
+                        f'chunks move the progress bar more often (a muscle\'s also run '
+                        f'slower)')
 
 
 def _plant_text(spec: SweepSpec) -> str:
