@@ -1020,6 +1020,21 @@ def _held_knots(values: np.ndarray, t_s: np.ndarray) -> Knots:
     return Knots(times, np.concatenate(([values[0]], held, [values[-1]])))
 
 
+#: A worker process's replay: (protocol, rate [Hz], sample indices), set once by
+#: :func:`_limb_worker_init` so that each task sends only its plant.
+_LIMB_WORKER: tuple | None = None
+
+
+def _limb_worker_init(protocol: LimbProtocol, rate_hz: float, index: np.ndarray) -> None:
+    global _LIMB_WORKER
+    _LIMB_WORKER = (protocol, rate_hz, index)
+
+
+def _limb_worker_angle(plant: LimbPlant) -> np.ndarray:
+    protocol, rate_hz, index = _LIMB_WORKER
+    return simulate_limb(plant, protocol, rate_hz)['theta_rad'][index]
+
+
 class LimbReplay:
     """The recorded stimulation replayed through the limb
     (:func:`~hill_muscle_ros.model.limb.simulate_limb`), for any plant.
@@ -1028,10 +1043,19 @@ class LimbReplay:
     the stimulation and torque of its start, as the limb node does, and the angle
     of step k is the state after it, as ``joint_states`` shows it.
 
+    With ``jobs`` > 1 the plants of one :meth:`predict` (an evaluation's n + 1)
+    run in that many worker processes (forked once, kept until :meth:`close`);
+    each run is the same computation, so the angles are identical to one process's.
+
     :param recording: the inputs and the joint angles to predict
+    :param jobs: worker processes, >= 1
     """
 
-    def __init__(self, recording: LimbRecording) -> None:
+    def __init__(self, recording: LimbRecording, jobs: int = 1) -> None:
+        if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
+            raise ValueError(f'`jobs` must be a positive integer, got {jobs!r}')
+        self.jobs = jobs
+        self._pool = None
         self.recording = recording
         n = len(recording.external_torque_n_m)
         t = sample_times((n - 1) / recording.rate_hz, recording.rate_hz)
@@ -1050,10 +1074,35 @@ class LimbReplay:
         """[rad] the joint angle at the recorded samples, one row per plant."""
         index = self.recording.sample_index
         try:
+            if self.jobs > 1 and len(plants) > 1:
+                return np.array(list(self._workers().map(_limb_worker_angle, plants)))
             return np.array([self.angle(p)[index] for p in plants])
         except ValueError as err:   # a muscle driven beyond its length range
             raise FitError(f'the fit reached a plant the recording drives out of range: '
                            f'{err}') from None
+
+    def _workers(self):
+        if self._pool is None:
+            import multiprocessing
+            from concurrent.futures import ProcessPoolExecutor
+            # fork: the workers start with the recording in memory, nothing to import.
+            self._pool = ProcessPoolExecutor(
+                self.jobs, mp_context=multiprocessing.get_context('fork'),
+                initializer=_limb_worker_init,
+                initargs=(self.protocol, self.recording.rate_hz, self.recording.sample_index))
+        return self._pool
+
+    def close(self) -> None:
+        """Stop the worker processes, if any."""
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None
+
+    def __enter__(self) -> 'LimbReplay':
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
 
 
 # --------------------------------------------------------------------------- outputs
@@ -1395,6 +1444,9 @@ def add_fit_parser(sub: argparse._SubParsersAction) -> None:
     fit.add_argument('--external-torque-topic', metavar='TOPIC',
                      help='with --plant: the external torque [N m], Float64 (default: '
                           f'`{EXTERNAL_TORQUE_TOPIC}`, 0 if the bag has none)')
+    fit.add_argument('--jobs', type=_jobs, metavar='N',
+                     help='with --plant: run the n + 1 limb simulations of each evaluation '
+                          'in N processes (default 1; more than the free CPUs does not help)')
     fit.add_argument('--edge-search', type=_edge_search, metavar='S',
                      help='single muscle, for live bags: move each change of the stimulation '
                           'by whole steps within +-S seconds of its stamp to where it best '
@@ -1426,11 +1478,27 @@ def _edge_search(text: str) -> float:
     return value
 
 
+#: Most --jobs: an evaluation runs n + 1 simulations, and a fit of more than a
+#: few dozen parameters is not what this is for.
+MAX_JOBS = 64
+
+
+def _jobs(text: str) -> int:
+    """argparse type for ``--jobs``: an integer in [1, MAX_JOBS]."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'must be an integer, got {text!r}') from None
+    if not 1 <= value <= MAX_JOBS:
+        raise argparse.ArgumentTypeError(f'must be in [1, {MAX_JOBS}], got {text!r}')
+    return value
+
+
 #: Options of ``fit`` for one kind of plant only: (attribute, flag).
 MUSCLE_FIT_OPTIONS = (('params', '--params'), ('length_topic', '--length-topic'),
                       ('force_topic', '--force-topic'), ('edge_search', '--edge-search'))
 LIMB_FIT_OPTIONS = (('joint_states_topic', '--joint-states-topic'),
-                    ('external_torque_topic', '--external-torque-topic'))
+                    ('external_torque_topic', '--external-torque-topic'), ('jobs', '--jobs'))
 
 
 def cmd_fit(args: argparse.Namespace) -> int:
@@ -1510,9 +1578,11 @@ def _cmd_fit_limb(args: argparse.Namespace) -> int:
               f'`{recording.joint}` on {recording.topics["joint_states"]} '
               f'({len(recording.angle_rad)} samples at {recording.rate_hz:g} Hz); each '
               f'evaluation runs {len(parameters) + 1} limb simulations', file=sys.stderr)
-        result = fit_parameters(LimbReplay(recording), recording.angle_rad, start, parameters,
-                                progress=lambda line: print(line, file=sys.stderr, flush=True),
-                                quantity='joint angle', unit='rad')
+        with LimbReplay(recording, jobs=args.jobs or 1) as replay:
+            result = fit_parameters(
+                replay, recording.angle_rad, start, parameters,
+                progress=lambda line: print(line, file=sys.stderr, flush=True),
+                quantity='joint angle', unit='rad')
     except (OSError, UnicodeDecodeError) as err:
         raise UserError(f'{args.plant}: cannot read the plant file: {err}') from None
     except ValueError as err:   # FitError, and the plant file's own errors

@@ -155,6 +155,22 @@ def test_knee_replay_of_two_muscles_and_a_torque_is_exact(tmp_path):
                                   result['theta_rad'])
 
 
+def test_worker_processes_predict_the_same_angles_as_one(ankle_run):
+    recording = fit.load_limb_recording(ankle_run['bag'], _ankle_start())
+    plants = [ankle_run['truth'], _ankle_start(), dataclasses.replace(
+        ankle_run['truth'], joint=dataclasses.replace(ankle_run['truth'].joint,
+                                                      inertia_kg_m2=0.03))]
+    with fit.LimbReplay(recording, jobs=2) as replay:
+        parallel = replay.predict(plants)
+    np.testing.assert_array_equal(parallel, fit.LimbReplay(recording).predict(plants))
+
+
+def test_jobs_must_be_a_positive_integer(ankle_run):
+    recording = fit.load_limb_recording(ankle_run['bag'], _ankle_start())
+    with pytest.raises(ValueError, match=r'`jobs` must be a positive integer, got 0'):
+        fit.LimbReplay(recording, jobs=0)
+
+
 # --------------------------------------------------------------------------- recovery
 
 def test_recovers_three_parameters_within_one_percent_without_noise(ankle_run, tmp_path,
@@ -350,6 +366,10 @@ def test_muscle_options_are_refused_with_a_plant(ankle_run, tmp_path, capsys):
                           '--joint-states-topic', 'joint_states', '--out', tmp_path / 'f.yaml')
     assert status == cli.EXIT_USAGE
     assert '--joint-states-topic applies to a limb' in err
+    status, _, err = _fit(capsys, '--bag', ankle_run['bag'], '--fit', 'f_iso_max_n',
+                          '--jobs', '2', '--out', tmp_path / 'f.yaml')
+    assert status == cli.EXIT_USAGE
+    assert '--jobs applies to a limb' in err
 
 
 def test_help_names_the_plant_options(capsys):
@@ -364,7 +384,7 @@ def test_console_script_fits_a_limb_and_writes_the_report(ankle_run, tmp_path,
                                                          near_truth_yaml):
     proc = subprocess.run(
         [sys.executable, '-m', 'hill_muscle_ros.cli', 'fit', '--bag', str(ankle_run['bag']),
-         '--plant', str(near_truth_yaml), '--fit', 'joint.damping_n_m_s_per_rad',
+         '--plant', str(near_truth_yaml), '--fit', 'joint.damping_n_m_s_per_rad', '--jobs', '2',
          '--out', str(tmp_path / 'fitted.yaml'), '--report', str(tmp_path / 'report')],
         capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
