@@ -236,3 +236,29 @@ def test_package_import_and_a_numpy_batch_import_no_numba():
     out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
                          check=True).stdout
     assert out.strip() == 'False False'
+
+
+@pytest.mark.parametrize('engine', ['compiled', 'numpy'])
+@pytest.mark.parametrize('kwargs, message', [
+    ({'recruitment': [0.5, math.nan]}, '`recruitment` must be in [0, 1], got nan for muscle 1'),
+    ({'recruitment': [1.2, 0.5]}, '`recruitment` must be in [0, 1], got 1.2 for muscle 0'),
+    ({'dl_mt_m': [0.0, -math.inf]}, '`dl_mt_m` must be finite and within ±1.0 m of rest, '
+                                    'got -inf for muscle 1'),
+    ({'dl_mt_m': [0.0, 0.0, 0.0]}, '`dl_mt_m` must have shape (2,), got (3,)'),
+    ({'dt_s': math.nan}, '`dt_s` must be positive and finite, got nan'),
+    # Two bad inputs: dl_MT is named first, as on the NumPy engine.
+    ({'dl_mt_m': [2.0, 0.0], 'recruitment': [-1.0, 0.5]}, '`dl_mt_m` must be finite'),
+    ({'dt_s': 0.0, 'recruitment': [-1.0, 0.5]}, '`dt_s` must be positive'),
+])
+def test_bad_input_raises_the_same_error_on_both_engines_and_changes_nothing(
+        engine, kwargs, message):
+    batch = MuscleBatch([MuscleParams(), MuscleParams(length='instantaneous')], engine=engine)
+    for _ in range(50):
+        batch.step([0.7, 0.3], [0.003, 0.001], 1e-3)
+    before = batch.outputs()
+    args = {'recruitment': [0.7, 0.3], 'dl_mt_m': [0.003, 0.001], 'dt_s': 1e-3, **kwargs}
+    with pytest.raises(ValueError) as err:
+        batch.step(**args)
+    assert str(err.value).startswith(message)
+    for a, b in zip(before, batch.outputs()):
+        np.testing.assert_array_equal(a, b)

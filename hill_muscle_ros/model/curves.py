@@ -70,13 +70,18 @@ def force_velocity_inverse(f_ce: float, f0: float, a: float, b: float,
     :param b_ecc: [m/s] eccentric constant (b')
     :return: [m/s] CE velocity (v_CE), negative when shortening
     """
+    # One division for all four branches (numerator / denominator), the same
+    # numbers as dividing in each: compiled for many muscles at once
+    # (model/kernels.py), every branch is evaluated, and divisions dominate.
     if f_ce <= 0.0:
-        return -f0 * b / a
-    if f_ce <= f0:
-        return b * (f_ce - f0) / (f_ce + a)
-    if f_ce < ECC_PLATEAU * f0:
-        return b_ecc * (2.0 * f_ce - 2.0 * f0) / (3.0 * f0 - 2.0 * f_ce + a_ecc)
-    return f0 * b_ecc / a_ecc
+        num, den = -f0 * b, a
+    elif f_ce <= f0:
+        num, den = b * (f_ce - f0), f_ce + a
+    elif f_ce < ECC_PLATEAU * f0:
+        num, den = b_ecc * (2.0 * f_ce - 2.0 * f0), 3.0 * f0 - 2.0 * f_ce + a_ecc
+    else:
+        num, den = f0 * b_ecc, a_ecc
+    return num / den
 
 
 def isometric_force_for(f_ce: float, v_ce: float, a: float, b: float,

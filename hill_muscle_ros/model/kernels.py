@@ -185,6 +185,29 @@ def step_all(l0, dl0, dl1, dt: float, gain, k1_prev, have_k1: bool, initial, par
         out[OUT_FORCE, i] = f_se + f_pe
 
 
+def scan_inputs(r, dl1, r_now, dl_limit_m: float) -> tuple:
+    """Check a step's inputs and compare R with the one in force, in one pass.
+
+    Counts, so that the loop has no early exit and vectorises; the caller
+    looks for the first culprit only when a count is not zero.
+
+    :param r: [-] (K,) recruitment of the step
+    :param dl1: [m] (K,) dl_MT at the end of the step
+    :param r_now: [-] (K,) recruitment in force
+    :param dl_limit_m: [m] largest |dl_MT| accepted
+    :return: muscles with dl_MT out of range or NaN, with R outside [0, 1] or
+        NaN, and with R different from ``r_now``
+    """
+    n_bad_dl = 0
+    n_bad_r = 0
+    n_changed = 0
+    for i in range(r.shape[0]):
+        n_bad_dl += not (-dl_limit_m <= dl1[i] <= dl_limit_m)   # NaN too
+        n_bad_r += not (0.0 <= r[i] <= 1.0)
+        n_changed += r[i] != r_now[i]
+    return n_bad_dl, n_bad_r, n_changed
+
+
 def launch(kernels: types.SimpleNamespace, parallel: bool, *args) -> None:
     """Call the compiled :func:`step_all` on all numba threads or on one.
 
@@ -212,7 +235,7 @@ CACHE_DIGEST_CHARS = 12
 
 #: The functions :func:`compiled` compiles, callees before callers.
 _CURVES = (force_length, force_velocity_inverse, series_force, parallel_force)
-_KERNELS = ('eff_f_iso', 'ce_velocity', 'step_one', 'step_all')
+_KERNELS = ('eff_f_iso', 'ce_velocity', 'step_one', 'step_all', 'scan_inputs')
 #: The compiled namespace once built (None until then).
 _compiled = None
 
@@ -242,6 +265,7 @@ def compiled() -> types.SimpleNamespace:
     # numba's IR, so LLVM sees one loop body.
     digest = hashlib.sha256(Path(curves.__file__).read_bytes()).hexdigest()[:CACHE_DIGEST_CHARS]
     helper = numba.njit(cache=True, error_model='numpy', inline='always')
+    f8, c1, c2 = numba.float64, numba.float64[::1], numba.float64[:, ::1]
     scope = dict(globals())
     scope['prange'] = numba.prange
     for fn in _CURVES:
@@ -257,11 +281,13 @@ def compiled() -> types.SimpleNamespace:
         if name == 'step_all':
             # With its signature: compiled (or loaded from the cache) here, once,
             # and never again for other argument types.
-            f8, c1, c2 = numba.float64, numba.float64[::1], numba.float64[:, ::1]
             signature = numba.void(c1, c1, c1, f8, c1, c1, numba.boolean,
                                    numba.boolean[::1], c2, c2)
             scope[name] = numba.njit(signature, cache=True, error_model='numpy',
                                      parallel=True)(rebound)
+        elif name == 'scan_inputs':
+            counts = numba.types.UniTuple(numba.int64, 3)
+            scope[name] = numba.njit(counts(c1, c1, c1, f8), cache=True)(rebound)
         else:
             scope[name] = helper(rebound)
     _compiled = types.SimpleNamespace(numba=numba, **{n: scope[n] for n in _KERNELS})
