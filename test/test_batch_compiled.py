@@ -150,12 +150,13 @@ def test_outputs_and_state_are_not_shared_with_the_callers_arrays(engine):
         previous = out
 
 
-def test_one_thread_and_all_threads_give_the_same_numbers():
+@pytest.mark.parametrize('lengths', [('initial', 'instantaneous'), ('initial',)])
+def test_one_thread_and_all_threads_give_the_same_numbers(monkeypatch, lengths):
     import numba
-    k = kernels.PARALLEL_MIN_K   # large enough to run on every thread
+    monkeypatch.setattr(kernels, 'PARALLEL_MIN_K', 1)   # this small K on every thread
+    k = 64
     rng = np.random.default_rng(3)
-    params = [MuscleParams(units=('multi', 'single')[i % 2],
-                           length=('initial', 'instantaneous')[i // 2 % 2],
+    params = [MuscleParams(units=('multi', 'single')[i % 2], length=lengths[i // 2 % len(lengths)],
                            f_iso_max_n=float(f)) for i, f in enumerate(rng.uniform(30, 60, k))]
     before = numba.get_num_threads()
     outs = {}
@@ -163,10 +164,13 @@ def test_one_thread_and_all_threads_give_the_same_numbers():
         for threads in (1, numba.config.NUMBA_NUM_THREADS):
             numba.set_num_threads(threads)
             batch = MuscleBatch(params, engine='compiled')
+            reference = MuscleBatch(params, engine='numpy')
             inputs = np.random.default_rng(4)
-            for j in range(20):
-                r = inputs.uniform(0, 1, k) if j % 5 == 0 else batch.recruitment
-                out = batch.step(r, 0.001 * j, 1e-3)
+            for j in range(200):
+                r = inputs.uniform(0, 1, k) if j % 50 == 0 else batch.recruitment
+                dl = 0.005 * math.sin(j / 30)
+                out = batch.step(r, dl, 1e-3)
+                assert_outputs_agree(out, reference.step(r, dl, 1e-3), f'step {j}')
             outs[threads] = out
     finally:
         numba.set_num_threads(before)
@@ -192,7 +196,7 @@ def test_the_kernel_runs_as_plain_python_with_the_compiled_results():
     rng = np.random.default_rng(5)
     batch.step(rng.uniform(0.0, 1.0, len(params)), 0.002, 1e-3)
     args = (batch.l_ce_m, batch.dl_mt_m, rng.uniform(-0.01, 0.01, len(params)), 1e-3,
-            batch._gain, batch._v_ce, True, batch._initial, batch._param_rows)
+            batch._gain, batch._v_ce, True, batch._initial, False, batch._param_rows)
     python_out = np.empty((kernels.N_OUTPUTS, len(params)))
     compiled_out = np.empty_like(python_out)
     kernels.step_all(*args, python_out)

@@ -417,7 +417,8 @@ class MuscleBatch:
         out = np.empty((kernels.N_OUTPUTS, self.size))
         kernels.launch(self._kernels, self.size >= kernels.PARALLEL_MIN_K,
                        self.l_ce_m, self.dl_mt_m, dl1, dt, self._gain, self._v_ce,
-                       self._v_is_k1, self._initial, self._param_rows, out)
+                       self._v_is_k1, self._initial, self._all_initial, self._param_rows,
+                       out)
         l1, v_ce, f0 = out[kernels.OUT_L_CE], out[kernels.OUT_V_CE], out[kernels.OUT_EFF_F_ISO]
         self.l_ce_m, self.dl_mt_m = l1, dl1
         self._v_free, self._v_ce = out[kernels.OUT_V_FREE], v_ce

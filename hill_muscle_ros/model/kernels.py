@@ -48,11 +48,12 @@ OMP_WAIT_POLICY = 'OMP_WAIT_POLICY'
 LAUNCH_LOCK = threading.Lock()
 
 #: [-] smallest K whose loop runs on every numba thread; smaller batches run
-#: on one. Measured on 2 cores: one thread steps about 20 ns a muscle
-#: vectorised, and a launch on a second thread costs tens of us when idle and
-#: far more when the cores are busy (BENCHMARKS.md section 3), so only a few
-#: thousand muscles repay it.
-PARALLEL_MIN_K = 4096
+#: on the calling thread alone. Measured on the 2-core VM of BENCHMARKS.md (the
+#: kernel alone, one thread against two, OpenMP threads waiting passively):
+#: 130 us against 130-140 us a step at K = 10,000, 385 against 260 us at
+#: 30,000, 1.35 against 0.74 ms at 100,000; waking the second thread costs
+#: about what it saves at 10,000.
+PARALLEL_MIN_K = 20_000
 
 #: Rows of the parameter matrix of :func:`step_all`, one per muscle parameter
 #: it needs.
@@ -151,8 +152,28 @@ def step_one(l0: float, dl0: float, dl1: float, dt: float, gain: float, k1_prev:
     return l1, v1, f0, v_free
 
 
-def step_all(l0, dl0, dl1, dt: float, gain, k1_prev, have_k1: bool, initial, params,
-             out) -> None:
+def step_muscle(i: int, l0, dl0, dl1, dt: float, gain, k1_prev, have_k1: bool,
+                initial: bool, params, out) -> None:
+    """Step muscle ``i`` of the arrays (:func:`step_one`) and write its outputs
+    (the arguments as :func:`step_all`'s; ``initial`` is this muscle's)."""
+    k_se, l_rest, d1 = params[P_K_SE, i], params[P_L_REST, i], dl1[i]
+    l1, v1, f0, v_free = step_one(
+        l0[i], dl0[i], d1, dt, gain[i], k1_prev[i], have_k1, initial, k_se, l_rest,
+        params[P_L_OPT, i], params[P_A, i], params[P_B, i], params[P_A_ECC, i],
+        params[P_B_ECC, i])
+    f_se = series_force(k_se, d1, l1, l_rest)
+    f_pe = parallel_force(params[P_K_PE, i], d1)
+    out[OUT_L_CE, i] = l1
+    out[OUT_V_CE, i] = v1
+    out[OUT_EFF_F_ISO, i] = f0
+    out[OUT_V_FREE, i] = v_free
+    out[OUT_F_SE, i] = f_se
+    out[OUT_F_PE, i] = f_pe
+    out[OUT_FORCE, i] = f_se + f_pe
+
+
+def step_all(l0, dl0, dl1, dt: float, gain, k1_prev, have_k1: bool, initial,
+             all_initial: bool, params, out) -> None:
     """Step every muscle (:func:`step_one`) and write its outputs.
 
     :param l0: [m] (K,) CE lengths at the start
@@ -163,26 +184,20 @@ def step_all(l0, dl0, dl1, dt: float, gain, k1_prev, have_k1: bool, initial, par
     :param k1_prev: [m/s] (K,) v_CE at the end of the last step
     :param have_k1: True if ``k1_prev`` is the first RK4 stage of every muscle
     :param initial: (K,) bool, True for the ``initial`` length variants
+    :param all_initial: True if every muscle is an ``initial`` one: the loop
+        where that is a constant leaves FL out (vectorised, both variants are
+        evaluated for every muscle otherwise)
     :param params: (N_PARAMS, K) parameters, one row per ``P_*`` index (rows,
         not columns: contiguous per parameter, as the vector loop loads them)
     :param out: (N_OUTPUTS, K) written: l_CE [m], v_CE [m/s], Eff.f_iso [N],
         v of the free CE [m/s], f_SE [N], f_PE [N], force [N]
     """
-    for i in prange(l0.shape[0]):
-        k_se, l_rest, d1 = params[P_K_SE, i], params[P_L_REST, i], dl1[i]
-        l1, v1, f0, v_free = step_one(
-            l0[i], dl0[i], d1, dt, gain[i], k1_prev[i], have_k1, initial[i], k_se, l_rest,
-            params[P_L_OPT, i], params[P_A, i], params[P_B, i], params[P_A_ECC, i],
-            params[P_B_ECC, i])
-        f_se = series_force(k_se, d1, l1, l_rest)
-        f_pe = parallel_force(params[P_K_PE, i], d1)
-        out[OUT_L_CE, i] = l1
-        out[OUT_V_CE, i] = v1
-        out[OUT_EFF_F_ISO, i] = f0
-        out[OUT_V_FREE, i] = v_free
-        out[OUT_F_SE, i] = f_se
-        out[OUT_F_PE, i] = f_pe
-        out[OUT_FORCE, i] = f_se + f_pe
+    if all_initial:
+        for i in prange(l0.shape[0]):
+            step_muscle(i, l0, dl0, dl1, dt, gain, k1_prev, have_k1, True, params, out)
+    else:
+        for i in prange(l0.shape[0]):
+            step_muscle(i, l0, dl0, dl1, dt, gain, k1_prev, have_k1, initial[i], params, out)
 
 
 def scan_inputs(r, dl1, r_now, dl_limit_m: float) -> tuple:
@@ -235,7 +250,8 @@ CACHE_DIGEST_CHARS = 12
 
 #: The functions :func:`compiled` compiles, callees before callers.
 _CURVES = (force_length, force_velocity_inverse, series_force, parallel_force)
-_KERNELS = ('eff_f_iso', 'ce_velocity', 'step_one', 'step_all', 'scan_inputs')
+_KERNELS = ('eff_f_iso', 'ce_velocity', 'step_one', 'step_muscle', 'step_all',
+            'scan_inputs')
 #: The compiled namespace once built (None until then).
 _compiled = None
 
@@ -282,7 +298,7 @@ def compiled() -> types.SimpleNamespace:
             # With its signature: compiled (or loaded from the cache) here, once,
             # and never again for other argument types.
             signature = numba.void(c1, c1, c1, f8, c1, c1, numba.boolean,
-                                   numba.boolean[::1], c2, c2)
+                                   numba.boolean[::1], numba.boolean, c2, c2)
             scope[name] = numba.njit(signature, cache=True, error_model='numpy',
                                      parallel=True)(rebound)
         elif name == 'scan_inputs':
