@@ -228,8 +228,9 @@ def write_section(add, m: dict) -> None:
     for (name, k, engine), s in m['rates'].items():
         add(f'| {name} | {k:,} | {engine} | {s.fmt()} | {_cpu(s)} |')
     add('')
-    add(f'Compiled / NumPy at K = {K_LARGE:,}, from {len(m["ratio"])} x back-to-back pairs '
-        'of runs (NumPy run, then compiled run; the ratio of each pair):')
+    pairs = next(iter(m['ratio'].values())).runs
+    add(f'Compiled / NumPy at K = {K_LARGE:,}, from {pairs} back-to-back pairs of runs per '
+        'set (a NumPy run, then a compiled run; the ratio of each pair):')
     add('')
     add('| parameter sets | compiled / NumPy (wall) |')
     add('| --- | ---: |')
@@ -276,8 +277,12 @@ def write_section(add, m: dict) -> None:
     add(f'- Target: the NumPy engine at least {TARGET_RATE:.0e} muscle-steps/s at K = '
         f'{K_LARGE:,}: **{numpy_rate:.3g}** (slower of the two sets) — '
         f'{"**met**" if numpy_rate >= TARGET_RATE else "**not met**"}.')
-    add('- With R changing on every step the unit-memory bookkeeping (Python, about a '
-        'microsecond per changing multi/initial muscle, the same on both engines) dominates; '
-        'with FES features on, each muscle costs a scalar step whatever the engine.')
+    per_change_us = 1e6 / m['changing']['compiled'].median
+    add(f'- With R changing on every step the unit-memory bookkeeping (in Python on both '
+        f'engines: {per_change_us:.2g} us a muscle-step here) dominates; with FES features '
+        'on, each muscle costs a scalar FES step whatever the engine.')
+    add('- One thread against two: the second thread\'s wake-up costs about what it saves '
+        f'at K = {K_LARGE:,} on this machine, which is why the batch uses every thread only '
+        f'from K = {kernels.PARALLEL_MIN_K:,} (`kernels.PARALLEL_MIN_K`).')
     add('- At K = 1 the NumPy engine is dominated by NumPy call overhead; use `Muscle` for '
         'one muscle.')
