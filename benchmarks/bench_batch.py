@@ -281,8 +281,11 @@ def write_section(add, m: dict) -> None:
     add(f'- With R changing on every step the unit-memory bookkeeping (in Python on both '
         f'engines: {per_change_us:.2g} us a muscle-step here) dominates; with FES features '
         'on, each muscle costs a scalar FES step whatever the engine.')
-    add('- One thread against two: the second thread\'s wake-up costs about what it saves '
-        f'at K = {K_LARGE:,} on this machine, which is why the batch uses every thread only '
-        f'from K = {kernels.PARALLEL_MIN_K:,} (`kernels.PARALLEL_MIN_K`).')
+    two_by_one = [m['threads'][(name, 2)].median / m['threads'][(name, 1)].median
+                  for name in m['ratio']]
+    add(f'- Two threads ran at {min(two_by_one):.2g}-{max(two_by_one):.2g}x the one-thread '
+        f'rate at K = {K_LARGE:,} here: waking the second thread costs about what it saves at '
+        'this K (more on busy cores), which is why the batch uses every thread only from K = '
+        f'{kernels.PARALLEL_MIN_K:,} (`kernels.PARALLEL_MIN_K`).')
     add('- At K = 1 the NumPy engine is dominated by NumPy call overhead; use `Muscle` for '
         'one muscle.')
