@@ -10,6 +10,7 @@ numba is a runtime requirement, so these tests do not skip without it: they fail
 Compile time: the kernel is compiled once per checkout and then loaded from
 numba's on-disk cache (``cache=True``); every test here shares it.
 """
+import dataclasses
 import math
 import subprocess
 import sys
@@ -35,11 +36,13 @@ EXACT_FIELDS = ('recruitment', 'n_recruited', 'dl_mt_m', 'command', 'mean_fitnes
 
 
 @st.composite
-def batch_case(draw, max_hold: int):
-    """K parameter sets (variants mixed) and (T, K) inputs, each muscle's R held
-    for 1..``max_hold`` steps (1: R may change on every step)."""
+def batch_case(draw, max_hold: int, params=None):
+    """K parameter sets (variants mixed, or drawn from ``params``) and (T, K)
+    inputs, each muscle's R held for 1..``max_hold`` steps (1: R may change on
+    every step)."""
     k = draw(st.integers(1, 6))
-    params = draw(st.lists(muscle_params(), min_size=k, max_size=k))
+    params = draw(st.lists(muscle_params() if params is None else params, min_size=k,
+                           max_size=k))
     n_steps = draw(st.integers(1, 60))
     r = np.empty((n_steps, k))
     dl = np.empty((n_steps, k))
@@ -98,6 +101,19 @@ def test_compiled_equals_numpy_and_separate_muscles_with_recruitment_held(case):
 @settings(max_examples=80, deadline=None)
 @given(batch_case(max_hold=1))
 def test_compiled_equals_numpy_and_separate_muscles_with_recruitment_changing(case):
+    run_three_ways(case)
+
+
+#: multi/initial muscles with few units, so the run stacks grow deep, fill,
+#: drop whole runs and trim them.
+multi_initial_few_units = muscle_params().map(
+    lambda p: dataclasses.replace(p, units='multi', length='initial',
+                                  n_units=min(p.n_units, 7)))
+
+
+@settings(max_examples=80, deadline=None)
+@given(batch_case(max_hold=1, params=multi_initial_few_units))
+def test_compiled_run_stacks_equal_numpy_and_separate_muscles_with_recruitment_changing(case):
     run_three_ways(case)
 
 
@@ -202,6 +218,85 @@ def test_the_kernel_runs_as_plain_python_with_the_compiled_results():
     kernels.step_all(*args, python_out)
     kernels.compiled().step_all(*args, compiled_out)
     np.testing.assert_array_equal(python_out, compiled_out)
+
+
+def test_the_recruitment_bookkeeping_runs_as_plain_python_with_the_compiled_results():
+    # Written once: kernels.recruit_all and memory.stack_update, not compiled,
+    # give the same numbers as compiled, over many changes of every variant.
+    params = [MuscleParams(units=u, length=length, n_units=n)
+              for u, length, n in [('multi', 'initial', 7), ('single', 'initial', 1000),
+                                   ('multi', 'instantaneous', 1000),
+                                   ('single', 'instantaneous', 1000),
+                                   ('multi', 'initial', 1000)]]
+    batches = [MuscleBatch(params, engine='compiled') for _ in range(2)]
+    rng = np.random.default_rng(6)
+    names = ('recruitment', 'n_recruited', '_gain', '_f_iso_single', '_stack_top',
+             '_stack_count', '_stack_f_unit', '_stack_total')
+    deepest = 0
+    for k in range(300):
+        # Mostly partial levels, so stacks grow; 0 and 1 now and then.
+        r = rng.choice([0.0, 1.0, *rng.uniform(size=8)], size=len(params))
+        l_ce = rng.uniform(0.05, 0.15, len(params))
+        changes = []
+        for batch, recruit_all in zip(batches, (kernels.recruit_all,
+                                                kernels.compiled().recruit_all)):
+            batch.l_ce_m = l_ce.copy()
+            changes.append(recruit_all(
+                r, batch.recruitment, batch.n_recruited, batch._gain, batch._f_iso_single,
+                batch.l_ce_m, batch._multi, batch._initial, batch._n_units, batch._f_iso_max,
+                batch._l_opt, batch._stack_base, batch._stack_top, batch._stack_count,
+                batch._stack_f_unit, batch._stack_total))
+        assert changes[0] == changes[1], f'step {k}'
+        for name in names:
+            np.testing.assert_array_equal(getattr(batches[0], name), getattr(batches[1], name),
+                                          err_msg=f'{name} step {k}')
+        deepest = max(deepest, batches[0]._stack_top.max())
+    assert deepest > 2   # the stacks really held several runs
+
+
+def test_only_multi_initial_muscles_get_a_run_stack_of_n_plus_one_entries():
+    params = [MuscleParams(units='single'), MuscleParams(n_units=7),
+              MuscleParams(length='instantaneous'), MuscleParams(n_units=1000),
+              MuscleParams(units='single', length='instantaneous')]
+    batch = MuscleBatch(params, engine='compiled')
+    assert batch._stack_count.size == (7 + 1) + (1000 + 1)
+    assert batch._stack_f_unit.size == batch._stack_total.size == batch._stack_count.size
+    assert list(batch._stack_base[[1, 3]]) == [0, 8]
+    assert MuscleBatch(params[:1] + params[2:3], engine='compiled')._stack_count.size == 0
+
+
+def test_a_full_run_stack_and_back_down_on_the_compiled_engine_matches_separate_muscles():
+    # Every unit recruited one at a time (N runs, the stack full), then
+    # de-recruited one at a time, the CE length moving all the while.
+    n_units = 7
+    params = [MuscleParams(n_units=n_units), MuscleParams(n_units=n_units, f_iso_max_n=60.0)]
+    batch = MuscleBatch(params, engine='compiled')
+    muscles = [Muscle(p) for p in params]
+    levels = [m / n_units for m in range(n_units + 1)]
+    for k, r in enumerate(levels + levels[::-1] + levels):
+        dl = 0.004 * math.sin(k / 3)
+        out = batch.step(r, dl, 1e-3)
+        for i, muscle in enumerate(muscles):
+            ref = muscle.step(r, dl, 1e-3)
+            assert out.eff_f_iso_n[i] == pytest.approx(ref.eff_f_iso_n, abs=ATOL_N)
+            assert out.force_n[i] == pytest.approx(ref.force_n, abs=ATOL_N)
+        if k == n_units:
+            np.testing.assert_array_equal(batch.n_runs, n_units)
+    np.testing.assert_array_equal(batch.n_runs, [m.n_runs for m in muscles])
+
+
+def test_reset_erases_the_run_stacks_of_the_compiled_engine():
+    params = [MuscleParams(), MuscleParams(units='single')]
+    batch = MuscleBatch(params, engine='compiled')
+    fresh = MuscleBatch(params, engine='compiled')
+    for k in range(100):
+        batch.step(0.2 + 0.7 * (k % 3) / 2, 0.003 * math.sin(k / 10), 1e-3)
+    batch.reset()
+    np.testing.assert_array_equal(batch.n_runs, 0)
+    for k in range(100):
+        r = 0.9 - 0.4 * (k % 4) / 3
+        dl = 0.002 * math.cos(k / 7)
+        assert_outputs_agree(batch.step(r, dl, 1e-3), fresh.step(r, dl, 1e-3), f'step {k}')
 
 
 def test_without_numba_auto_falls_back_to_numpy_with_the_same_results(monkeypatch):

@@ -25,12 +25,16 @@ The default, ``'auto'``, is the compiled engine if numba can be imported and
 the NumPy engine otherwise, with the same results; :attr:`MuscleBatch.engine`
 says which one runs.
 
-On both engines the motor-unit memory of ``multi``/``initial`` muscles stays the
-per-muscle LIFO stack of :class:`~hill_muscle_ros.model.memory.UnitMemory`, in
-Python: it is touched only for the muscles whose recruitment changed in that
-step, which is cheap when the recruitment is held most of the time (the usual
-FES case: a new pulse width every few to hundreds of steps) and costs about a
-microsecond per changing muscle otherwise.
+The motor-unit memory of ``multi``/``initial`` muscles is a per-muscle LIFO
+stack of runs, touched only for the muscles whose recruitment changed in that
+step; its push and pop are one function,
+:func:`~hill_muscle_ros.model.memory.stack_update`. The NumPy engine keeps
+one :class:`~hill_muscle_ros.model.memory.UnitMemory` per such muscle (Python
+lists grown on demand); the compiled engine runs the whole recruitment
+bookkeeping in :func:`~hill_muscle_ros.model.kernels.recruit_all` over flat
+arrays holding N + 1 runs for each such muscle only (24 bytes a unit, zeroed
+lazily by the operating system for large batches, so only the pages the
+stacks reach take memory), and none for ``single`` or ``instantaneous`` ones.
 
 Muscles with any FES extension switched on (delay, activation, fatigue, fibre
 types, unit lengths: doc/model.md section 7) are stepped by their own
@@ -125,9 +129,6 @@ class MuscleBatch:
         self._initial = np.array([p.length == 'initial' for p in params])
         self._all_initial = bool(self._initial.all())
         self._any_initial = bool(self._initial.any())
-        self._memories = {i: UnitMemory(p.n_units, p.f_iso_max_n, p.l_opt_m)
-                          for i, p in enumerate(params)
-                          if p.units == 'multi' and p.length == 'initial'}
         #: Muscles with an FES extension on: their scalar engines, by index.
         self._fes = {i: FesMuscle(p) for i, p in enumerate(params) if not p.fes_defaults}
         #: The compiled kernels (None on the NumPy engine).
@@ -140,7 +141,25 @@ class MuscleBatch:
                     raise
         #: [-] the engine in use: ``'compiled'`` or ``'numpy'``.
         self.engine = 'numpy' if self._kernels is None else 'compiled'
-        if self._kernels is not None:
+        stacked = [i for i, p in enumerate(params)
+                   if p.units == 'multi' and p.length == 'initial']
+        #: NumPy engine: the multi/initial muscles' memories, by index.
+        self._memories = {}
+        if self._kernels is None:
+            self._memories = {i: UnitMemory(params[i].n_units, params[i].f_iso_max_n,
+                                            params[i].l_opt_m) for i in stacked}
+        else:
+            # Compiled engine: each multi/initial muscle's run stack is the
+            # slice of N + 1 entries from its base (sentinel first) of three
+            # flat arrays; the top of every other muscle stays 0.
+            sizes = np.zeros(self.size, dtype=np.int64)
+            sizes[stacked] = self._n_units[stacked].astype(np.int64) + 1
+            self._stack_base = np.cumsum(sizes) - sizes
+            self._stack_top = np.zeros(self.size, dtype=np.int64)
+            n_entries = int(sizes.sum())
+            self._stack_count = np.zeros(n_entries, dtype=np.int64)
+            self._stack_f_unit = np.zeros(n_entries)
+            self._stack_total = np.zeros(n_entries)
             # One row per parameter (kernels.P_*), contiguous per parameter.
             rows = {kernels.P_K_SE: self._k_se, kernels.P_K_PE: self._k_pe,
                     kernels.P_L_REST: self._l_rest, kernels.P_L_OPT: self._l_opt,
@@ -163,6 +182,8 @@ class MuscleBatch:
         self.n_recruited = np.zeros(k, dtype=np.int64)
         for memory in self._memories.values():
             memory.clear()
+        if self._kernels is not None:
+            self._stack_top[:] = 0   # the sentinels are never written
         for muscle in self._fes.values():
             muscle.reset()
         self.command = np.zeros(k)
@@ -179,6 +200,8 @@ class MuscleBatch:
     @property
     def n_runs(self) -> np.ndarray:
         """[-] runs on each muscle's memory stack (0 unless multi/initial)."""
+        if self._kernels is not None:
+            return self._stack_top.copy()
         runs = np.zeros(self.size, dtype=np.int64)
         for i, memory in self._memories.items():
             runs[i] = memory.n_runs
@@ -260,6 +283,14 @@ class MuscleBatch:
 
     def _apply_recruitment(self, r: np.ndarray) -> None:
         """Update memories and gains of the muscles whose R changed (validated)."""
+        if self._kernels is not None:
+            if self._kernels.recruit_all(
+                    r, self.recruitment, self.n_recruited, self._gain, self._f_iso_single,
+                    self.l_ce_m, self._multi, self._initial, self._n_units, self._f_iso_max,
+                    self._l_opt, self._stack_base, self._stack_top, self._stack_count,
+                    self._stack_f_unit, self._stack_total):
+                self._v_is_k1 = False
+            return
         changed = r != self.recruitment
         if not changed.any():
             return
@@ -401,8 +432,8 @@ class MuscleBatch:
         The inputs are checked in one compiled pass (kernels.scan_inputs),
         with the same checks, in the same order, as the NumPy engine. The
         recruitment bookkeeping (memories and gains of the muscles whose R
-        changed) is the NumPy engine's own; kernels.step_all does the rest of
-        the step, the same operations per muscle as the array code of
+        changed) is kernels.recruit_all, and kernels.step_all does the rest
+        of the step: the same operations per muscle as the array code of
         :meth:`step`.
         """
         r = self._vector(recruitment, 'recruitment')

@@ -13,9 +13,14 @@ there, so importing this module (or the package) never loads it. Each
 function is compiled from its own code object with the names it calls bound
 to their compiled versions, and cached on disk (``cache=True``), so only the
 first process compiles. numba's cache notices a change of this file but not
-of :mod:`.curves`, which the kernels inline: so the kernels' cache entries
-carry a digest of ``curves.py`` in their names, and an edited curve compiles
-anew.
+of :mod:`.curves` or :mod:`.memory`, which the kernels inline: so the kernels'
+cache entries carry a digest of ``curves.py`` and ``memory.py`` in their
+names, and an edited curve or stack compiles anew.
+
+:func:`recruit_all` is the recruitment bookkeeping (M, gains, the run stacks
+of ``multi``/``initial`` muscles through :func:`.memory.stack_update`, the
+code :class:`~hill_muscle_ros.model.memory.UnitMemory` runs), one serial
+loop touching only the muscles whose R changed.
 
 Threads: :func:`step_all` runs its loop over muscles on numba's threads
 (``numba.set_num_threads``, ``NUMBA_NUM_THREADS``; all cores by default) when
@@ -35,8 +40,9 @@ import threading
 import types
 from pathlib import Path
 
-from . import curves
+from . import curves, memory
 from .curves import force_length, force_velocity_inverse, parallel_force, series_force
+from .memory import recruited_units, stack_update
 
 #: The loop over muscles; the compiled build binds this name to ``numba.prange``.
 prange = range
@@ -200,6 +206,71 @@ def step_all(l0, dl0, dl1, dt: float, gain, k1_prev, have_k1: bool, initial,
             step_muscle(i, l0, dl0, dl1, dt, gain, k1_prev, have_k1, initial[i], params, out)
 
 
+def recruit_all(r, r_now, n_recruited, gain, f_iso_single, l_ce, multi, initial, n_units,
+                f_iso_max, l_opt, stack_base, stack_top, count, f_unit, total) -> int:
+    """Apply new recruitment levels: the bookkeeping of the muscles whose R changed.
+
+    What :meth:`MuscleBatch._apply_recruitment
+    <hill_muscle_ros.model.batch.MuscleBatch._apply_recruitment>` does on the
+    NumPy engine, muscle by muscle: M, the gain (see :func:`eff_f_iso`), the
+    force at recruitment of ``single``/``initial`` muscles and the run stack
+    of ``multi``/``initial`` ones (:func:`.memory.stack_update`, the code of
+    :class:`~hill_muscle_ros.model.memory.UnitMemory`).
+
+    :param r: [-] (K,) validated new recruitment levels
+    :param r_now: [-] (K,) recruitment in force; updated
+    :param n_recruited: [-] (K,) int64 M per muscle; updated
+    :param gain: [N] (K,) the gains; updated
+    :param f_iso_single: [N] (K,) single/initial: f_iso at recruitment; updated
+    :param l_ce: [m] (K,) CE lengths now (l_CE)
+    :param multi: (K,) bool, True for ``multi`` muscles
+    :param initial: (K,) bool, True for ``initial`` muscles
+    :param n_units: [-] (K,) N as floats
+    :param f_iso_max: [N] (K,) f_iso_max
+    :param l_opt: [m] (K,) l_opt
+    :param stack_base: (K,) int64 index of each multi/initial muscle's sentinel
+        in ``count``, ``f_unit``, ``total`` (N + 1 entries each; unused for others)
+    :param stack_top: (K,) int64 runs on each stack; updated
+    :param count: [-] int64 the stacks' cumulative unit counts
+    :param f_unit: [N] the stacks' forces per unit
+    :param total: [N] the stacks' cumulative forces
+    :return: the number of muscles whose R changed
+    """
+    n_changed = 0
+    for i in range(r.shape[0]):
+        r_new = r[i]
+        if r_new == r_now[i]:
+            continue
+        n_changed += 1
+        f_max = f_iso_max[i]
+        if multi[i]:
+            n = n_units[i]
+            m = recruited_units(r_new, n)
+            if initial[i]:
+                base = stack_base[i]
+                top = stack_update(count, f_unit, total, base, stack_top[i], m, l_ce[i],
+                                   f_max / n, l_opt[i])
+                stack_top[i] = top
+                g = total[base + top]
+            else:
+                g = m / n * f_max
+        else:
+            m = 1 if r_new > 0.0 else 0
+            if initial[i]:
+                # Remember FL at the length where R rose from zero.
+                if r_new == 0.0:
+                    f_iso_single[i] = 0.0
+                elif r_now[i] == 0.0:
+                    f_iso_single[i] = f_max * force_length(l_ce[i] / l_opt[i])
+                g = r_new * f_iso_single[i]
+            else:
+                g = r_new * f_max
+        r_now[i] = r_new
+        n_recruited[i] = m
+        gain[i] = g
+    return n_changed
+
+
 def scan_inputs(r, dl1, r_now, dl_limit_m: float) -> tuple:
     """Check a step's inputs and compare R with the one in force, in one pass.
 
@@ -244,14 +315,14 @@ def launch(kernels: types.SimpleNamespace, parallel: bool, *args) -> None:
             numba.set_num_threads(threads)
 
 
-#: Hex digits of the digest of curves.py in the kernels' cache names: enough
-#: that two versions of the file practically never share one.
+#: Hex digits of the digest of curves.py and memory.py in the kernels' cache names: enough
+#: that two versions of the files practically never share one.
 CACHE_DIGEST_CHARS = 12
 
 #: The functions :func:`compiled` compiles, callees before callers.
 _CURVES = (force_length, force_velocity_inverse, series_force, parallel_force)
 _KERNELS = ('eff_f_iso', 'ce_velocity', 'step_one', 'step_muscle', 'step_all',
-            'scan_inputs')
+            'scan_inputs', 'recruited_units', 'stack_update', 'recruit_all')
 #: The compiled namespace once built (None until then).
 _compiled = None
 
@@ -279,7 +350,8 @@ def compiled() -> types.SimpleNamespace:
     # loop has no exception paths and vectorises (no division here can be by
     # zero for valid parameters). inline='always': the helpers are inlined in
     # numba's IR, so LLVM sees one loop body.
-    digest = hashlib.sha256(Path(curves.__file__).read_bytes()).hexdigest()[:CACHE_DIGEST_CHARS]
+    sources = b''.join(Path(m.__file__).read_bytes() for m in (curves, memory))
+    digest = hashlib.sha256(sources).hexdigest()[:CACHE_DIGEST_CHARS]
     helper = numba.njit(cache=True, error_model='numpy', inline='always')
     f8, c1, c2 = numba.float64, numba.float64[::1], numba.float64[:, ::1]
     scope = dict(globals())
@@ -304,6 +376,11 @@ def compiled() -> types.SimpleNamespace:
         elif name == 'scan_inputs':
             counts = numba.types.UniTuple(numba.int64, 3)
             scope[name] = numba.njit(counts(c1, c1, c1, f8), cache=True)(rebound)
+        elif name == 'recruit_all':
+            i1, b1 = numba.int64[::1], numba.boolean[::1]
+            signature = numba.int64(c1, c1, i1, c1, c1, c1, b1, b1, c1, c1, c1, i1, i1, i1,
+                                    c1, c1)
+            scope[name] = numba.njit(signature, cache=True, error_model='numpy')(rebound)
         else:
             scope[name] = helper(rebound)
     _compiled = types.SimpleNamespace(numba=numba, **{n: scope[n] for n in _KERNELS})
