@@ -19,9 +19,12 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import faulthandler
 import math
 import os
 import signal
+import sys
+import threading
 import time
 from array import array
 from typing import Any, Callable
@@ -234,13 +237,61 @@ def run_node(node_factory: Callable[[], Node], args: list[str] | None = None) ->
                 on_exit = getattr(node, 'on_exit', None)
                 if on_exit is not None:
                     on_exit()
+            # on_exit has done the node's last work: a hung middleware teardown
+            # must not keep the process.
+            guard = TeardownGuard(status)
             if executor is not None:
                 # Before the node goes: the EventsExecutor holds callbacks on its entities.
                 executor.shutdown()
             if node is not None:
                 node.destroy_node()
     rclpy.try_shutdown()
+    guard.stop()
     return status
+
+
+#: [s] the middleware's teardown (executor, node, context) may take this long
+#: after a node's last work is done. A fresh-clone test run saw a recorder
+#: that had closed its bag (every message written, its summary logged) still
+#: running 30 s after SIGINT, somewhere in this teardown; a stopped node that
+#: keeps running holds the user's terminal and a launch file's shutdown.
+TEARDOWN_TIMEOUT_S = 5.0
+#: [s] if the guard's own thread cannot run (the hung call holds the GIL),
+#: faulthandler's C watchdog dumps every thread and exits with status 1 this
+#: much later.
+TEARDOWN_LAST_RESORT_S = 2.0
+
+
+class TeardownGuard:
+    """From construction until :meth:`stop`: if that takes more than
+    :data:`TEARDOWN_TIMEOUT_S`, print every thread's stack and exit with
+    ``status``, skipping the rest of the teardown (``os._exit``).
+
+    Only for the end of a node's life, once its work is saved.
+
+    :param status: the exit status to give if the teardown hangs
+    """
+
+    def __init__(self, status: int) -> None:
+        self.status = status
+        self._timer = threading.Timer(TEARDOWN_TIMEOUT_S, self._expire)
+        self._timer.daemon = True
+        faulthandler.dump_traceback_later(TEARDOWN_TIMEOUT_S + TEARDOWN_LAST_RESORT_S,
+                                          exit=True)
+        self._timer.start()
+
+    def _expire(self) -> None:
+        print(f'teardown of the ROS node did not finish in {TEARDOWN_TIMEOUT_S:g} s after its '
+              f'work was saved; exiting with status {self.status} without it. Where each '
+              f'thread was:', file=sys.stderr, flush=True)
+        faulthandler.dump_traceback(file=sys.stderr, all_threads=True)
+        sys.stderr.flush()
+        os._exit(self.status)
+
+    def stop(self) -> None:
+        """The teardown finished: nothing more to guard."""
+        self._timer.cancel()
+        faulthandler.cancel_dump_traceback_later()
 
 
 # -- parameters -----------------------------------------------------------------

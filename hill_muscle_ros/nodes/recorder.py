@@ -60,7 +60,8 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSCompatibility, QoSPro
 from ..recording.bag_writer import BagOutputError, BagWriter, read_msg_file, split_type_name
 from ..timebase import NS_PER_S
 from ._common import (DIAGNOSTICS_TOPIC, EXIT_FAILURE, EXIT_SUCCESS, DiagnosticReport,
-                      NodeDiagnostics, StartupError, check_qos_overrides, init_ros,
+                      NodeDiagnostics, StartupError, TeardownGuard, check_qos_overrides,
+                      init_ros,
                       overridable_subscription, parameter_overrides, qos_overrides_of)
 
 NODE_NAME = 'recorder'
@@ -651,12 +652,16 @@ def main(args: list[str] | None = None) -> int:
     finally:
         if node is not None:
             status = node.close()
+        # The bag is closed: a hung middleware teardown must not keep the process.
+        guard = TeardownGuard(status)
+        if node is not None:
             executor.remove_node(node)
             node.destroy_node()
         executor.shutdown()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
         rclpy.try_shutdown()
+        guard.stop()
     return status
 
 
