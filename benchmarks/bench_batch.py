@@ -9,7 +9,8 @@ One run measures, on the same machine state:
   hits both sides of each ratio alike;
 - the compiled engine on 1 and on 2 numba threads (``numba.set_num_threads``);
 - muscles whose recruitment changes on every step (the unit-memory
-  bookkeeping, in Python on both engines) and muscles with fatigue and
+  bookkeeping: per muscle in Python on the NumPy engine, compiled on the
+  compiled one) and muscles with fatigue and
   activation on (stepped by their scalar FES engines);
 - what numba costs before the first step: ``import numba``, and building the
   first compiled batch with an empty cache (compiling) and with the cache
@@ -278,9 +279,11 @@ def write_section(add, m: dict) -> None:
         f'{K_LARGE:,}: **{numpy_rate:.3g}** (slower of the two sets) — '
         f'{"**met**" if numpy_rate >= TARGET_RATE else "**not met**"}.')
     per_change_us = 1e6 / m['changing']['compiled'].median
-    add(f'- With R changing on every step the unit-memory bookkeeping (in Python on both '
-        f'engines: {per_change_us:.2g} us a muscle-step here) dominates; with FES features '
-        'on, each muscle costs a scalar FES step whatever the engine.')
+    add(f'- With R changing on every step the unit-memory bookkeeping runs for every muscle: '
+        f'per muscle in Python on the NumPy engine (it dominates there), compiled '
+        f'(`kernels.recruit_all`) on the compiled one, {per_change_us:.2g} us a muscle-step '
+        f'here in all; with FES features on, each muscle costs a scalar FES step whatever '
+        f'the engine.')
     two_by_one = [m['threads'][(name, 2)].median / m['threads'][(name, 1)].median
                   for name in m['ratio']]
     add(f'- Two threads ran at {min(two_by_one):.2g}-{max(two_by_one):.2g}x the one-thread '
