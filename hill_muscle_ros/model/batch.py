@@ -32,9 +32,10 @@ step; its push and pop are one function,
 one :class:`~hill_muscle_ros.model.memory.UnitMemory` per such muscle (Python
 lists grown on demand); the compiled engine runs the whole recruitment
 bookkeeping in :func:`~hill_muscle_ros.model.kernels.recruit_all` over flat
-arrays holding N + 1 runs for each such muscle only (24 bytes a unit, zeroed
-lazily by the operating system for large batches, so only the pages the
-stacks reach take memory), and none for ``single`` or ``instantaneous`` ones.
+arrays holding N + 1 runs for each such muscle only, and none for ``single``
+or ``instantaneous`` ones: 24 bytes a unit, 240 MB for 10,000 muscles of 1000
+units (measured: all of it resident once every stack was pushed, since NumPy
+backs large arrays with huge pages where the kernel allows).
 
 Muscles with any FES extension switched on (delay, activation, fatigue, fibre
 types, unit lengths: doc/model.md section 7) are stepped by their own
