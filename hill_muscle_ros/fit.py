@@ -1189,13 +1189,10 @@ def _estimate_lines(result: FitResult) -> list[str]:
     return lines
 
 
-def report_data(result: FitResult, recording: MuscleRecording) -> dict[str, Any]:
-    """The report as plain data (for ``fit_report.yaml``)."""
+def _estimates_data(result: FitResult) -> dict[str, Any]:
+    """The estimates, their standard errors and correlations as plain data,
+    the part of ``fit_report.yaml`` that a muscle's and a limb's fit share."""
     return {
-        'bag': str(recording.bag), 'topics': dict(recording.topics),
-        'rate_hz': float(recording.rate_hz), 'n_samples': result.n_samples,
-        'n_evaluations': result.n_evaluations, 'message': result.message,
-        'residual_rms_n': result.rms_n, 'start_residual_rms_n': result.start_rms_n,
         'parameters': {p.name: {'unit': p.unit, 'start': float(x0), 'estimate': float(x),
                                 'std_error': float(se)}
                        for p, x0, x, se in zip(result.parameters, result.start_values,
@@ -1205,28 +1202,50 @@ def report_data(result: FitResult, recording: MuscleRecording) -> dict[str, Any]
     }
 
 
-def plot_fit(path: Path, result: FitResult, recording: MuscleRecording) -> None:
-    """PNG of the measured and the fitted force, and their difference."""
+def report_data(result: FitResult, recording: MuscleRecording) -> dict[str, Any]:
+    """The report as plain data (for ``fit_report.yaml``)."""
+    return {
+        'bag': str(recording.bag), 'topics': dict(recording.topics),
+        'rate_hz': float(recording.rate_hz), 'n_samples': result.n_samples,
+        'n_evaluations': result.n_evaluations, 'message': result.message,
+        'residual_rms_n': result.rms_n, 'start_residual_rms_n': result.start_rms_n,
+        **_estimates_data(result),
+    }
+
+
+def _plot_measured_and_fitted(path: Path, result: FitResult, t_s: np.ndarray,
+                              measured: np.ndarray, measured_label: str,
+                              quantity: str, unit: str) -> None:
+    """PNG of a measured signal and the fitted model's, and their difference.
+
+    :param measured_label: what was measured, for the legend (the topic)
+    :param quantity: its name on the axis (``force``, ``joint angle``)
+    :param unit: its unit (``N``, ``rad``)
+    """
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
-    t = recording.sample_t_s
-    fig, (ax_f, ax_r) = plt.subplots(2, 1, sharex=True, figsize=(8, 6),
+    fig, (ax_m, ax_r) = plt.subplots(2, 1, sharex=True, figsize=(8, 6),
                                      gridspec_kw={'height_ratios': [3, 1]})
-    ax_f.plot(t, recording.force_n, color='0.6', lw=2,
-              label=f'measured ({recording.topics["force"]})')
-    ax_f.plot(t, result.fitted, color='C0', lw=1, label='fitted model')
-    ax_f.set_ylabel('force [N]')
-    ax_f.set_title(f'hill-muscle fit: {", ".join(p.name for p in result.parameters)}')
-    ax_f.legend(loc='best')
-    ax_r.plot(t, recording.force_n - result.fitted, color='C3', lw=0.8)
-    ax_r.set_ylabel('measured - fitted [N]')
+    ax_m.plot(t_s, measured, color='0.6', lw=2, label=f'measured ({measured_label})')
+    ax_m.plot(t_s, result.fitted, color='C0', lw=1, label='fitted model')
+    ax_m.set_ylabel(f'{quantity} [{unit}]')
+    ax_m.set_title(f'hill-muscle fit: {", ".join(p.name for p in result.parameters)}')
+    ax_m.legend(loc='best')
+    ax_r.plot(t_s, measured - result.fitted, color='C3', lw=0.8)
+    ax_r.set_ylabel(f'measured - fitted [{unit}]')
     ax_r.set_xlabel('time [s]')
-    for ax in (ax_f, ax_r):
+    for ax in (ax_m, ax_r):
         ax.grid(True, alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
+
+
+def plot_fit(path: Path, result: FitResult, recording: MuscleRecording) -> None:
+    """PNG of the measured and the fitted force, and their difference."""
+    _plot_measured_and_fitted(path, result, recording.sample_t_s, recording.force_n,
+                              recording.topics['force'], 'force', 'N')
 
 
 # --------------------------------------------------------------------------- limb outputs
@@ -1352,37 +1371,15 @@ def limb_report_data(result: FitResult, recording: LimbRecording) -> dict[str, A
         'n_samples': result.n_samples, 'n_evaluations': result.n_evaluations,
         'message': result.message, 'residual_rms_rad': result.rms_n,
         'start_residual_rms_rad': result.start_rms_n,
-        'parameters': {p.name: {'unit': p.unit, 'start': float(x0), 'estimate': float(x),
-                                'std_error': float(se)}
-                       for p, x0, x, se in zip(result.parameters, result.start_values,
-                                               result.estimates, result.std_errors)},
-        'correlation': {'names': [p.name for p in result.parameters],
-                        'matrix': [[float(c) for c in row] for row in result.correlation]},
+        **_estimates_data(result),
     }
 
 
 def plot_limb_fit(path: Path, result: FitResult, recording: LimbRecording) -> None:
     """PNG of the measured and the fitted joint angle, and their difference."""
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-    t = recording.sample_t_s
-    fig, (ax_a, ax_r) = plt.subplots(2, 1, sharex=True, figsize=(8, 6),
-                                     gridspec_kw={'height_ratios': [3, 1]})
-    ax_a.plot(t, recording.angle_rad, color='0.6', lw=2,
-              label=f'measured ({recording.topics["joint_states"]}, {recording.joint})')
-    ax_a.plot(t, result.fitted, color='C0', lw=1, label='fitted model')
-    ax_a.set_ylabel('joint angle [rad]')
-    ax_a.set_title(f'hill-muscle fit: {", ".join(p.name for p in result.parameters)}')
-    ax_a.legend(loc='best')
-    ax_r.plot(t, recording.angle_rad - result.fitted, color='C3', lw=0.8)
-    ax_r.set_ylabel('measured - fitted [rad]')
-    ax_r.set_xlabel('time [s]')
-    for ax in (ax_a, ax_r):
-        ax.grid(True, alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    _plot_measured_and_fitted(path, result, recording.sample_t_s, recording.angle_rad,
+                              f'{recording.topics["joint_states"]}, {recording.joint}',
+                              'joint angle', 'rad')
 
 
 # --------------------------------------------------------------------------- CLI
