@@ -27,28 +27,22 @@ Threads: :func:`step_all` runs its loop over muscles on numba's threads
 the batch has at least :data:`PARALLEL_MIN_K` muscles. On cores busy with
 other work a second thread gains nothing (BENCHMARKS.md section 3): set one
 thread there. The OpenMP layer's threads wait passively
-(``OMP_WAIT_POLICY=PASSIVE`` unless set: :func:`compiled`), since spinning
+(``OMP_WAIT_POLICY=PASSIVE`` unless set: :func:`.engine.import_numba`), since spinning
 ones made things far worse on busy cores. numba's ``workqueue`` threading
 layer aborts the process if two Python threads launch a loop at once, so
 launches are serialised by :data:`LAUNCH_LOCK`.
 """
 from __future__ import annotations
 
-import hashlib
-import os
 import threading
 import types
-from pathlib import Path
 
-from . import curves, memory
+from . import curves, engine, memory
 from .curves import force_length, force_velocity_inverse, parallel_force, series_force
 from .memory import recruited_units, stack_update
 
 #: The loop over muscles; the compiled build binds this name to ``numba.prange``.
 prange = range
-
-#: The OpenMP runtime's setting that :func:`compiled` defaults to ``PASSIVE``.
-OMP_WAIT_POLICY = 'OMP_WAIT_POLICY'
 
 #: Serialises launches of the parallel loop (see the module docstring).
 LAUNCH_LOCK = threading.Lock()
@@ -206,16 +200,59 @@ def step_all(l0, dl0, dl1, dt: float, gain, k1_prev, have_k1: bool, initial,
             step_muscle(i, l0, dl0, dl1, dt, gain, k1_prev, have_k1, initial[i], params, out)
 
 
+def recruit_one(r_new: float, r_old: float, f_iso_single: float, l_ce: float, multi: bool,
+                initial: bool, n_units: float, f_iso_max: float, l_opt: float, count, f_unit,
+                total, base: int, top: int) -> tuple:
+    """Apply a new recruitment level to one muscle: the bookkeeping of
+    ``Muscle._apply_recruitment`` (M, the gain, the force at recruitment of a
+    ``single``/``initial`` muscle, the run stack of a ``multi``/``initial``
+    one through :func:`.memory.stack_update`).
+
+    :param r_new: [-] the new recruitment level, validated, != ``r_old``
+    :param r_old: [-] the recruitment in force
+    :param f_iso_single: [N] single/initial: f_iso at recruitment so far
+    :param l_ce: [m] CE length now (l_CE)
+    :param multi: True for a ``multi`` muscle
+    :param initial: True for an ``initial`` muscle
+    :param n_units: [-] N as a float
+    :param f_iso_max: [N] f_iso_max
+    :param l_opt: [m] l_opt
+    :param count: [-] int64 the run stack's cumulative unit counts (multi/initial)
+    :param f_unit: [N] the run stack's forces per unit
+    :param total: [N] the run stack's cumulative forces
+    :param base: index of the muscle's sentinel in the three stack arrays
+    :param top: [-] runs on the stack now
+    :return: ([-] M, [N] gain, [N] f_iso at recruitment, [-] runs on the stack)
+    """
+    if multi:
+        m = recruited_units(r_new, n_units)
+        if initial:
+            top = stack_update(count, f_unit, total, base, top, m, l_ce, f_iso_max / n_units,
+                               l_opt)
+            g = total[base + top]
+        else:
+            g = m / n_units * f_iso_max
+    else:
+        m = 1 if r_new > 0.0 else 0
+        if initial:
+            # Remember FL at the length where R rose from zero.
+            if r_new == 0.0:
+                f_iso_single = 0.0
+            elif r_old == 0.0:
+                f_iso_single = f_iso_max * force_length(l_ce / l_opt)
+            g = r_new * f_iso_single
+        else:
+            g = r_new * f_iso_max
+    return m, g, f_iso_single, top
+
+
 def recruit_all(r, r_now, n_recruited, gain, f_iso_single, l_ce, multi, initial, n_units,
                 f_iso_max, l_opt, stack_base, stack_top, count, f_unit, total) -> int:
     """Apply new recruitment levels: the bookkeeping of the muscles whose R changed.
 
     What :meth:`MuscleBatch._apply_recruitment
     <hill_muscle_ros.model.batch.MuscleBatch._apply_recruitment>` does on the
-    NumPy engine, muscle by muscle: M, the gain (see :func:`eff_f_iso`), the
-    force at recruitment of ``single``/``initial`` muscles and the run stack
-    of ``multi``/``initial`` ones (:func:`.memory.stack_update`, the code of
-    :class:`~hill_muscle_ros.model.memory.UnitMemory`).
+    NumPy engine: :func:`recruit_one` for each muscle whose R changed.
 
     :param r: [-] (K,) validated new recruitment levels
     :param r_now: [-] (K,) recruitment in force; updated
@@ -242,29 +279,11 @@ def recruit_all(r, r_now, n_recruited, gain, f_iso_single, l_ce, multi, initial,
         if r_new == r_now[i]:
             continue
         n_changed += 1
-        f_max = f_iso_max[i]
-        if multi[i]:
-            n = n_units[i]
-            m = recruited_units(r_new, n)
-            if initial[i]:
-                base = stack_base[i]
-                top = stack_update(count, f_unit, total, base, stack_top[i], m, l_ce[i],
-                                   f_max / n, l_opt[i])
-                stack_top[i] = top
-                g = total[base + top]
-            else:
-                g = m / n * f_max
-        else:
-            m = 1 if r_new > 0.0 else 0
-            if initial[i]:
-                # Remember FL at the length where R rose from zero.
-                if r_new == 0.0:
-                    f_iso_single[i] = 0.0
-                elif r_now[i] == 0.0:
-                    f_iso_single[i] = f_max * force_length(l_ce[i] / l_opt[i])
-                g = r_new * f_iso_single[i]
-            else:
-                g = r_new * f_max
+        m, g, f_single, top = recruit_one(r_new, r_now[i], f_iso_single[i], l_ce[i], multi[i],
+                                          initial[i], n_units[i], f_iso_max[i], l_opt[i],
+                                          count, f_unit, total, stack_base[i], stack_top[i])
+        f_iso_single[i] = f_single
+        stack_top[i] = top
         r_now[i] = r_new
         n_recruited[i] = m
         gain[i] = g
@@ -315,73 +334,52 @@ def launch(kernels: types.SimpleNamespace, parallel: bool, *args) -> None:
             numba.set_num_threads(threads)
 
 
-#: Hex digits of the digest of curves.py and memory.py in the kernels' cache names: enough
-#: that two versions of the files practically never share one.
-CACHE_DIGEST_CHARS = 12
-
-#: The functions :func:`compiled` compiles, callees before callers.
+#: The functions :func:`compiled` compiles: helpers of other modules, then
+#: this module's, callees before callers.
 _CURVES = (force_length, force_velocity_inverse, series_force, parallel_force)
 _KERNELS = ('eff_f_iso', 'ce_velocity', 'step_one', 'step_muscle', 'step_all',
-            'scan_inputs', 'recruited_units', 'stack_update', 'recruit_all')
+            'scan_inputs', 'recruited_units', 'stack_update', 'recruit_one', 'recruit_all')
 #: The compiled namespace once built (None until then).
 _compiled = None
 
 
-def compiled() -> types.SimpleNamespace:
-    """The numba-compiled kernels: ``step_all`` (parallel over muscles) and the rest.
+def _step_all_signature(numba):
+    f8, c1, c2 = numba.float64, numba.float64[::1], numba.float64[:, ::1]
+    return numba.void(c1, c1, c1, f8, c1, c1, numba.boolean, numba.boolean[::1],
+                      numba.boolean, c2, c2)
 
-    Imports numba on the first call and compiles ``step_all``, or loads it from
-    numba's on-disk cache (BENCHMARKS.md section 3 gives both costs).
+
+def _scan_inputs_signature(numba):
+    c1 = numba.float64[::1]
+    return numba.types.UniTuple(numba.int64, 3)(c1, c1, c1, numba.float64)
+
+
+def _recruit_all_signature(numba):
+    c1, i1, b1 = numba.float64[::1], numba.int64[::1], numba.boolean[::1]
+    return numba.int64(c1, c1, i1, c1, c1, c1, b1, b1, c1, c1, c1, i1, i1, i1, c1, c1)
+
+
+def compiled() -> types.SimpleNamespace:
+    """The numba-compiled kernels of the batch: ``step_all`` (parallel over muscles) and the rest.
+
+    Imports numba on the first call (:func:`.engine.import_numba`) and compiles
+    ``step_all``, ``scan_inputs`` and ``recruit_all`` with their signatures, or
+    loads them from numba's on-disk cache (BENCHMARKS.md section 3 gives both
+    costs); the cache names carry a digest of ``curves.py`` and ``memory.py``.
 
     :raises ImportError: if numba cannot be imported
     """
     global _compiled
-    if _compiled is not None:
-        return _compiled
-    # numba's default threading layer here is GNU OpenMP, whose idle threads
-    # spin while they wait: on cores busy with other processes that made 2
-    # threads 5x slower than 1 (measured at K = 10,000: 4.9-5.5 ms a step
-    # against 0.8-1.1 ms; with passive waiting 0.58-0.71 ms against 0.52-0.58).
-    # The runtime reads this when numba first loads it; a value the user set wins.
-    os.environ.setdefault(OMP_WAIT_POLICY, 'PASSIVE')
-    import numba   # lazily: never at package import
-
-    # error_model='numpy': a division gives inf/nan instead of raising, so the
-    # loop has no exception paths and vectorises (no division here can be by
-    # zero for valid parameters). inline='always': the helpers are inlined in
-    # numba's IR, so LLVM sees one loop body.
-    sources = b''.join(Path(m.__file__).read_bytes() for m in (curves, memory))
-    digest = hashlib.sha256(sources).hexdigest()[:CACHE_DIGEST_CHARS]
-    helper = numba.njit(cache=True, error_model='numpy', inline='always')
-    f8, c1, c2 = numba.float64, numba.float64[::1], numba.float64[:, ::1]
-    scope = dict(globals())
-    scope['prange'] = numba.prange
-    for fn in _CURVES:
-        # The curves keep their own module's globals (the FL coefficients).
-        scope[fn.__name__] = helper(fn)
-    for name in _KERNELS:
-        fn = globals()[name]
-        # Same code, but the names it calls resolve to the compiled versions.
-        rebound = types.FunctionType(fn.__code__, scope, fn.__name__, fn.__defaults__,
-                                     fn.__closure__)
-        rebound.__qualname__ = f'{fn.__qualname__}_{digest}'   # the cache file's name
-        rebound.__doc__ = fn.__doc__
-        if name == 'step_all':
-            # With its signature: compiled (or loaded from the cache) here, once,
-            # and never again for other argument types.
-            signature = numba.void(c1, c1, c1, f8, c1, c1, numba.boolean,
-                                   numba.boolean[::1], numba.boolean, c2, c2)
-            scope[name] = numba.njit(signature, cache=True, error_model='numpy',
-                                     parallel=True)(rebound)
-        elif name == 'scan_inputs':
-            counts = numba.types.UniTuple(numba.int64, 3)
-            scope[name] = numba.njit(counts(c1, c1, c1, f8), cache=True)(rebound)
-        elif name == 'recruit_all':
-            i1, b1 = numba.int64[::1], numba.boolean[::1]
-            signature = numba.int64(c1, c1, i1, c1, c1, c1, b1, b1, c1, c1, c1, i1, i1, i1,
-                                    c1, c1)
-            scope[name] = numba.njit(signature, cache=True, error_model='numpy')(rebound)
-        else:
-            scope[name] = helper(rebound)
-    _compiled = types.SimpleNamespace(numba=numba, **{n: scope[n] for n in _KERNELS})
+    if _compiled is None:
+        # The kernels themselves take the checks of numba's default error model
+        # where they are not the vector loop; see engine.HELPER_OPTIONS.
+        _compiled = engine.compile_functions(
+            globals(), _KERNELS, foreign=_CURVES, digest_of=(curves, memory),
+            signatures={'step_all': _step_all_signature,
+                        'scan_inputs': _scan_inputs_signature,
+                        'recruit_all': _recruit_all_signature},
+            options={'step_all': {'error_model': 'numpy', 'parallel': True},
+                     'scan_inputs': {},
+                     'recruit_all': {'error_model': 'numpy'}},
+            bind={'prange': lambda numba: numba.prange})
     return _compiled
