@@ -52,6 +52,97 @@ RK4_MAX_H_LAMBDA = 0.5
 MAX_SUBSTEPS = 1000
 
 
+# -- the FES muscle's equations as plain scalar functions ------------------------------
+# Written once: FesMuscle calls them, and the compiled engine (model/fes_kernels.py)
+# compiles these same functions with numba.
+
+def piece_activation(a0: float, u_d: float, tau_s: float, elapsed_s: float) -> float:
+    """[-] the activation ``elapsed_s`` into a piece of constant delayed command:
+    the closed form while it moves (tau > 0, a0 != u_d), else a0 held.
+
+    :param a0: [-] activation at the start of the piece
+    :param u_d: [-] delayed command over the piece
+    :param tau_s: [s] time constant in force (0: the activation jumped)
+    :param elapsed_s: [s] time since the start of the piece
+    """
+    return activation_at(a0, u_d, tau_s, elapsed_s) if (tau_s > 0.0 and a0 != u_d) else a0
+
+
+def riener_rate(a: float, rate_fat: float, rate_rec: float) -> float:
+    """[1/s] lambda of Riener's fitness law with the activation ``a`` held:
+    mu' = (mu_min - mu) a / T_fat + (1 - mu)(1 - a) / T_rec = lambda (mu_inf - mu).
+
+    :param rate_fat: [1/s] 1 / T_fat
+    :param rate_rec: [1/s] 1 / T_rec
+    """
+    return a * rate_fat + (1.0 - a) * rate_rec
+
+
+def riener_limit(a: float, mu_min: float, rate_fat: float, rate_rec: float,
+                 lam: float) -> float:
+    """[-] mu_inf of Riener's law with ``a`` held (see :func:`riener_rate`)."""
+    return (mu_min * a * rate_fat + (1.0 - a) * rate_rec) / lam
+
+
+def fitness_at(mu0: float, mu_inf: float, lam: float, elapsed_s: float) -> float:
+    """[-] mu ``elapsed_s`` after it was ``mu0``, tending to ``mu_inf`` at rate ``lam``."""
+    return mu_inf + (mu0 - mu_inf) * math.exp(-lam * elapsed_s)
+
+
+def fes_velocity(l_ce_m: float, dl_mt_m: float, f0_n: float, k_se: float, l_rest_m: float,
+                 a: float, b: float, a_ecc: float, b_ecc: float, f_iso_max_n: float,
+                 relative: bool) -> float:
+    """[m/s] FV_inv(f_SE, F0), Eq. 3 inverted; ``relative`` scales a and a' with F0.
+
+    :param l_ce_m: [m] CE length (l_CE)
+    :param dl_mt_m: [m] MTU length change (dl_MT)
+    :param f0_n: [N] Eff.f_iso (F0)
+    :param k_se: [N/m] SE stiffness; a, b, a', b' the Hill constants
+    :param l_rest_m: [m] CE rest length (l_rest)
+    :param f_iso_max_n: [N] f_iso_max, the F0 at which relative constants are a, a'
+    :param relative: True for ``fv_scaling: relative``
+    """
+    stretch = dl_mt_m - (l_ce_m - l_rest_m)
+    f_se = k_se * stretch if stretch > 0.0 else 0.0
+    if relative:
+        if f0_n <= 0.0:
+            # The limits of the fastest speeds as F0 -> 0, which no longer
+            # depend on F0: b f_iso_max / a shortening, b' f_iso_max / a' lengthening.
+            if f_se <= 0.0:
+                return -b * f_iso_max_n / a
+            return b_ecc * f_iso_max_n / a_ecc
+        share = f0_n / f_iso_max_n
+        a, a_ecc = a * share, a_ecc * share
+    return force_velocity_inverse(f_se, f0_n, a, b, a_ecc, b_ecc)
+
+
+def relaxation_rate(l_ce_m: float, dl_mt_m: float, f0_n: float, k_se: float,
+                    l_rest_m: float, a: float, b: float, a_ecc: float, b_ecc: float,
+                    f_iso_max_n: float, relative: bool) -> float:
+    """[1/s] |d v_CE / d l_CE| at F0 = ``f0_n``: see :meth:`FesMuscle.stiffness_rate`
+    (the arguments as :func:`fes_velocity`'s)."""
+    if f0_n <= 0.0:
+        return 0.0
+    if relative:
+        share = f0_n / f_iso_max_n
+        a, a_ecc = a * share, a_ecc * share
+    f = k_se * (dl_mt_m - (l_ce_m - l_rest_m))
+    if f <= f0_n:
+        f = f if f > 0.0 else 0.0
+        slope = b * (a + f0_n) / ((f + a) * (f + a))
+    else:
+        f = f if f < ECC_PLATEAU * f0_n else ECC_PLATEAU * f0_n
+        slope = 2.0 * b_ecc * (f0_n + a_ecc) / ((3.0 * f0_n - 2.0 * f + a_ecc) ** 2)
+    return k_se * slope
+
+
+def substep_count(h_s: float, rate: float) -> int:
+    """RK4 steps for an interval of ``h_s`` at relaxation rate ``rate`` [1/s]:
+    h lambda at most :data:`RK4_MAX_H_LAMBDA` each, at most :data:`MAX_SUBSTEPS`."""
+    n = h_s * rate / RK4_MAX_H_LAMBDA
+    return 1 if n <= 1.0 else min(math.ceil(n), MAX_SUBSTEPS)
+
+
 class FesMuscle(Muscle):
     """A muscle whose parameters switch on any FES extension.
 
@@ -193,12 +284,12 @@ class FesMuscle(Muscle):
         if self._multi:
             return self._pool.eff_f_iso(l / p.l_opt_m, t)
         s0, a0, u_d, tau = self._piece
-        a = activation_at(a0, u_d, tau, t - s0) if (tau > 0.0 and a0 != u_d) else a0
+        a = piece_activation(a0, u_d, tau, t - s0)
         if a <= 0.0:
             return 0.0
         if self._single_fatigue:
             m0, mu0, mu_inf, lam = self._mu_law
-            mu = mu_inf + (mu0 - mu_inf) * math.exp(-lam * (t - m0))
+            mu = fitness_at(mu0, mu_inf, lam, t - m0)
         else:
             mu = 1.0
         f = self._f_iso_single_n if self._initial else p.f_iso_max_n * force_length(
@@ -208,19 +299,8 @@ class FesMuscle(Muscle):
     def _velocity(self, l: float, dl: float, f0: float) -> float:
         """[m/s] FV_inv(f_SE, F0), Eq. 3 inverted; ``relative`` scales a and a' with F0."""
         p = self.params
-        stretch = dl - (l - p.l_rest_m)
-        f_se = p.k_se_n_per_m * stretch if stretch > 0.0 else 0.0
-        a, a_ecc = p.fv_a_n, p.fv_a_ecc_n
-        if self._relative:
-            if f0 <= 0.0:
-                # The limits of the fastest speeds as F0 -> 0, which no longer
-                # depend on F0: b f_iso_max / a shortening, b' f_iso_max / a' lengthening.
-                if f_se <= 0.0:
-                    return -p.fv_b_m_per_s * p.f_iso_max_n / p.fv_a_n
-                return p.fv_b_ecc_m_per_s * p.f_iso_max_n / p.fv_a_ecc_n
-            share = f0 / p.f_iso_max_n
-            a, a_ecc = a * share, a_ecc * share
-        return force_velocity_inverse(f_se, f0, a, p.fv_b_m_per_s, a_ecc, p.fv_b_ecc_m_per_s)
+        return fes_velocity(l, dl, f0, p.k_se_n_per_m, p.l_rest_m, p.fv_a_n, p.fv_b_m_per_s,
+                            p.fv_a_ecc_n, p.fv_b_ecc_m_per_s, p.f_iso_max_n, self._relative)
 
     # -- integration -----------------------------------------------------------------
 
@@ -256,22 +336,9 @@ class FesMuscle(Muscle):
         which no fixed step can follow.
         """
         p = self.params
-        f0 = self.eff_f_iso(l_ce_m, t_s)
-        if f0 <= 0.0:
-            return 0.0
-        a, a_ecc = p.fv_a_n, p.fv_a_ecc_n
-        if self._relative:
-            share = f0 / p.f_iso_max_n
-            a, a_ecc = a * share, a_ecc * share
-        f = p.k_se_n_per_m * (dl_mt_m - (l_ce_m - p.l_rest_m))
-        if f <= f0:
-            f = f if f > 0.0 else 0.0
-            slope = p.fv_b_m_per_s * (a + f0) / ((f + a) * (f + a))
-        else:
-            f = f if f < ECC_PLATEAU * f0 else ECC_PLATEAU * f0
-            slope = 2.0 * p.fv_b_ecc_m_per_s * (f0 + a_ecc) / (
-                (3.0 * f0 - 2.0 * f + a_ecc) ** 2)
-        return p.k_se_n_per_m * slope
+        return relaxation_rate(l_ce_m, dl_mt_m, self.eff_f_iso(l_ce_m, t_s), p.k_se_n_per_m,
+                               p.l_rest_m, p.fv_a_n, p.fv_b_m_per_s, p.fv_a_ecc_n,
+                               p.fv_b_ecc_m_per_s, p.f_iso_max_n, self._relative)
 
     def substeps(self, h_s: float, l_ce_m: float, dl_mt_m: float, s0: float,
                  s1: float) -> int:
@@ -282,8 +349,7 @@ class FesMuscle(Muscle):
         constants the rate is largest when F0 is smallest but not zero)."""
         rate = max(self.stiffness_rate(l_ce_m, dl_mt_m, t)
                    for t in (s0, 0.5 * (s0 + s1), s1))
-        n = h_s * rate / RK4_MAX_H_LAMBDA
-        return 1 if n <= 1.0 else min(math.ceil(n), MAX_SUBSTEPS)
+        return substep_count(h_s, rate)
 
     def _rk4(self, s0: float, s1: float, t0: float, dl0: float, rate: float) -> None:
         """One RK4 step of l_ce over [s0, s1] (see :meth:`_integrate`)."""
@@ -334,7 +400,7 @@ class FesMuscle(Muscle):
         """After integrating up to ``s1``: the single muscle's fitness there."""
         if self._single_fatigue:
             m0, mu0, mu_inf, lam = self._mu_law
-            self._mu = mu_inf + (mu0 - mu_inf) * math.exp(-lam * (s1 - m0))
+            self._mu = fitness_at(mu0, mu_inf, lam, s1 - m0)
 
     def free(self, l_ce_m: float, s0: float, s1: float) -> bool:
         """True if no recruited unit makes force over [s0, s1]: the CE is then
@@ -356,11 +422,11 @@ class FesMuscle(Muscle):
         p = self.params
         s_a, a0, u_d, tau = self._piece
         mid = 0.5 * (s0 + s1)
-        a = activation_at(a0, u_d, tau, mid - s_a) if (tau > 0.0 and a0 != u_d) else a0
+        a = piece_activation(a0, u_d, tau, mid - s_a)
         a = max(a, 0.0) if a > self._release_level else 0.0
         rate_f, rate_r = 1.0 / p.tau_fatigue_s[0], 1.0 / p.tau_recovery_s[0]
-        lam = a * rate_f + (1.0 - a) * rate_r
-        mu_inf = (p.fatigue_min[0] * a * rate_f + (1.0 - a) * rate_r) / lam
+        lam = riener_rate(a, rate_f, rate_r)
+        mu_inf = riener_limit(a, p.fatigue_min[0], rate_f, rate_r, lam)
         self._mu_law = (s0, self._mu, mu_inf, lam)
 
     def _events(self, s0: float, s1: float, a0: float, u_d: float, tau: float,

@@ -30,7 +30,7 @@ import math
 import numpy as np
 
 from .params import MuscleParams
-from .units import FL_ROOT_HIGH, FL_ROOT_LOW, UnitLayout
+from .units import UnitLayout, fl_clear
 from .curves import FL_A, FL_B, FL_C
 
 #: Columns of a segment's static sums per fibre type: g = f_max sum FL(c x_o)
@@ -40,6 +40,35 @@ _G, _N, _C1, _C2 = 0, 1, 2, 3
 #: are renormalised: exp(-500) = 7e-218 stays far from underflow, and stored
 #: values divided by it (at most e^500 = 1.4e217) far from overflow.
 _RENORMALISE_AFTER_TAUS = 500.0
+
+
+# -- the pool's equations as plain functions ---------------------------------------------
+# Written once: UnitPool calls them (on floats or per-type arrays), and the compiled
+# engine (model/fes_kernels.py) compiles them with numba.
+
+def recruited_excess(dn, h, mu_min, d):
+    """(mu - mu_min) / D(t) of units recruited now, from their resting deficit.
+
+    :param dn: [-] stored deficit (1 - mu) / H(t) of the resting units
+    :param h: [-] recovery clock H(t) now
+    :param mu_min: [-] fitness floor mu_min
+    :param d: [-] fatigue clock D(t) now
+    """
+    return ((1.0 - dn * h) - mu_min) / d
+
+
+def resting_deficit(exn, d, mu_min, h):
+    """(1 - mu) / H(t) of units released now, from their stored excess
+    (the arguments as :func:`recruited_excess`'s)."""
+    return (1.0 - (mu_min + exn * d)) / h
+
+
+def moment_force(f_max: float, a2: float, a1: float, a0: float, n: float, c1: float,
+                 c2: float) -> float:
+    """[N] f_max (a2 sum c^2 + a1 sum c + a0 n): the FL parabola a2 c^2 + a1 c + a0
+    (in the unit scale c, at a given CE length) summed over moments, each
+    moment already weighted by the units' fitness."""
+    return f_max * (a2 * c2 + a1 * c1 + a0 * n)
 
 
 class UnitPool:
@@ -141,7 +170,7 @@ class UnitPool:
                 n_rest = np.array([mk[0] for mk in self.layout.moments(take, end)])
                 self._u.append((take, end, dn, below + n_rest * dn))
             row = self._static_row(pos, take, x_o)
-            exn = (((1.0 - dn * h) - self.mu_min) / d) if fatigue else np.zeros(self.k)
+            exn = recruited_excess(dn, h, self.mu_min, d) if fatigue else np.zeros(self.k)
             self._push_recruited(take, x_o, exn, row)
             pos = take
         self.m = m
@@ -180,7 +209,7 @@ class UnitPool:
                 self._u.append((cut, end, zeros, zeros))
                 pos = cut
                 continue
-            dn = (1.0 - (self.mu_min + exn * d)) / h
+            dn = resting_deficit(exn, d, self.mu_min, h)
             below = self._u[-1][3] if self._u else np.zeros(self.k)
             n_rel = np.array([mk[0] for mk in self.layout.moments(cut, pos)])
             self._u.append((cut, pos, dn, below + n_rel * dn))
@@ -224,8 +253,7 @@ class UnitPool:
                     f0 += g * math.exp(-elapsed * rate)
             return f0
         s = self.layout.spread
-        clipped = s > 0.0 and not (FL_ROOT_LOW < x_ce * (1.0 - s)
-                                   and x_ce * (1.0 + s) < FL_ROOT_HIGH)
+        clipped = s > 0.0 and not fl_clear(x_ce, s)
         if clipped:
             return self._eff_f_iso_clipped(x_ce, t_s)
         if s == 0.0:
@@ -243,7 +271,7 @@ class UnitPool:
                 d = math.exp(-elapsed * self._rates[k])
                 dn, dc1, dc2 = self._w_dyn[k]
                 n, c1, c2 = n + d * dn, c1 + d * dc1, c2 + d * dc2
-            total += f_max * (a2 * c2 + a1 * c1 + a0 * n)
+            total += moment_force(f_max, a2, a1, a0, n, c1, c2)
         return total
 
     def _eff_f_iso_clipped(self, x_ce: float, t_s: float) -> float:

@@ -49,10 +49,46 @@ def type_block_ends(n_units: int, fractions: tuple[float, ...]) -> list[int]:
     return ends
 
 
+def unit_length_scale(position, spread: float):
+    """[-] c_p of the unit at 0-based position ``position`` of the order (a float,
+    or an array of them: the same operations element by element).
+
+    Plain arithmetic, so that the compiled engine (model/fes_kernels.py) runs it too.
+    """
+    frac = ((position + 1.0) * PHI) % 1.0
+    return 1.0 + spread * (2.0 * frac - 1.0)
+
+
 def length_scale(positions: np.ndarray, spread: float) -> np.ndarray:
     """[-] c_p of the units at 0-based positions ``positions`` of the order."""
-    frac = np.mod((np.asarray(positions, dtype=float) + 1.0) * PHI, 1.0)
-    return 1.0 + spread * (2.0 * frac - 1.0)
+    return unit_length_scale(np.asarray(positions, dtype=float), spread)
+
+
+def fl_clear(x: float, spread: float) -> bool:
+    """True if no unit scale c in [1 - s, 1 + s] puts c x off FL's support.
+
+    :param x: [-] CE length over optimal length
+    :param spread: [-] unit length spread s
+    """
+    return FL_ROOT_LOW < x * (1.0 - spread) and x * (1.0 + spread) < FL_ROOT_HIGH
+
+
+def type_fl_sum(f_max: float, x: float, spread: float, n: float, c1: float,
+                c2: float) -> float:
+    """[N] f_max sum of FL(c x) over units of one type with moments n, sum c,
+    sum c^2: the parabola summed over the moments.
+
+    Valid when no unit is off FL's support (:func:`fl_clear`), or with no
+    spread (c = 1 for all: FL(x) clipped once).
+
+    :param f_max: [N] one unit's maximal force (f_max,k)
+    :param x: [-] CE length over optimal length
+    :param spread: [-] unit length spread s
+    """
+    if spread == 0.0:
+        fl = (FL_A * x + FL_B) * x + FL_C
+        return f_max * fl * n if fl > 0.0 else 0.0
+    return f_max * (FL_A * x * x * c2 + FL_B * x * c1 + FL_C * n)
 
 
 class UnitLayout:
@@ -138,18 +174,10 @@ class UnitLayout:
         :param moments: :meth:`moments` of the range, if already at hand
         """
         s = self.spread
-        if s == 0.0:
-            fl = (FL_A * x + FL_B) * x + FL_C
-            if fl <= 0.0:
-                return [0.0] * self.n_types
-            m = moments if moments is not None else self.moments(p0, p1)
-            return [f * fl * mk[0] for f, mk in zip(self.f_max, m)]
-        if FL_ROOT_LOW < x * (1.0 - s) and x * (1.0 + s) < FL_ROOT_HIGH:
+        if s == 0.0 or fl_clear(x, s):
             # No unit can leave FL's support: the parabola summed over moments.
             m = moments if moments is not None else self.moments(p0, p1)
-            a2, a1 = FL_A * x * x, FL_B * x
-            return [f * (a2 * mk[2] + a1 * mk[1] + FL_C * mk[0])
-                    for f, mk in zip(self.f_max, m)]
+            return [type_fl_sum(f, x, s, *mk) for f, mk in zip(self.f_max, m)]
         # Some units may be off the FL range: clip unit by unit, O(p1 - p0).
         cx = length_scale(np.arange(p0, p1), s) * x
         fl = np.maximum((FL_A * cx + FL_B) * cx + FL_C, 0.0)
