@@ -18,7 +18,7 @@ import math
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -104,15 +104,47 @@ class SimulationRun:
 
 # --------------------------------------------------------------------------- parsing
 
-def _positive_rate(text: str) -> float:
-    """argparse type for ``--rate``: a positive finite number of hertz."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'must be a number of hertz, got {text!r}') from None
-    if not (math.isfinite(value) and value > 0.0):
-        raise argparse.ArgumentTypeError(f'must be positive and finite, got {text!r}')
-    return value
+def bounded_number(kind: Callable[[str], float] = float, *, low: float | None = None,
+                   high: float | None = None, low_inclusive: bool = True, unit: str = '',
+                   noun: str | None = None) -> Callable[[str], float]:
+    """An argparse ``type``: a finite number of ``kind`` within ``low`` to ``high``.
+
+    Its errors name the rule and the text, e.g. ``must be in [1, 64], got '0'``.
+
+    :param kind: ``int`` or ``float``, which parses the text
+    :param low: lower bound (``None``: none); accepted unless ``low_inclusive`` is false
+    :param high: upper bound, accepted (``None``: none)
+    :param unit: the unit written after the range in the message (``s``)
+    :param noun: what a text that does not parse should be (default ``an integer``
+        or ``a number``; e.g. ``a number of seconds``)
+    """
+    noun = noun or ('an integer' if kind is int else 'a number')
+    unit = f' {unit}' if unit else ''
+    if low is not None and high is not None:
+        rule = f'in {"[" if low_inclusive else "("}{low:g}, {high:g}]{unit}'
+    elif low is None:
+        rule = f'at most {high:g}{unit}' if high is not None else 'finite'
+    elif low_inclusive:
+        rule = f'at least {low:g}{unit}'
+    else:
+        rule = 'positive' if low == 0 else f'above {low:g}{unit}'
+    if kind is not int and high is None and low is not None:
+        rule += ' and finite'
+
+    def parse(text: str) -> float:
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f'must be {noun}, got {text!r}') from None
+        above = low is None or (value >= low if low_inclusive else value > low)
+        if not (math.isfinite(value) and above and (high is None or value <= high)):
+            raise argparse.ArgumentTypeError(f'must be {rule}, got {text!r}')
+        return value
+    return parse
+
+
+#: argparse type for ``--rate``: a positive finite number of hertz.
+_positive_rate = bounded_number(float, low=0.0, low_inclusive=False, noun='a number of hertz')
 
 
 def _add_output_options(parser: argparse.ArgumentParser) -> None:

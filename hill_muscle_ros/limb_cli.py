@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from .cli import (CSV_FLOAT_FORMAT, DEFAULT_RATE_HZ, PROG, UserError, _positive_rate,
-                  _rate_from_file, summary_times)
+                  _rate_from_file, bounded_number, summary_times)
 from .model.limb import LimbPlant, LimbProtocol, LimbResult, limb_columns, simulate_limb
 from .params_file import load_plant
 
@@ -82,15 +82,8 @@ def add_animate_parser(sub) -> None:
                            f'else {DEFAULT_RATE_HZ:g})')
 
 
-def _fps(text: str) -> float:
-    """argparse type for ``--fps``: a number of frames per second in (0, 100]."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'must be a number, got {text!r}') from None
-    if not (math.isfinite(value) and 0.0 < value <= MAX_FPS):
-        raise argparse.ArgumentTypeError(f'must be in (0, {MAX_FPS:g}], got {text!r}')
-    return value
+#: argparse type for ``--fps``: a number of frames per second in (0, MAX_FPS].
+_fps = bounded_number(float, low=0.0, high=MAX_FPS, low_inclusive=False)
 
 
 def load_limb_run(plant_path: Path, protocol_path: Path, rate_hz: float | None) -> LimbRun:
