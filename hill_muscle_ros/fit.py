@@ -64,11 +64,13 @@ from typing import Any, Callable, Protocol as TypingProtocol, Sequence
 import numpy as np
 import yaml
 
+from .cli import bounded_number
 from .model import Muscle, MuscleParams
 from .model.fes_muscle import FesMuscle
-from .model.limb import (ANGLE_LIMIT_RAD, TORQUE_LIMIT_N_M, JointParams, LimbMuscle, LimbPlant,
-                         LimbProtocol, simulate_limb)
+from .model.limb import TORQUE_LIMIT_N_M, JointParams, LimbPlant, LimbProtocol, simulate_limb
 from .model.muscle import DL_MT_LIMIT_M
+from .model.plant_fields import (GEOMETRY_FIELDS, JOINT_PART, PARAMS, PlantNameError,
+                                 plant_field, plant_value, replaced_plant)
 from .model.protocol import Knots
 from .model.simulate import sample_times
 from .model.stimulus import command_from_pulse_width
@@ -719,14 +721,6 @@ LIMB_RECRUITMENT_TOPIC = '{muscle}/recruitment'
 EXTERNAL_TORQUE_TOPIC = 'external_torque'
 MUSCLE_PLACEHOLDER = '{muscle}'
 JOINT_STATE = 'sensor_msgs/msg/JointState'
-#: The first part of a fit name that addresses the joint (``joint.damping_n_m_s_per_rad``),
-#: as the plant file's section and the limb node's parameter names.
-JOINT_PART = 'joint'
-#: A muscle's place on the joint, fittable besides its muscle parameters, with its
-#: unit and range as :class:`~hill_muscle_ros.model.limb.LimbMuscle` checks it:
-#: the moment arm in (0, 1] m, the reference angle within two turns.
-MUSCLE_GEOMETRY = {'moment_arm_m': ('m', 0.0, 1.0),
-                   'reference_angle_rad': ('rad', -ANGLE_LIMIT_RAD, ANGLE_LIMIT_RAD)}
 REPORT_ANGLE_PNG = 'fit_angle.png'
 
 
@@ -741,6 +735,7 @@ class PlantParameter:
         :class:`~hill_muscle_ros.model.limb.LimbMuscle` (its geometry) or the
         muscle's :class:`~hill_muscle_ros.model.params.MuscleParams`
     :param where: ``joint``, ``geometry`` or ``params``
+        (:mod:`~hill_muscle_ros.model.plant_fields`)
     """
 
     part: str
@@ -751,6 +746,11 @@ class PlantParameter:
     def name(self) -> str:
         """The name as the user writes it in ``--fit``."""
         return f'{self.part}.{self.inner.name}'
+
+    @property
+    def path(self) -> str:
+        """The plant field's dotted name (a list's, without the entry)."""
+        return f'{self.part}.{self.inner.field}'
 
     @property
     def field(self) -> str:
@@ -768,36 +768,25 @@ class PlantParameter:
     def high(self) -> float:
         return self.inner.high
 
-    def _muscle(self, plant: LimbPlant) -> tuple[int, LimbMuscle]:
-        return next((i, m) for i, m in enumerate(plant.muscles) if m.name == self.part)
-
     def get(self, plant: LimbPlant) -> float:
-        if self.where == 'joint':
-            return float(getattr(plant.joint, self.inner.field))
-        _, muscle = self._muscle(plant)
-        if self.where == 'geometry':
-            return float(getattr(muscle, self.inner.field))
-        return self.inner.get(muscle.params)
+        value = plant_value(plant, self.path)
+        return float(value if self.inner.index is None else value[self.inner.index])
 
     def set(self, plant: LimbPlant, value: float) -> LimbPlant:
         """A copy of ``plant`` with this quantity set (validated on construction)."""
-        if self.where == 'joint':
-            joint = dataclasses.replace(plant.joint, **{self.inner.field: float(value)})
-            return dataclasses.replace(plant, joint=joint)
-        i, muscle = self._muscle(plant)
-        if self.where == 'geometry':
-            muscle = dataclasses.replace(muscle, **{self.inner.field: float(value)})
-        else:
-            muscle = dataclasses.replace(muscle, params=self.inner.set(muscle.params, value))
-        muscles = plant.muscles[:i] + (muscle,) + plant.muscles[i + 1:]
-        return dataclasses.replace(plant, muscles=muscles)
+        new: float | tuple[float, ...] = float(value)
+        if self.inner.index is not None:
+            values = list(plant_value(plant, self.path))
+            values[self.inner.index] = float(value)
+            new = tuple(values)
+        return replaced_plant(plant, {self.path: new})
 
 
 def plant_fittable_names(plant: LimbPlant) -> list[str]:
     """The patterns of fittable names of ``plant`` (for the messages)."""
     joint = [f.name for f in dataclasses.fields(JointParams) if f.name != 'name']
     return ([f'{JOINT_PART}.{{{",".join(joint)}}}']
-            + [f'{m.name}.{{{",".join(MUSCLE_GEOMETRY)}}} or {m.name}.<muscle parameter>'
+            + [f'{m.name}.{{{",".join(GEOMETRY_FIELDS)}}} or {m.name}.<muscle parameter>'
                for m in plant.muscles])
 
 
@@ -811,41 +800,25 @@ def parse_plant_fit_names(text: str, plant: LimbPlant) -> list[PlantParameter]:
 
     :raises FitError: naming an unknown, repeated or non-real name
     """
-    joint_fields = {f.name: f for f in dataclasses.fields(JointParams) if f.name != 'name'}
-    muscles = {m.name: m for m in plant.muscles}
-    parts = ', '.join([JOINT_PART] + list(muscles))
     out: list[PlantParameter] = []
     for raw in text.split(','):
         name = raw.strip()
         if not name:
             raise FitError(f'--fit: empty parameter name in {text!r}')
-        part, dot, rest = name.partition('.')
-        if not dot or not rest:
-            raise FitError(f'--fit: `{name}`: on a limb, name the joint or the muscle first, '
-                           f'as the plant file does, e.g. `{JOINT_PART}.damping_n_m_s_per_rad` '
-                           f'or `{plant.muscles[0].name if plant.muscles else "muscle"}'
-                           f'.f_iso_max_n` (parts: {parts})')
-        if part == JOINT_PART:
-            f = joint_fields.get(rest)
-            if f is None:
-                raise FitError(f'--fit: unknown parameter `{name}` (the joint\'s: '
-                               f'{", ".join(f"{JOINT_PART}.{k}" for k in joint_fields)})')
-            param = PlantParameter(part, FitParameter(rest, None, f.metadata['unit'],
-                                                      float(f.metadata['low']),
-                                                      float(f.metadata['high'])), 'joint')
-        elif part in muscles:
-            if rest in MUSCLE_GEOMETRY:
-                unit, low, high = MUSCLE_GEOMETRY[rest]
-                param = PlantParameter(part, FitParameter(rest, None, unit, low, high),
-                                       'geometry')
-            else:
-                inner = parse_fit_names(rest, muscles[part].params, prefix=f'{part}.')
-                if len(inner) != 1:
-                    raise FitError(f'--fit: `{name}`: one parameter per name')
-                param = PlantParameter(part, inner[0], 'params')
+        path, bracket, _ = name.partition('[')   # a list entry names the list's field
+        try:
+            where = plant_field(path, plant)
+        except PlantNameError as err:
+            raise FitError(f'--fit: {err}') from None
+        if where.where == PARAMS:
+            muscle = next(m for m in plant.muscles if m.name == where.part)
+            [inner] = parse_fit_names(name.partition('.')[2], muscle.params,
+                                      prefix=f'{where.part}.')
+        elif bracket:
+            raise FitError(f'--fit: `{name}`: `{where.field}` is not a list')
         else:
-            raise FitError(f'--fit: `{name}`: the plant has no joint or muscle `{part}` '
-                           f'(parts: {parts})')
+            inner = FitParameter(where.field, None, where.unit, where.low, where.high)
+        param = PlantParameter(where.part, inner, where.where)
         if any(p.name == param.name for p in out):
             raise FitError(f'--fit: `{param.name}` is named twice')
         out.append(param)
@@ -1323,7 +1296,7 @@ def plant_file_text(text: str, result: FitResult, source: str) -> str | None:
         part = _lookup(section, p.part)
         # A list entry brings the whole list (the rest of it as the start gave it).
         fitted = (p.get(result.params) if p.inner.index is None
-                  else getattr(p._muscle(result.params)[1].params, p.field))
+                  else plant_value(result.params, p.path))
         if isinstance(part, yaml.MappingNode) and part.value and not part.flow_style:
             target, key = part, p.field
         elif section.value and not section.flow_style:
@@ -1463,16 +1436,9 @@ def add_fit_parser(sub: argparse._SubParsersAction) -> None:
 MAX_EDGE_SEARCH_S = 1.0
 
 
-def _edge_search(text: str) -> float:
-    """argparse type for ``--edge-search``: seconds in [0, MAX_EDGE_SEARCH_S]."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'must be a number of seconds, got {text!r}') from None
-    if not 0.0 <= value <= MAX_EDGE_SEARCH_S:
-        raise argparse.ArgumentTypeError(f'must be in [0, {MAX_EDGE_SEARCH_S:g}] s, '
-                                         f'got {text!r}')
-    return value
+#: argparse type for ``--edge-search``: seconds in [0, MAX_EDGE_SEARCH_S].
+_edge_search = bounded_number(float, low=0.0, high=MAX_EDGE_SEARCH_S, unit='s',
+                              noun='a number of seconds')
 
 
 #: Most --jobs: an evaluation runs n + 1 simulations, and a fit of more than a
@@ -1480,15 +1446,8 @@ def _edge_search(text: str) -> float:
 MAX_JOBS = 64
 
 
-def _jobs(text: str) -> int:
-    """argparse type for ``--jobs``: an integer in [1, MAX_JOBS]."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'must be an integer, got {text!r}') from None
-    if not 1 <= value <= MAX_JOBS:
-        raise argparse.ArgumentTypeError(f'must be in [1, {MAX_JOBS}], got {text!r}')
-    return value
+#: argparse type for ``--jobs``: an integer in [1, MAX_JOBS].
+_jobs = bounded_number(int, low=1, high=MAX_JOBS)
 
 
 #: Options of ``fit`` for one kind of plant only: (attribute, flag).

@@ -61,8 +61,10 @@ import numpy as np
 import yaml
 
 from . import resources
+from .cli import bounded_number
 from .model import LimbOutOfRange, MuscleBatch, MuscleParams, Protocol, simulate_limb_batch
-from .model.limb import JointParams, LimbMuscle, LimbPlant, LimbProtocol
+from .model.limb import LimbPlant, LimbProtocol
+from .model.plant_fields import PlantNameError, plant_field, plant_value, replaced_plant
 from .model.protocol import safe_load_yaml
 from .model.simulate import sample_times
 from .params_file import load_muscle_params, load_plant
@@ -92,9 +94,6 @@ MAX_AUTO_CHUNK = 512
 #: seconds: small chunks balance the workers and move the progress bar, for a
 #: task overhead of milliseconds.
 MAX_AUTO_LIMB_CHUNK = 4
-#: Fields of a limb muscle that ``vary`` may name besides its MuscleParams
-#: (``action`` is a choice of sign, not a parameter to sweep).
-LIMB_MUSCLE_FIELDS = ('moment_arm_m', 'reference_angle_rad')
 #: Value of the ``worker`` column for rows computed in this process (no Dask).
 LOCAL_WORKER = 'local'
 #: [s] how long to wait for an existing scheduler to answer.
@@ -143,9 +142,6 @@ class SweepSpec:
 # --------------------------------------------------------------------------- spec
 
 _FIELDS = {f.name: f for f in dataclasses.fields(MuscleParams)}
-_JOINT_FIELDS = {f.name: f for f in dataclasses.fields(JointParams) if f.name != 'name'}
-_LIMB_MUSCLE_FIELDS = {f.name: f for f in dataclasses.fields(LimbMuscle)
-                       if f.name in LIMB_MUSCLE_FIELDS}
 
 
 def _is_number(value: Any) -> bool:
@@ -268,10 +264,8 @@ def parse_spec(doc: Any, source: str = '<spec>', base_dir: Path | None = None) -
     limb = doc.get('plant') is not None
     if limb:
         protocol, base, node = _load_limb(doc, source, base_dir)
-        fields = _plant_fields(base)
     else:
         protocol, base, node = _load_muscle(doc, source, base_dir)
-        fields = _FIELDS
 
     rate = doc.get('rate_hz', node.get('rate_hz', DEFAULT_RATE_HZ))
     if not _is_number(rate) or not math.isfinite(rate) or rate <= 0.0:
@@ -283,9 +277,17 @@ def parse_spec(doc: Any, source: str = '<spec>', base_dir: Path | None = None) -
     if not isinstance(vary, dict) or not vary:
         raise SweepError(f'{source}: `vary` must map parameter names to a list of values '
                          f'or a range {{low, high, n, log}}, got {vary!r}')
+    fields = {}   # the dataclass field of each varied parameter
     for key in vary:
-        if key not in fields:
-            raise SweepError(f'{source}: {_unknown(str(key), base if limb else None)}')
+        if limb:
+            try:
+                fields[key] = plant_field(str(key), base, label='vary.').spec
+            except PlantNameError as err:
+                raise SweepError(f'{source}: {err}') from None
+        elif key in _FIELDS:
+            fields[key] = _FIELDS[key]
+        else:
+            raise SweepError(f'{source}: {_unknown(str(key))}')
     samples = doc.get('samples')
     lhs = samples is not None
     if lhs and (isinstance(samples, bool) or not isinstance(samples, int) or samples < 1):
@@ -319,14 +321,14 @@ def parse_spec(doc: Any, source: str = '<spec>', base_dir: Path | None = None) -
     for i, combo in enumerate(combos):
         try:
             if limb:
-                p = _replaced_plant(base, dict(zip(names, combo)))
+                p = replaced_plant(base, dict(zip(names, combo)))
             else:
                 p = dataclasses.replace(base, **dict(zip(names, combo)))
         except (ValueError, TypeError) as err:
             shown = ', '.join(f'{n}={v!r}' for n, v in zip(names, combo))
             raise SweepError(f'{source}: parameter set {i} ({shown}): {err}') from None
         sets.append(p)
-        values.append(tuple(_plant_value(p, n) if limb else getattr(p, n) for n in names))
+        values.append(tuple(plant_value(p, n) if limb else getattr(p, n) for n in names))
     return SweepSpec(protocol, rate, times, names, tuple(sets), tuple(values),
                      base if limb else None)
 
@@ -374,55 +376,9 @@ def _load_limb(doc: Mapping[str, Any], source: str, base_dir: Path
     return protocol, plant, node
 
 
-def _plant_fields(plant: LimbPlant) -> dict[str, dataclasses.Field]:
-    """The plant's parameters by their dotted names: ``joint.<field>`` and
-    ``<muscle>.<field>`` (the muscle's arm and reference angle, its MuscleParams)."""
-    fields = {f'joint.{name}': f for name, f in _JOINT_FIELDS.items()}
-    for m in plant.muscles:
-        fields.update({f'{m.name}.{name}': f for name, f in _LIMB_MUSCLE_FIELDS.items()})
-        fields.update({f'{m.name}.{name}': f for name, f in _FIELDS.items()})
-    return fields
-
-
-def _unknown(key: str, plant: LimbPlant | None) -> str:
-    """The message for a ``vary`` name that is not a parameter."""
-    if plant is None:
-        return f'unknown parameter `vary.{key}` (known: {", ".join(_FIELDS)})'
-    muscles = [m.name for m in plant.muscles]
-    owner, _, field = key.partition('.')
-    if owner == 'joint':
-        return (f'unknown joint parameter `vary.{key}` (known: '
-                f'{", ".join(f"joint.{n}" for n in _JOINT_FIELDS)})')
-    if owner in muscles:
-        return (f'unknown parameter `{field}` of muscle `{owner}` in `vary.{key}` '
-                f'(known: {", ".join([*_LIMB_MUSCLE_FIELDS, *_FIELDS])})')
-    return (f'unknown plant parameter `vary.{key}`: a limb sweep varies `joint.<field>` '
-            f'or `<muscle>.<field>` with a muscle of the plant ({", ".join(muscles)})')
-
-
-def _replaced_plant(base: LimbPlant, changes: Mapping[str, Any]) -> LimbPlant:
-    """``base`` with the dotted-name parameters ``changes`` replaced, each validated
-    by its own dataclass (the joint, the limb muscle, the muscle's parameters)."""
-    joint = {k.partition('.')[2]: v for k, v in changes.items() if k.startswith('joint.')}
-    muscles = []
-    for m in base.muscles:
-        mine = {k.partition('.')[2]: v for k, v in changes.items()
-                if k.partition('.')[0] == m.name}
-        params = {k: v for k, v in mine.items() if k in _FIELDS}
-        arm = {k: v for k, v in mine.items() if k not in _FIELDS}
-        muscles.append(dataclasses.replace(
-            m, params=dataclasses.replace(m.params, **params), **arm) if mine else m)
-    return LimbPlant(dataclasses.replace(base.joint, **joint) if joint else base.joint,
-                     tuple(muscles))
-
-
-def _plant_value(plant: LimbPlant, key: str) -> Any:
-    """The value of the dotted-name parameter ``key`` of ``plant``."""
-    owner, _, field = key.partition('.')
-    if owner == 'joint':
-        return getattr(plant.joint, field)
-    [muscle] = [m for m in plant.muscles if m.name == owner]
-    return getattr(muscle if field in _LIMB_MUSCLE_FIELDS else muscle.params, field)
+def _unknown(key: str) -> str:
+    """The message for a ``vary`` name that is not a parameter of the muscle."""
+    return f'unknown parameter `vary.{key}` (known: {", ".join(_FIELDS)})'
 
 
 def load_spec(path: str | Path) -> SweepSpec:
@@ -751,26 +707,10 @@ def _sigint_ignored():
 EXIT_INTERRUPTED = 130
 
 
-def _workers(text: str) -> int:
-    import argparse
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'must be an integer, got {text!r}') from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f'must be 0 (no Dask) or more, got {text!r}')
-    return value
-
-
-def _chunk(text: str) -> int:
-    import argparse
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'must be an integer, got {text!r}') from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f'must be at least 1, got {text!r}')
-    return value
+#: argparse type for ``--workers``: 0 (no Dask) or more worker processes.
+_workers = bounded_number(int, low=0)
+#: argparse type for ``--chunk``: parameter sets per task, at least 1.
+_chunk = bounded_number(int, low=1)
 
 
 def add_parser(sub) -> None:

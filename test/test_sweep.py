@@ -467,17 +467,20 @@ def test_limb_grid_replaces_only_the_named_muscle_and_joint_parameters():
 
 @pytest.mark.parametrize('change, message', [
     ({'vary': {'quadriceps.f_iso_max': [1.0]}},
-     'unknown parameter `f_iso_max` of muscle `quadriceps` in `vary.quadriceps.f_iso_max` '
+     'unknown parameter `vary.quadriceps.f_iso_max` of muscle `quadriceps` '
      '(known: moment_arm_m, reference_angle_rad, f_iso_max_n,'),
     ({'vary': {'quadriceps.action': ['flexor']}},
-     'unknown parameter `action` of muscle `quadriceps`'),
+     'unknown parameter `vary.quadriceps.action` of muscle `quadriceps`'),
     ({'vary': {'joint.stiffness': [1.0]}},
-     'unknown joint parameter `vary.joint.stiffness` (known: joint.inertia_kg_m2,'),
-    ({'vary': {'joint.name': ['ankle']}}, 'unknown joint parameter `vary.joint.name`'),
+     'unknown parameter `vary.joint.stiffness` of the joint (known: joint.inertia_kg_m2,'),
+    ({'vary': {'joint.name': ['ankle']}}, 'unknown parameter `vary.joint.name` of the joint'),
     ({'vary': {'f_iso_max_n': [1.0]}},
-     'unknown plant parameter `vary.f_iso_max_n`: a limb sweep varies `joint.<field>` or '
-     '`<muscle>.<field>` with a muscle of the plant (quadriceps, hamstrings)'),
-    ({'vary': {'soleus.f_iso_max_n': [1.0]}}, 'unknown plant parameter `vary.soleus.f_iso_max_n`'),
+     '`vary.f_iso_max_n`: on a limb, name the joint or the muscle first, as the plant file '
+     'does, e.g. `joint.damping_n_m_s_per_rad` or `quadriceps.f_iso_max_n` '
+     '(parts: joint, quadriceps, hamstrings)'),
+    ({'vary': {'soleus.f_iso_max_n': [1.0]}},
+     '`vary.soleus.f_iso_max_n`: the plant has no joint or muscle `soleus` '
+     '(parts: joint, quadriceps, hamstrings)'),
     ({'vary': {'quadriceps.f_iso_max_n': [1000.0, -3.0]}},
      'parameter set 1 (quadriceps.f_iso_max_n=-3.0): `f_iso_max_n` must be positive'),
     ({'vary': {'joint.inertia_kg_m2': [0.0]}},
