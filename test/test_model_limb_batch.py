@@ -134,6 +134,11 @@ def test_no_plants_is_refused():
         LimbBatch([])
 
 
+def test_a_plant_that_is_not_a_limb_plant_is_refused_by_index():
+    with pytest.raises(ValueError, match=r"`plants\[1\]` must be a LimbPlant, got 'knee'"):
+        LimbBatch([PRESETS['knee'], 'knee'])
+
+
 @pytest.mark.parametrize('kwargs, message', [
     ({'pulse_width_s': [[0.0, -1e-4], [0.0, 0.0]]},
      r'`pulse_width_s\[0, 1\] \(hamstrings\)` must be finite and non-negative, got -0.0001'),

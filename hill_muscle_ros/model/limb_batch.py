@@ -33,6 +33,7 @@ from typing import NamedTuple, Sequence
 import numpy as np
 
 from .limb import TORQUE_LIMIT_N_M, Limb, LimbPlant, LimbProtocol
+from .params import check_instances
 from .simulate import sample_times
 from .stimulus import command_from_pulse_width
 
@@ -90,19 +91,14 @@ class LimbBatch:
     """
 
     def __init__(self, plants: Sequence[LimbPlant]) -> None:
-        plants = list(plants)
-        if not plants:
-            raise ValueError('`plants` must hold at least one LimbPlant, got none')
-        for k, plant in enumerate(plants):
-            if not isinstance(plant, LimbPlant):
-                raise ValueError(f'`plants[{k}]` must be a LimbPlant, got {plant!r}')
+        plants = check_instances(LimbPlant, plants, 'plants')
         names = tuple(m.name for m in plants[0].muscles)
         for k, plant in enumerate(plants[1:], start=1):
             other = tuple(m.name for m in plant.muscles)
             if other != names:
                 raise ValueError(f'`plants[{k}]` must have the muscles of `plants[0]`, '
                                  f'{list(names)}, in that order; got {list(other)}')
-        self.plants = tuple(plants)
+        self.plants = plants
         self.size = len(plants)
         #: The muscles' names, the columns of every (K, M) array.
         self.muscle_names = names

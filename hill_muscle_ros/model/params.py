@@ -10,7 +10,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any, Iterable, Mapping
 
 from .curves import FL_A, FL_B, FL_C
 
@@ -65,6 +65,22 @@ def finite_float(value: Any) -> float | None:
     except (OverflowError, TypeError, ValueError):
         return None
     return f if math.isfinite(f) else None
+
+
+def check_instances(kind: type, values: Iterable[Any], name: str) -> tuple[Any, ...]:
+    """``values`` as a tuple, checked to hold at least one item, each a ``kind``
+    (the parameter list of a batch: muscles' parameters, limbs' plants).
+
+    :param name: the argument's name, for the messages (``params``)
+    :raises ValueError: naming the argument and, for a wrong item, its index and value
+    """
+    values = tuple(values)
+    if not values:
+        raise ValueError(f'`{name}` must hold at least one {kind.__name__}, got none')
+    for i, value in enumerate(values):
+        if not isinstance(value, kind):
+            raise ValueError(f'`{name}[{i}]` must be a {kind.__name__}, got {value!r}')
+    return values
 
 
 def _float(name: str, value: Any, spec: Mapping[str, Any]) -> float:
