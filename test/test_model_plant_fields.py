@@ -19,6 +19,13 @@ def _plant() -> LimbPlant:
                       LimbMuscle('ham', 'flexor', 0.03, -0.2, MuscleParams(f_iso_max_n=700.0))))
 
 
+def _message(name: str, label: str = '') -> str:
+    """The message of the PlantNameError that resolving ``name`` raises."""
+    with pytest.raises(PlantNameError) as err:
+        plant_field(name, _plant(), label)
+    return str(err.value)
+
+
 # --------------------------------------------------------------------------- resolving
 
 def test_joint_name_resolves_to_the_joint_field_with_its_unit_and_range():
@@ -45,51 +52,42 @@ def test_muscle_parameter_resolves_to_the_muscle_params_field():
 
 
 def test_name_without_a_part_is_an_error_naming_it_and_the_parts():
-    with pytest.raises(PlantNameError) as err:
-        plant_field('f_iso_max_n', _plant())
-    assert str(err.value).startswith('`f_iso_max_n`: on a limb, name the joint or the muscle')
-    assert str(err.value).endswith(PARTS)
+    message = _message('f_iso_max_n')
+    assert message.startswith('`f_iso_max_n`: on a limb, name the joint or the muscle')
+    assert message.endswith(PARTS)
 
 
 def test_name_with_an_empty_field_is_an_error():
-    with pytest.raises(PlantNameError, match='name the joint or the muscle first'):
-        plant_field('quad.', _plant())
+    assert 'name the joint or the muscle first' in _message('quad.')
 
 
 def test_unknown_part_is_an_error_naming_the_part_and_the_parts():
-    with pytest.raises(PlantNameError) as err:
-        plant_field('soleus.f_iso_max_n', _plant())
-    assert str(err.value) == ('`soleus.f_iso_max_n`: the plant has no joint or muscle '
-                              f'`soleus` {PARTS}')
+    assert _message('soleus.f_iso_max_n') == ('`soleus.f_iso_max_n`: the plant has no joint '
+                                              f'or muscle `soleus` {PARTS}')
 
 
 def test_unknown_joint_field_is_an_error_listing_the_joint_fields():
-    with pytest.raises(PlantNameError) as err:
-        plant_field('joint.stiffness', _plant())
     known = ', '.join(f'joint.{f.name}' for f in dataclasses.fields(JointParams)[1:])
-    assert str(err.value) == f'unknown parameter `joint.stiffness` of the joint (known: {known})'
+    assert (_message('joint.stiffness')
+            == f'unknown parameter `joint.stiffness` of the joint (known: {known})')
 
 
 def test_joint_name_field_is_not_a_parameter():
-    with pytest.raises(PlantNameError, match='unknown parameter `joint.name` of the joint'):
-        plant_field('joint.name', _plant())
+    assert _message('joint.name').startswith('unknown parameter `joint.name` of the joint')
 
 
 def test_unknown_muscle_field_is_an_error_listing_geometry_then_muscle_params():
-    with pytest.raises(PlantNameError) as err:
-        plant_field('quad.f_iso', _plant())
     known = ', '.join(['moment_arm_m', 'reference_angle_rad', *MuscleParams.field_names()])
-    assert str(err.value) == f'unknown parameter `quad.f_iso` of muscle `quad` (known: {known})'
+    assert (_message('quad.f_iso')
+            == f'unknown parameter `quad.f_iso` of muscle `quad` (known: {known})')
 
 
 def test_muscle_action_is_not_a_parameter():
-    with pytest.raises(PlantNameError, match='unknown parameter `quad.action`'):
-        plant_field('quad.action', _plant())
+    assert _message('quad.action').startswith('unknown parameter `quad.action` of muscle')
 
 
 def test_label_precedes_the_name_in_the_message():
-    with pytest.raises(PlantNameError, match=r'unknown parameter `vary\.joint\.x` of the joint'):
-        plant_field('joint.x', _plant(), label='vary.')
+    assert _message('joint.x', 'vary.').startswith('unknown parameter `vary.joint.x` of the joint')
 
 
 def test_plant_name_error_is_a_value_error():
