@@ -22,7 +22,8 @@ Two engines, chosen by ``MuscleBatch(params, engine=...)``:
   separate muscles to 1e-9 N (test/test_batch_compiled.py).
 
 The default, ``'auto'``, is the compiled engine if numba can be imported and
-the NumPy engine otherwise, with the same results; :attr:`MuscleBatch.engine`
+the NumPy engine otherwise (or if ``HILL_MUSCLE_ENGINE=python``: :mod:`.engine`),
+with the same results; :attr:`MuscleBatch.engine`
 says which one runs.
 
 The motor-unit memory of ``multi``/``initial`` muscles is a per-muscle LIFO
@@ -49,6 +50,7 @@ from typing import NamedTuple, Sequence
 
 import numpy as np
 
+from . import engine as engines
 from . import kernels
 from .curves import ECC_PLATEAU, FL_A, FL_B, FL_C
 from .fes_muscle import FesMuscle
@@ -134,7 +136,8 @@ class MuscleBatch:
         self._fes = {i: FesMuscle(p) for i, p in enumerate(params) if not p.fes_defaults}
         #: The compiled kernels (None on the NumPy engine).
         self._kernels = None
-        if engine != 'numpy':
+        # 'auto' honours HILL_MUSCLE_ENGINE (python: the NumPy engine).
+        if engine == 'compiled' or (engine == 'auto' and engines.choice() == engines.COMPILED):
             try:
                 self._kernels = kernels.compiled()
             except ImportError:

@@ -11,7 +11,9 @@ takes ``auto`` (the default: compiled if numba can be imported), ``compiled``
 (numba required) or ``python`` (the plain Python loops everywhere, and the
 NumPy engine for a :class:`~hill_muscle_ros.model.batch.MuscleBatch` built with
 ``engine='auto'``: for debugging, or to rule the compiled code out).
-:func:`choice` reads it on every call, so a process may change it.
+:func:`choice` reads it on every call, so a process may change it. Since
+loading compiled code has a fixed cost, ``auto`` takes a compiled loop only
+where it pays (:func:`use_compiled`).
 
 Compiling: :func:`compile_functions` compiles a module's plain functions,
 each from its own code object with the names it calls rebound to their
@@ -99,6 +101,27 @@ def choice() -> str:
     if value == COMPILED:
         raise ImportError(f'`{ENV_VAR}` is {COMPILED!r}, but numba cannot be imported')
     return PYTHON
+
+
+def use_compiled(work: int, min_work: int, loaded: bool) -> bool:
+    """Whether a loop of ``work`` iterations should take its compiled version now.
+
+    Loading compiled code costs a fixed time (importing numba, and numba's
+    own set-up on its first compiled call: about 0.7 s with a warm cache,
+    BENCHMARKS.md), which a short loop never wins back. So ``auto`` takes the
+    compiled version only if it is already loaded in this process or the loop
+    is long enough to repay the loading (``work >= min_work``); ``compiled``
+    always takes it, ``python`` never.
+
+    :param work: [-] iterations of the loop about to run (e.g. steps)
+    :param min_work: [-] iterations from which loading pays off
+    :param loaded: True if the compiled version is already built in this process
+    :raises ValueError: if :data:`ENV_VAR` holds an unknown value
+    :raises ImportError: if it asks for ``compiled`` and numba cannot be imported
+    """
+    if choice() != COMPILED:
+        return False
+    return requested() == COMPILED or loaded or work >= min_work
 
 
 def import_numba() -> types.ModuleType:

@@ -290,6 +290,124 @@ def recruit_all(r, r_now, n_recruited, gain, f_iso_single, l_ce, multi, initial,
     return n_changed
 
 
+#: Entries of the state vector of :func:`run_muscle`: what ``Muscle.run``
+#: reads from and writes back to the muscle (M as a float).
+(S_T, S_L_CE, S_DL_MT, S_V_FREE, S_R, S_M, S_GAIN, S_F_ISO_SINGLE, S_V_CE) = range(9)
+N_STATE = 9
+#: Rows of the output matrix of :func:`run_muscle`: the fields of
+#: :class:`~hill_muscle_ros.model.muscle.MuscleOutputs`, in their order.
+(RUN_T, RUN_R, RUN_M, RUN_DL_MT, RUN_L_CE, RUN_V_CE, RUN_F_SE, RUN_F_PE, RUN_FORCE,
+ RUN_EFF_F_ISO, RUN_COMMAND, RUN_FITNESS) = range(12)
+N_RUN_OUTPUTS = 12
+
+
+def run_muscle(r_start, dl_end, r_end, dt: float, state, top: int, multi: bool,
+               initial: bool, n_units: float, f_iso_max: float, params, count, f_unit, total,
+               out) -> int:
+    """``Muscle.run`` of one muscle of the paper's model over whole input sequences.
+
+    Step k: apply ``r_start[k]`` (:func:`recruit_one` at the CE length of that
+    instant), integrate (:func:`step_one`), apply ``r_end[k]`` (a release
+    frees the CE at once), write the outputs. Sequenced as ``Muscle.run``:
+    Eff.f_iso is carried from the end of one step to the start of the next,
+    so a CE that left the FL range (instantaneous variants) moves freely for
+    the next step even if its free length is back inside the range.
+
+    :param r_start: [-] (n,) R held over each step, validated
+    :param dl_end: [m] (n,) dl_MT at the end of each step, validated
+    :param r_end: [-] (n,) R applied after each step, validated
+    :param dt: [s] step length
+    :param state: (N_STATE,) the muscle's state at the start, ``S_*`` entries;
+        updated to the state at the end (``S_V_CE``: v_CE there)
+    :param top: [-] runs on the run stack now (multi/initial)
+    :param multi: True for a ``multi`` muscle
+    :param initial: True for an ``initial`` muscle
+    :param n_units: [-] N as a float
+    :param f_iso_max: [N] f_iso_max
+    :param params: (N_PARAMS,) the parameters, one per ``P_*`` index
+    :param count: [-] int64 the run stack's cumulative unit counts, N + 1
+        entries for a multi/initial muscle (sentinel first), updated
+    :param f_unit: [N] the run stack's forces per unit, updated
+    :param total: [N] the run stack's cumulative forces, updated
+    :param out: (N_RUN_OUTPUTS, n) written: row ``RUN_*`` of step k at column k
+    :return: [-] runs on the run stack at the end
+    """
+    k_se, k_pe, l_rest, l_opt = params[P_K_SE], params[P_K_PE], params[P_L_REST], params[P_L_OPT]
+    a, b, a_ecc, b_ecc = params[P_A], params[P_B], params[P_A_ECC], params[P_B_ECC]
+    t = state[S_T]
+    l = state[S_L_CE]
+    dl0 = state[S_DL_MT]
+    v_free = state[S_V_FREE]
+    r_now = state[S_R]
+    m_now = int(state[S_M])
+    gain = state[S_GAIN]
+    f_single = state[S_F_ISO_SINGLE]
+    # f0 and v: the outputs at the current instant; v is also the first RK4
+    # stage of the next step while R is held (the same state, the same inputs).
+    f0 = eff_f_iso(l, gain, l_opt, initial)
+    v = ce_velocity(l, dl0, f0, k_se, l_rest, a, b, a_ecc, b_ecc) if f0 > 0.0 else v_free
+    for k in range(dl_end.shape[0]):
+        dl1 = dl_end[k]
+        r = r_start[k]
+        if r != r_now:
+            m_now, gain, f_single, top = recruit_one(r, r_now, f_single, l, multi, initial,
+                                                     n_units, f_iso_max, l_opt, count, f_unit,
+                                                     total, 0, top)
+            r_now = r
+            f0 = eff_f_iso(l, gain, l_opt, initial)
+            if f0 > 0.0:
+                v = ce_velocity(l, dl0, f0, k_se, l_rest, a, b, a_ecc, b_ecc)
+        if f0 > 0.0:
+            l, v, f0, v_free = step_one(l, dl0, dl1, dt, gain, v, True, initial, k_se, l_rest,
+                                        l_opt, a, b, a_ecc, b_ecc)
+        else:
+            # The free CE, without recruited force (gain 0) over the step, as
+            # Muscle.run; then Eff.f_iso at its new length.
+            l, v, f0, v_free = step_one(l, dl0, dl1, dt, 0.0, v, False, initial, k_se,
+                                        l_rest, l_opt, a, b, a_ecc, b_ecc)
+            f0 = eff_f_iso(l, gain, l_opt, initial)
+            if f0 > 0.0:
+                v = ce_velocity(l, dl1, f0, k_se, l_rest, a, b, a_ecc, b_ecc)
+        r = r_end[k]
+        if r != r_now:
+            m_now, gain, f_single, top = recruit_one(r, r_now, f_single, l, multi, initial,
+                                                     n_units, f_iso_max, l_opt, count, f_unit,
+                                                     total, 0, top)
+            r_now = r
+            f0 = eff_f_iso(l, gain, l_opt, initial)
+            if f0 == 0.0:
+                # Released at this instant: the free CE takes up the slack at
+                # once, so the sample shows f_SE = 0 (as Muscle.run).
+                l = l_rest + dl1
+            v = ce_velocity(l, dl1, f0, k_se, l_rest, a, b, a_ecc, b_ecc) if f0 > 0.0 else v_free
+        dl0 = dl1
+        t += dt
+        f_se = series_force(k_se, dl1, l, l_rest)
+        f_pe = parallel_force(k_pe, dl1)
+        out[RUN_T, k] = t
+        out[RUN_R, k] = r_now
+        out[RUN_M, k] = m_now
+        out[RUN_DL_MT, k] = dl1
+        out[RUN_L_CE, k] = l
+        out[RUN_V_CE, k] = v
+        out[RUN_F_SE, k] = f_se
+        out[RUN_F_PE, k] = f_pe
+        out[RUN_FORCE, k] = f_se + f_pe
+        out[RUN_EFF_F_ISO, k] = f0
+        out[RUN_COMMAND, k] = r_now
+        out[RUN_FITNESS, k] = 1.0   # no fatigue in the paper's model
+    state[S_T] = t
+    state[S_L_CE] = l
+    state[S_DL_MT] = dl0
+    state[S_V_FREE] = v_free
+    state[S_R] = r_now
+    state[S_M] = m_now
+    state[S_GAIN] = gain
+    state[S_F_ISO_SINGLE] = f_single
+    state[S_V_CE] = v
+    return top
+
+
 def scan_inputs(r, dl1, r_now, dl_limit_m: float) -> tuple:
     """Check a step's inputs and compare R with the one in force, in one pass.
 
@@ -383,3 +501,109 @@ def compiled() -> types.SimpleNamespace:
                      'recruit_all': {'error_model': 'numpy'}},
             bind={'prange': lambda numba: numba.prange})
     return _compiled
+
+
+#: The functions :func:`compiled_run` compiles (only ``run_muscle`` with its
+#: signature: a process loads one function from the cache).
+_RUN_KERNELS = ('eff_f_iso', 'ce_velocity', 'step_one', 'recruited_units', 'stack_update',
+                'recruit_one', 'run_muscle')
+#: The compiled run once built (None until then).
+_compiled_run = None
+
+#: [-] steps of one run from which ``simulate`` loads the compiled run when it
+#: is not loaded yet (``HILL_MUSCLE_ENGINE=auto``, :func:`.engine.use_compiled`):
+#: loading costs about 0.7 s with a warm cache (import numba 0.3-0.4 s, numba's
+#: set-up on its first call 0.35-0.45 s, of which scipy.linalg, imported by
+#: numba, 0.2 s) against 2-2.5 us a step saved (the Python loop's cost,
+#: BENCHMARKS.md section 1), so it pays from about 300,000 steps (5 min at 1 kHz).
+RUN_MIN_STEPS = 300_000
+
+
+def run_loaded() -> bool:
+    """True if the compiled run is built in this process (:func:`compiled_run`)."""
+    return _compiled_run is not None
+
+
+def _run_muscle_signature(numba):
+    f8, c1, i1 = numba.float64, numba.float64[::1], numba.int64[::1]
+    return numba.int64(c1, c1, c1, f8, c1, numba.int64, numba.boolean, numba.boolean, f8, f8,
+                       c1, i1, c1, c1, numba.float64[:, ::1])
+
+
+def compiled_run() -> types.SimpleNamespace:
+    """The numba-compiled :func:`run_muscle` (and its helpers), built on first use.
+
+    Only ``run_muscle`` is compiled with a signature, so a process with a warm
+    cache loads one function (BENCHMARKS.md gives the cost of both cases).
+
+    :raises ImportError: if numba cannot be imported
+    """
+    global _compiled_run
+    if _compiled_run is None:
+        _compiled_run = engine.compile_functions(
+            globals(), _RUN_KERNELS, foreign=_CURVES, digest_of=(curves, memory),
+            signatures={'run_muscle': _run_muscle_signature},
+            options={'run_muscle': {'error_model': 'numpy'}})
+    return _compiled_run
+
+
+def run_compiled(muscle, r_start, dl_mt_end_m, dt_s: float, r_end=None):
+    """:meth:`Muscle.run <hill_muscle_ros.model.muscle.Muscle.run>` compiled:
+    the same steps, the same state afterwards, the outputs as one array.
+
+    For the paper's model only (a plain ``Muscle``, every FES extension off).
+    Inputs are not validated, as ``Muscle.run``'s.
+
+    :param muscle: the :class:`~hill_muscle_ros.model.muscle.Muscle`; its
+        state and memory are read here and written back
+    :param r_start: [-] (n,) recruitment R held over each step
+    :param dl_mt_end_m: [m] (n,) dl_MT at the end of each step
+    :param dt_s: [s] step length, > 0
+    :param r_end: [-] (n,) R applied after each step (default ``r_start``)
+    :return: (N_RUN_OUTPUTS, n) float array, row ``RUN_*`` (the fields of
+        ``MuscleOutputs`` in their order) of step k at column k
+    """
+    import numpy as np   # the model's arrays; numpy is imported with the package anyway
+
+    run = compiled_run().run_muscle
+    p = muscle.params
+    r_start = np.ascontiguousarray(r_start, dtype=float)
+    dl_end = np.ascontiguousarray(dl_mt_end_m, dtype=float)
+    r_end = r_start if r_end is None else np.ascontiguousarray(r_end, dtype=float)
+    state = np.empty(N_STATE)
+    state[S_T], state[S_L_CE], state[S_DL_MT] = muscle.t_s, muscle.l_ce_m, muscle.dl_mt_m
+    state[S_V_FREE], state[S_R], state[S_M] = muscle._v_free, muscle.recruitment, muscle.n_recruited
+    state[S_GAIN], state[S_F_ISO_SINGLE] = muscle._gain_n, muscle._f_iso_single_n
+    params = np.empty(N_PARAMS)
+    params[P_K_SE], params[P_K_PE] = p.k_se_n_per_m, p.k_pe_n_per_m
+    params[P_L_REST], params[P_L_OPT] = p.l_rest_m, p.l_opt_m
+    params[P_A], params[P_B] = p.fv_a_n, p.fv_b_m_per_s
+    params[P_A_ECC], params[P_B_ECC] = p.fv_a_ecc_n, p.fv_b_ecc_m_per_s
+    # The run stack (multi/initial): UnitMemory's lists, copied into arrays
+    # of N + 1 entries (room for every push) and back.
+    mem = muscle._memory
+    stacked = muscle._multi and muscle._initial
+    size = p.n_units + 1 if stacked else 1
+    top = mem._top
+    count = np.zeros(size, dtype=np.int64)
+    f_unit = np.zeros(size)
+    total = np.zeros(size)
+    if stacked:
+        count[:top + 1] = mem._count[:top + 1]
+        f_unit[:top + 1] = mem._f_unit[:top + 1]
+        total[:top + 1] = mem._total[:top + 1]
+    out = np.empty((N_RUN_OUTPUTS, dl_end.shape[0]))
+    top = run(r_start, dl_end, r_end, float(dt_s), state, top, muscle._multi, muscle._initial,
+              float(p.n_units), p.f_iso_max_n, params, count, f_unit, total, out)
+    if stacked:
+        mem._count = count[:top + 1].tolist()
+        mem._f_unit = f_unit[:top + 1].tolist()
+        mem._total = total[:top + 1].tolist()
+        mem._top = top
+    muscle.t_s, muscle.l_ce_m, muscle.dl_mt_m = float(state[S_T]), float(state[S_L_CE]), \
+        float(state[S_DL_MT])
+    muscle._v_free, muscle.recruitment = float(state[S_V_FREE]), float(state[S_R])
+    muscle.n_recruited = int(state[S_M])
+    muscle._gain_n, muscle._f_iso_single_n = float(state[S_GAIN]), float(state[S_F_ISO_SINGLE])
+    muscle._v_end = (muscle.l_ce_m, muscle.dl_mt_m, muscle._gain_n, float(state[S_V_CE]))
+    return out

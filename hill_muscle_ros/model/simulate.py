@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import engine, kernels
 from .muscle import Muscle
 from .params import MuscleParams
 from .protocol import Protocol
@@ -74,6 +75,13 @@ def simulate(protocol: Protocol, params: MuscleParams | None = None,
     dl_MT linearly between the protocol's values at the two ends. Pulse
     widths pass through the muscle's recruitment curve.
 
+    The paper's model runs :meth:`Muscle.run
+    <hill_muscle_ros.model.muscle.Muscle.run>`'s loop compiled
+    (:func:`.kernels.run_compiled`, the same results) where that pays:
+    once it is loaded in the process, or for runs of at least
+    :data:`.kernels.RUN_MIN_STEPS` steps; ``HILL_MUSCLE_ENGINE=compiled``
+    always, ``python`` never (:mod:`.engine`).
+
     :param protocol: the protocol to replay
     :param params: muscle parameters (paper defaults if omitted)
     :param rate_hz: [Hz] step rate, 1 / dt
@@ -90,12 +98,18 @@ def simulate(protocol: Protocol, params: MuscleParams | None = None,
     dt = 1.0 / rate_hz
     muscle.set_recruitment(float(r[0]))
     first = muscle.outputs()
-    # Plain lists of Python floats: indexing them is several times cheaper
-    # than indexing NumPy arrays in the hot loop.
     n_steps = len(t) - 1
-    columns = [[0.0] * n_steps for _ in first]
-    r_list = r.tolist()
-    muscle.run(r_list[:-1], dl.tolist()[1:], dt, r_end=r_list[1:], columns=columns)
+    if type(muscle) is Muscle and engine.use_compiled(n_steps, kernels.RUN_MIN_STEPS,
+                                                      kernels.run_loaded()):
+        # The same loop compiled (model/kernels.py), when it is loaded or the
+        # run repays loading it (HILL_MUSCLE_ENGINE: model/engine.py).
+        columns = kernels.run_compiled(muscle, r[:-1], dl[1:], dt, r[1:])
+    else:
+        # Plain lists of Python floats: indexing them is several times cheaper
+        # than indexing NumPy arrays in the hot loop.
+        columns = [[0.0] * n_steps for _ in first]
+        r_list = r.tolist()
+        muscle.run(r_list[:-1], dl.tolist()[1:], dt, r_end=r_list[1:], columns=columns)
     # The sample times are the inputs themselves.
     fields = {'t_s': t}
     for name, value, col in zip(first._fields, first, columns):
