@@ -29,25 +29,17 @@ What DDS timing does to the inputs, and so the tolerances:
   (the defaults are 13 %, 25 % and 23 % off).
 """
 import os
-import signal
 
 import pytest
-from geometry_msgs.msg import WrenchStamped
 
 from hill_muscle_ros import cli
-from hill_muscle_ros.demo import default_lookahead_s
-from hill_muscle_ros.nodes.recorder import subscriptions_node_name
 from hill_muscle_ros.params_file import load_muscle_params
-from ros_helpers import DEFAULT_TIMEOUT_S, ProcessGroup, Probe, node_command
+from live_run import record_live_run
 
 pytestmark = pytest.mark.ros
 
 #: The simulated subject (the defaults are 45 N, 10 kN/m and 10 N): as in test_fit.
 TRUTH = {'f_iso_max_n': 52.0, 'k_se_n_per_m': 8000.0, 'fv_a_n': 13.0}
-#: [s] the length goes this far ahead of time, as in the demo at real time.
-LOOKAHEAD_S = default_lookahead_s(1.0)
-#: [s] allowance beyond Protocol II's 6 s for the player to start and finish.
-PLAYER_SLACK_S = 60.0
 #: [s] the window of --edge-search: twice the largest move seen (13 ms).
 EDGE_SEARCH_S = 0.03
 #: Relative tolerance of each estimate: about three times the errors of the
@@ -56,31 +48,9 @@ TOLERANCE = {'f_iso_max_n': 0.002, 'k_se_n_per_m': 0.02, 'fv_a_n': 0.025}
 
 
 def _record_live_run(tmp, ns, protocol_file):
-    """Protocol II over DDS with TRUTH in the simulator, recorded; the bag's path."""
-    bag = tmp / 'bag'
-    with ProcessGroup(tmp) as procs, Probe('fit_live_probe') as probe:
-        seen = probe.record(f'{ns}/wrench', WrenchStamped)
-        sim = procs.start('simulator', node_command('simulator', ns=ns, params=TRUTH))
-        rec = procs.start('recorder', node_command('recorder', ns=ns,
-                                                   params={'output': str(bag)}))
-        # The simulator publishes, the recorder answers and is subscribed to it.
-        probe.wait_for_messages(seen, 1, procs=[sim, rec])
-        probe.wait_until_serving(f'{ns}/recorder', DEFAULT_TIMEOUT_S, [sim, rec])
-        probe.wait_for_endpoints(f'{ns}/wrench', publisher=f'{ns}/simulator',
-                                 subscriber='/' + subscriptions_node_name('recorder'),
-                                 timeout_s=DEFAULT_TIMEOUT_S, watch=[sim, rec])
-        # The other way: the player starts once both the simulator and the
-        # recorder subscribe to each of its outputs.
-        player = procs.start('player', node_command(
-            'protocol_player', ns=ns, params={'protocol': str(protocol_file),
-                                              'min_subscribers': 2,
-                                              'lookahead_s': LOOKAHEAD_S}))
-        probe.spin_until(lambda: player.returncode is not None, 'the end of the protocol',
-                         timeout_s=6.0 + PLAYER_SLACK_S, procs=[sim, rec])
-        assert player.returncode == 0, player.describe()
-        rec.popen.send_signal(signal.SIGINT)
-        assert rec.wait() == 0, rec.output()
-    return bag
+    run = record_live_run(tmp, ns, protocol_file, sim_params=TRUTH, probe_name='fit_live_probe')
+    assert run['status'] == 0, run['log']
+    return run['bag']
 
 
 @pytest.fixture(scope='module')

@@ -17,44 +17,29 @@ import time
 
 import numpy as np
 import pytest
-from geometry_msgs.msg import WrenchStamped
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import Reader
 from std_msgs.msg import Float64
 
-from hill_muscle_ros.demo import default_lookahead_s
 from hill_muscle_ros.model import MuscleParams, Protocol, simulate
-from hill_muscle_ros.nodes.recorder import subscriptions_node_name
 from hill_muscle_ros.recording.analysis import (SIMULATOR_LAG_LIMIT_S, live_force_at,
                                                 protocol_start_ns, simulator_lag_s,
                                                 summary_times)
 from hill_muscle_ros.recording.reader import read_bag
 from hill_muscle_ros.timebase import NS_PER_S
-from ros_helpers import DEFAULT_TIMEOUT_S, ProcessGroup, Probe, node_command
+from live_run import record_live_run, wait_until_recording
+from ros_helpers import ProcessGroup, Probe, node_command
 from stall_watch import repeat_only_on_external_stall
 
 pytestmark = pytest.mark.ros
 
 #: [N] agreement asked of the recorded force with the offline simulation.
 FORCE_TOLERANCE_N = 0.5
-#: [s] allowance beyond the protocol's 6 s for the player to start and finish.
-PLAYER_SLACK_S = 60.0
 TOPICS = ('pulse_width', 'length_command_stamped', 'force', 'ce_length', 'wrench')
 MESSAGE_TYPES = {'wrench': 'geometry_msgs/msg/WrenchStamped',
                  'length_command_stamped': 'geometry_msgs/msg/PointStamped'}
-#: [s] the length goes this far ahead of time, as in the demo at real time.
-LOOKAHEAD_S = default_lookahead_s(1.0)
-
-
-def _wait_until_recording(probe, ns, procs):
-    """The recorder is up and spinning (it answers its parameter service), and the
-    graph shows it subscribed to the simulator's wrench."""
-    probe.wait_until_serving(f'{ns}/recorder', DEFAULT_TIMEOUT_S, procs)
-    probe.wait_for_endpoints(f'{ns}/wrench', publisher=f'{ns}/simulator',
-                             subscriber='/' + subscriptions_node_name('recorder'),
-                             timeout_s=DEFAULT_TIMEOUT_S, watch=procs)
 
 
 #: A live run is repeated (at most this many times in all) when the machine
@@ -76,28 +61,7 @@ PROTOCOL_DURATION_S = 6.0
 
 
 def _one_live_run(tmp, ns, protocol_file):
-    bag = tmp / 'bag'
-    with ProcessGroup(tmp) as procs, Probe('live_probe') as probe:
-        seen = probe.record(f'{ns}/wrench', WrenchStamped)
-        sim = procs.start('simulator', node_command('simulator', ns=ns))
-        rec = procs.start('recorder', node_command('recorder', ns=ns,
-                                                   params={'output': str(bag)}))
-        probe.wait_for_messages(seen, 1, procs=[sim, rec])
-        # The recorder holds the muscle at rest before the protocol starts.
-        _wait_until_recording(probe, ns, [sim, rec])
-        # Both listeners, the simulator and the recorder, before the first knot.
-        player = procs.start('player', node_command(
-            'protocol_player', ns=ns, params={'protocol': str(protocol_file),
-                                              'min_subscribers': 2,
-                                              'lookahead_s': LOOKAHEAD_S}))
-        probe.spin_until(lambda: player.returncode is not None, 'the end of the protocol',
-                         timeout_s=6.0 + PLAYER_SLACK_S, procs=[sim, rec])
-        assert player.returncode == 0, player.describe()
-        rec.popen.send_signal(signal.SIGINT)
-        status = rec.wait()
-        received = list(seen.messages)
-    return {'bag': bag, 'ns': ns, 'status': status, 'log': rec.output(),
-            'probe_wrenches': received}
+    return {**record_live_run(tmp, ns, protocol_file), 'ns': ns}
 
 
 def _disturbance(run) -> str:
@@ -246,7 +210,7 @@ def test_sim_time_run_logs_in_sim_time(tmp_path):
                                                     params={'publish_clock': True}))
         rec = procs.start('recorder', node_command(
             'recorder', ns=ns, params={'output': str(bag), 'use_sim_time': True}))
-        _wait_until_recording(probe, ns, [sim, rec])
+        wait_until_recording(probe, ns, [sim, rec])
         probe.wait_for_messages(seen, 2000, procs=[sim, rec], timeout_s=60)
         rec.popen.send_signal(signal.SIGINT)
         assert rec.wait() == 0, rec.output()
