@@ -1496,25 +1496,9 @@ def cmd_fit(args: argparse.Namespace) -> int:
     except ValueError as err:   # FitError, and the params file's own errors
         raise UserError(str(err)) from None
     report = format_report(result, recording, str(params_path), shifts, edge_search_s)
-    try:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(params_file_text(result, node_settings, str(args.bag)),
-                            encoding='utf-8')
-        if args.report is not None:
-            args.report.mkdir(parents=True, exist_ok=True)
-            (args.report / REPORT_MARKDOWN).write_text(report + '\n', encoding='utf-8')
-            (args.report / REPORT_YAML).write_text(
-                yaml.safe_dump(report_data(result, recording), sort_keys=False),
-                encoding='utf-8')
-            plot_fit(args.report / REPORT_PNG, result, recording)
-    except OSError as err:
-        raise UserError(f'{err.filename}: cannot write: {err.strerror or err}') from None
-    print(report)
-    print(f'wrote {args.out}')
-    if args.report is not None:
-        print(f'wrote {args.report / REPORT_MARKDOWN}, {args.report / REPORT_YAML}, '
-              f'{args.report / REPORT_PNG}')
-    return 0
+    return _write_outputs(args, params_file_text(result, node_settings, str(args.bag)), report,
+                          lambda: report_data(result, recording), REPORT_PNG,
+                          lambda path: plot_fit(path, result, recording))
 
 
 def _cmd_fit_limb(args: argparse.Namespace) -> int:
@@ -1549,23 +1533,36 @@ def _cmd_fit_limb(args: argparse.Namespace) -> int:
         raise UserError(f'{args.plant}: cannot write the fitted values into this file\'s '
                         'layout (block-style `ros__parameters` with the muscles\' and the '
                         'joint\'s sections needed)')
+    return _write_outputs(args, text, report, lambda: limb_report_data(result, recording),
+                          REPORT_ANGLE_PNG, lambda path: plot_limb_fit(path, result, recording))
+
+
+def _write_outputs(args: argparse.Namespace, out_text: str, report: str,
+                   data: Callable[[], dict[str, Any]], png: str,
+                   plot: Callable[[Path], None]) -> int:
+    """Write ``--out`` and, with ``--report``, the report's Markdown, YAML and plot
+    (file name ``png``); print the report and what was written.
+
+    :param data: the report's YAML data (made only with ``--report``)
+    :param plot: draws the plot into the path it is given
+    """
+    from .cli import UserError
     try:
         args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(text, encoding='utf-8')
+        args.out.write_text(out_text, encoding='utf-8')
         if args.report is not None:
             args.report.mkdir(parents=True, exist_ok=True)
             (args.report / REPORT_MARKDOWN).write_text(report + '\n', encoding='utf-8')
             (args.report / REPORT_YAML).write_text(
-                yaml.safe_dump(limb_report_data(result, recording), sort_keys=False),
-                encoding='utf-8')
-            plot_limb_fit(args.report / REPORT_ANGLE_PNG, result, recording)
+                yaml.safe_dump(data(), sort_keys=False), encoding='utf-8')
+            plot(args.report / png)
     except OSError as err:
         raise UserError(f'{err.filename}: cannot write: {err.strerror or err}') from None
     print(report)
     print(f'wrote {args.out}')
     if args.report is not None:
         print(f'wrote {args.report / REPORT_MARKDOWN}, {args.report / REPORT_YAML}, '
-              f'{args.report / REPORT_ANGLE_PNG}')
+              f'{args.report / png}')
     return 0
 
 
