@@ -13,6 +13,7 @@ Usage::
 ``--only gym`` runs only the Gymnasium vector environments (``bench_gym.py``).
 ``--only batch`` runs only section 3, the batch engines (``bench_batch.py``).
 ``--only sweep`` runs only section 9, ``hill-muscle sweep``'s throughput (``bench_sweep.py``).
+``--only single`` runs only one muscle's compiled offline run (``bench_compiled.py``).
 ``--only fes`` runs only section 7, the FES features (``bench_fes.py``, a few
 minutes), and prints its Markdown instead of writing BENCHMARKS.md (or writes
 it to ``--out`` if given)::
@@ -39,6 +40,7 @@ REPO = HERE.parent
 sys.path.insert(0, str(HERE))
 
 import bench_batch as bench_batch_module  # noqa: E402
+import bench_compiled  # noqa: E402
 import bench_fes  # noqa: E402
 import bench_fit  # noqa: E402
 import bench_gym  # noqa: E402
@@ -539,11 +541,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--out', type=Path, default=None,
                         help='Markdown file to write (default: BENCHMARKS.md; with --only, '
                              'print the section instead)')
-    parser.add_argument('--only', choices=('batch', 'fes', 'fit', 'gym', 'sweep'), default=None,
+    parser.add_argument('--only', choices=('batch', 'fes', 'fit', 'gym', 'single', 'sweep'),
+                        default=None,
                         help='run one section only: batch = section 3, the batch '
                              'engines; fes = section 7, the FES features; '
                              'fit = section 8, hill-muscle fit; gym = the Gymnasium '
-                             'vector environments; sweep = section 9, hill-muscle sweep')
+                             'vector environments; single = one muscle\'s offline run '
+                             'compiled; sweep = section 9, hill-muscle sweep')
     parser.add_argument('--runs', type=int, default=7,
                         help=f'runs per measurement, at least {MIN_RUNS} (default: 7)')
     parser.add_argument('--node-seconds', type=float, default=30.0,
@@ -558,7 +562,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.only is not None:
         lines = []
         section = {'batch': bench_batch_module, 'fes': bench_fes, 'fit': bench_fit,
-                   'gym': bench_gym, 'sweep': bench_sweep}[args.only]
+                   'gym': bench_gym, 'single': bench_compiled,
+                   'sweep': bench_sweep}[args.only]
         measured = section.run(args.runs)
         lines.append(f'<!-- run_all.py --only {args.only} --runs {args.runs}, {started["date"]}, '
                      f'load average {started["load"]} at start, {load_average()} at end, '
