@@ -4,23 +4,27 @@ Mostly no DDS here: the environment the function leaves and the profile it
 writes. That a node set up so talks to the rest of the graph is what every
 node test checks (all nodes start through ``run_node``); that it keeps the
 simulator's steps going while tools join is ``test_sim_tool_churn.py``. The
-last test is over DDS: a participant that joins finds a node that has run for
-a while within about one announcement period.
+last two tests are over DDS: a participant that joins finds a node that has
+run for a while within about one announcement period, and a burst whose tail
+UDP dropped is repaired within a few heartbeat periods.
 """
 from __future__ import annotations
 
 import socket
+import sys
 import time
 import xml.etree.ElementTree as ET
+from pathlib import Path
 
 import pytest
 from rcl_interfaces.srv import ListParameters
 
-from hill_muscle_ros.dds_transport import (ANNOUNCEMENT_PERIOD_S, TRANSPORT_ENV,
+from hill_muscle_ros.dds_transport import (ANNOUNCEMENT_PERIOD_S, HEARTBEAT_PERIOD_S,
+                                           TRANSPORT_ENV,
                                            USER_FASTDDS_SETTINGS, discovery_range,
                                            localhost_profile, use_udp_transport,
                                            write_profile)
-from ros_helpers import DEFAULT_TIMEOUT_S, Probe, ProcessGroup, node_command
+from ros_helpers import DEFAULT_TIMEOUT_S, Probe, ProcessGroup, node_command, ros_env
 
 NS = {'p': 'http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles'}
 
@@ -176,3 +180,64 @@ def test_a_joining_participant_finds_a_running_node_within_an_announcement_perio
     print(f'\nMEASURED discovery of a running node by {JOINERS} new participants: '
           f'{", ".join(f"{t:.2f}" for t in took_s)} s')
     assert max(took_s) < DISCOVERY_BOUND_S, took_s
+
+
+def test_localhost_profile_heartbeats_reliable_writers_every_heartbeat_period(tmp_path):
+    env, _ = _localhost(tmp_path)
+    root = ET.parse(env['FASTRTPS_DEFAULT_PROFILES_FILE']).getroot()
+    [writer] = root.findall('p:data_writer', NS)
+    assert writer.get('is_default_profile') == 'true'
+    period = writer.find('p:times/p:heartbeatPeriod', NS)
+    assert (int(period.findtext('p:sec', namespaces=NS))
+            + int(period.findtext('p:nanosec', namespaces=NS)) / 1e9) == HEARTBEAT_PERIOD_S
+
+
+#: Messages per burst (a ramp's knots sent ahead) and bursts.
+BURST_SIZE, BURSTS = 300, 5
+#: [B] the reader's UDP receive buffer, cut so that bursts lose packets: Fast
+#: DDS needs it to hold its largest message, which the profile sets below it.
+SMALL_RECEIVE_BUFFER_B, SMALL_MESSAGE_B = 4096, 1400
+#: [s] bound on a burst's arrival whole: a few heartbeat periods of repair
+#: plus a busy machine's scheduling. Measured: with Fast DDS's 3 s period the
+#: five bursts took 2.93-3.17 s (this test fails), with 0.1 s 0.17-0.32 s.
+BURST_BOUND_S = 1.5
+
+
+def _small_buffer_profile(tmp_path) -> str:
+    """The nodes' localhost profile with a tiny receive buffer: a lossy reader."""
+    text = localhost_profile([]).replace(
+        '<maxInitialPeersRange>',
+        f'<receiveBufferSize>{SMALL_RECEIVE_BUFFER_B}</receiveBufferSize>'
+        f'<maxMessageSize>{SMALL_MESSAGE_B}</maxMessageSize><maxInitialPeersRange>')
+    path = tmp_path / 'small_receive_buffer.xml'
+    path.write_text(text)
+    return str(path)
+
+
+@pytest.mark.ros
+def test_a_burst_whose_tail_udp_dropped_arrives_whole_within_a_few_heartbeats(tmp_path):
+    peer = [sys.executable, str(Path(__file__).with_name('burst_peer.py'))]
+    go_file = tmp_path / 'go'
+    with ProcessGroup(tmp_path) as procs:
+        # The reader configures Fast DDS itself (a user profile the package
+        # leaves alone); the writer sets up DDS as every node does.
+        reader = procs.start('reader', [*peer, 'reader', str(BURST_SIZE), str(BURSTS)],
+                             env=ros_env(FASTRTPS_DEFAULT_PROFILES_FILE=_small_buffer_profile(
+                                 tmp_path), ROS_AUTOMATIC_DISCOVERY_RANGE='SYSTEM_DEFAULT'))
+        writer = procs.start('writer', [*peer, 'writer', str(BURST_SIZE), str(BURSTS),
+                                        str(go_file)], env=ros_env())
+        procs.wait_until(lambda: 'matched' in reader.output(), 'the reader to match the writer',
+                         DEFAULT_TIMEOUT_S)
+        go_file.touch()
+        procs.wait_until(lambda: reader.returncode == 0 or len(_burst_times(reader)) == BURSTS,
+                         'every burst to arrive whole', DEFAULT_TIMEOUT_S * BURSTS,
+                         watch=[writer])
+        took_s = _burst_times(reader)
+    print(f'\nMEASURED arrival of {BURSTS} bursts of {BURST_SIZE} through a '
+          f'{SMALL_RECEIVE_BUFFER_B} B receive buffer: {", ".join(f"{t:.2f}" for t in took_s)} s')
+    assert len(took_s) == BURSTS and max(took_s) < BURST_BOUND_S, took_s
+
+
+def _burst_times(proc) -> list[float]:
+    return [float(line.split()[2]) for line in proc.output().splitlines()
+            if line.startswith('burst ')]
