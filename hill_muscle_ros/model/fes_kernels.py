@@ -1,0 +1,1012 @@
+"""The FES muscle and the limb over flat arrays: plain functions for Python and numba.
+
+:class:`~hill_muscle_ros.model.fes_muscle.FesMuscle` and
+:class:`~hill_muscle_ros.model.limb.Limb` keep their state in objects, lists
+and deques: readable, and the reference. Here the same model runs over
+fixed-size arrays, so that numba compiles it (:func:`compiled`); the plain
+functions also run unchanged as Python (slowly: for the tests).
+
+Written once: every equation is a function of the module where it lives,
+called by the reference and here alike (the activation's closed form and its
+inverse in :mod:`.stimulus`, Eq. 3 inverted with relative constants, the
+CE's relaxation rate, the RK4 substep count and the whole-muscle Riener law
+in :mod:`.fes_muscle`, the FL sums over a unit layout in :mod:`.units`, the
+per-unit fatigue's closed forms in :mod:`.unit_pool`, the curves in
+:mod:`.curves`). Only the bookkeeping takes another form: the delay line is
+a ring buffer, the plan of recruitment changes a table of events, the unit
+pool's two segment stacks arrays of N + 2 rows; they hold the same numbers
+in the same order, so the results agree with the reference to rounding.
+
+State: one *bundle*, a tuple of arrays whose first axis is the muscle
+(:data:`BUNDLE_FIELDS`; a single muscle is a bundle of one), so a limb's
+muscles are rows of the same arrays and every function takes the bundle and
+a muscle index. :class:`FesBundle` builds and resets one from parameters.
+"""
+from __future__ import annotations
+
+import math
+import types
+from typing import Sequence
+
+import numpy as np
+
+from . import curves, fes_muscle, memory, stimulus, unit_pool, units
+from .curves import ECC_PLATEAU, FL_A, FL_B, FL_C, force_length, force_velocity_inverse
+from .fes_muscle import (MAX_EVENTS_PER_PIECE, MAX_SUBSTEPS, RK4_MAX_H_LAMBDA,
+                         fes_velocity, fitness_at, piece_activation, relaxation_rate,
+                         riener_limit, riener_rate, substep_count)
+from .memory import recruited_units
+from .params import MuscleParams
+from .stimulus import DelayLine, activation_at, time_to_reach
+from .unit_pool import (_RENORMALISE_AFTER_TAUS, moment_force, recruited_excess,
+                        resting_deficit)
+from .units import (FL_ROOT_HIGH, FL_ROOT_LOW, PHI, UnitLayout, fl_clear, length_scale,
+                    type_fl_sum, unit_length_scale)
+
+#: [s] two instants closer than this are one (the delay line's tolerance).
+TIME_TOL_S = DelayLine.TIME_TOLERANCE_S
+
+# Columns of the float parameters ``fp``.
+(P_K_SE, P_K_PE, P_L_REST, P_L_OPT, P_A, P_B, P_A_ECC, P_B_ECC, P_F_ISO_MAX, P_TAU_ACT,
+ P_TAU_DEACT, P_EMD, P_RELEASE, P_SPREAD, P_RENORM_S, P_MU_MIN0, P_RATE_F0,
+ P_RATE_R0) = range(18)
+N_FP = 18
+# Columns of the integer parameters ``ip``.
+I_MULTI, I_INITIAL, I_RELATIVE, I_FATIGUE, I_N, I_K = range(6)
+N_IP = 6
+# Rows of the per-type parameters ``tp``.
+T_F_MAX, T_MU_MIN, T_RATE_FAT, T_RATE_REC = range(4)
+# Columns of the float state ``fs``.
+(S_T, S_L, S_DL, S_R, S_CMD, S_F_SINGLE, S_MU, S_V_FREE, S_PIECE, _S1, _S2, _S3, S_LAW,
+ _S5, _S6, _S7, S_EPOCH, S_UD) = range(18)
+N_FS = 18
+# Columns of the integer state ``js``.
+J_NREC, J_M, J_RTOP, J_UN, J_DHEAD, J_DCOUNT, J_NEV = range(7)
+N_JS = 7
+# Columns of a recruited segment's static sums per type (as UnitPool's).
+C_G, C_N, C_C1, C_C2 = range(4)
+#: Actions of the plan (FesMuscle.plan's names).
+A_PIECE, A_JUMP, A_RECRUIT, A_RISE, A_RELEASE, A_END = range(6)
+#: Rows of a muscle's outputs, as :class:`~hill_muscle_ros.model.muscle.MuscleOutputs`.
+N_OUT = 12
+#: Status of a step: done; the delay line's ring buffer is full (the caller grows it).
+OK, DELAY_FULL = 0, 1
+
+# The header of muscle i: I[i * N_HDR + H_*], offsets of its regions in F and I.
+(H_FP, H_FS, H_TP, H_PREFIX, H_CPOS, H_RX, H_REXN, H_RSTATIC, H_RDYN, H_UDN, H_UCUM,
+ H_DQT, H_DQU, H_EVT, H_EVV, H_SCR,                       # in F
+ H_IP, H_JS, H_TPOS, H_REND, H_USTART, H_UEND, H_EVA,     # in I
+ H_CAPDQ, H_CAPEV, H_K, H_NP1) = range(27)                 # sizes
+N_HDR = 27
+#: Regions of a muscle: name, header entry, array ('F' or 'I'), size from (N, K, cap, ecap).
+REGIONS = (
+    ('fp', H_FP, 'F', lambda n, k, c, e: N_FP),
+    ('fs', H_FS, 'F', lambda n, k, c, e: N_FS),
+    ('tp', H_TP, 'F', lambda n, k, c, e: 4 * k),
+    ('prefix', H_PREFIX, 'F', lambda n, k, c, e: k * 3 * (n + 1)),
+    ('cpos', H_CPOS, 'F', lambda n, k, c, e: n),
+    ('r_x', H_RX, 'F', lambda n, k, c, e: n + 2),
+    ('r_exn', H_REXN, 'F', lambda n, k, c, e: (n + 2) * k),
+    ('r_static', H_RSTATIC, 'F', lambda n, k, c, e: (n + 2) * k * 4),
+    ('r_dyn', H_RDYN, 'F', lambda n, k, c, e: (n + 2) * k * 4),
+    ('u_dn', H_UDN, 'F', lambda n, k, c, e: (n + 2) * k),
+    ('u_cum', H_UCUM, 'F', lambda n, k, c, e: (n + 2) * k),
+    ('dq_t', H_DQT, 'F', lambda n, k, c, e: c),
+    ('dq_u', H_DQU, 'F', lambda n, k, c, e: c),
+    ('ev_t', H_EVT, 'F', lambda n, k, c, e: e),
+    ('ev_v', H_EVV, 'F', lambda n, k, c, e: 4 * e),
+    ('scratch', H_SCR, 'F', lambda n, k, c, e: 9 * k),
+    ('ip', H_IP, 'I', lambda n, k, c, e: N_IP),
+    ('js', H_JS, 'I', lambda n, k, c, e: N_JS),
+    ('tpos', H_TPOS, 'I', lambda n, k, c, e: n),
+    ('r_end', H_REND, 'I', lambda n, k, c, e: n + 2),
+    ('u_start', H_USTART, 'I', lambda n, k, c, e: n + 2),
+    ('u_end', H_UEND, 'I', lambda n, k, c, e: n + 2),
+    ('ev_a', H_EVA, 'I', lambda n, k, c, e: e),
+)
+# Scratch of a pool update, in multiples of K: clocks D and H, resting deficits,
+# excesses, a segment's static row (4 K) and per-type sums.
+SCR_D, SCR_H, SCR_DN, SCR_EXN, SCR_ROW, SCR_SUMS = 0, 1, 2, 3, 4, 8
+
+
+def hdr(I, i, h):
+    """Header entry ``h`` of muscle ``i`` (an offset or a size)."""
+    return I[i * N_HDR + h]
+
+
+def scratch(I, i, slot):
+    """Offset in F of scratch slot ``slot`` (SCR_*) of muscle ``i``."""
+    return I[i * N_HDR + H_SCR] + slot * I[i * N_HDR + H_K]
+
+
+# -- the delay line ------------------------------------------------------------------------
+
+def delay_push(F, I, i, t, u):
+    """Give command ``u`` at ``t`` (DelayLine.push); False if the ring is full."""
+    cap = hdr(I, i, H_CAPDQ)
+    n = I[hdr(I, i, H_JS) + J_DCOUNT]
+    head = I[hdr(I, i, H_JS) + J_DHEAD]
+    last = F[hdr(I, i, H_DQU) + (head + n - 1) % cap] if n > 0 else F[hdr(I, i, H_FS) + S_UD]
+    if u != last:
+        if n == cap:
+            return False
+        k = (head + n) % cap
+        F[hdr(I, i, H_DQT) + k] = t + F[hdr(I, i, H_FP) + P_EMD]
+        F[hdr(I, i, H_DQU) + k] = u
+        I[hdr(I, i, H_JS) + J_DCOUNT] = n + 1
+    return True
+
+
+def delay_settle(F, I, i, t):
+    """Take every switch due at or before ``t`` (DelayLine.settle): u_d now."""
+    cap = hdr(I, i, H_CAPDQ)
+    while I[hdr(I, i, H_JS) + J_DCOUNT] > 0 and F[hdr(I, i, H_DQT) + I[hdr(I, i, H_JS) + J_DHEAD]] <= t + TIME_TOL_S:
+        F[hdr(I, i, H_FS) + S_UD] = F[hdr(I, i, H_DQU) + I[hdr(I, i, H_JS) + J_DHEAD]]
+        I[hdr(I, i, H_JS) + J_DHEAD] = (I[hdr(I, i, H_JS) + J_DHEAD] + 1) % cap
+        I[hdr(I, i, H_JS) + J_DCOUNT] -= 1
+    return F[hdr(I, i, H_FS) + S_UD]
+
+
+# -- the unit pool (multi) -------------------------------------------------------------------
+
+def pool_static_row(F, I, i, p0, p1, x_o, row):
+    """Per type: g = f_max sum FL(c x_o) (initial), n, sum c, sum c^2 over [p0, p1)
+    (UnitPool._static_row), written to ``row`` (K, 4)."""
+    k_types = I[hdr(I, i, H_IP) + I_K]
+    s = F[hdr(I, i, H_FP) + P_SPREAD]
+    clear = s == 0.0 or fl_clear(x_o, s)
+    for k in range(k_types):
+        n = F[hdr(I, i, H_PREFIX) + (k * 3 + 0) * hdr(I, i, H_NP1) + p1] - F[hdr(I, i, H_PREFIX) + (k * 3 + 0) * hdr(I, i, H_NP1) + p0]
+        c1 = F[hdr(I, i, H_PREFIX) + (k * 3 + 1) * hdr(I, i, H_NP1) + p1] - F[hdr(I, i, H_PREFIX) + (k * 3 + 1) * hdr(I, i, H_NP1) + p0]
+        c2 = F[hdr(I, i, H_PREFIX) + (k * 3 + 2) * hdr(I, i, H_NP1) + p1] - F[hdr(I, i, H_PREFIX) + (k * 3 + 2) * hdr(I, i, H_NP1) + p0]
+        F[row + (k) * 4 + C_N] = n
+        F[row + (k) * 4 + C_C1] = c1
+        F[row + (k) * 4 + C_C2] = c2
+        F[row + (k) * 4 + C_G] = 0.0
+        if I[hdr(I, i, H_IP) + I_INITIAL] and clear:
+            F[row + (k) * 4 + C_G] = type_fl_sum(F[hdr(I, i, H_TP) + T_F_MAX * hdr(I, i, H_K) + k], x_o, s, n, c1, c2)
+    if I[hdr(I, i, H_IP) + I_INITIAL] and not clear:
+        # Some units may be off the FL range: unit by unit (UnitLayout.fl_sums).
+        for p in range(p0, p1):
+            F[row + I[hdr(I, i, H_TPOS) + p] * 4 + C_G] += force_length(
+                F[hdr(I, i, H_CPOS) + p] * x_o)
+        for k in range(k_types):
+            F[row + (k) * 4 + C_G] = F[hdr(I, i, H_TP) + T_F_MAX * hdr(I, i, H_K) + k] * F[row + (k) * 4 + C_G]
+
+
+def pool_push_recruited(F, I, i, end, x_o, exn, row):
+    """Push a recruited segment (UnitPool._push_recruited)."""
+    top = I[hdr(I, i, H_JS) + J_RTOP]
+    k_types = I[hdr(I, i, H_IP) + I_K]
+    if not I[hdr(I, i, H_IP) + I_FATIGUE] and not I[hdr(I, i, H_IP) + I_INITIAL] and top > 0:
+        # Nothing tells these units apart: one segment for the recruited prefix.
+        I[hdr(I, i, H_REND) + top] = end
+        for k in range(k_types):
+            for c in range(4):
+                F[hdr(I, i, H_RSTATIC) + ((top) * hdr(I, i, H_K) + k) * 4 + c] = F[hdr(I, i, H_RSTATIC) + ((top) * hdr(I, i, H_K) + k) * 4 + c] + F[row + (k) * 4 + c]
+        return
+    top += 1
+    I[hdr(I, i, H_REND) + top] = end
+    F[hdr(I, i, H_RX) + top] = x_o
+    for k in range(k_types):
+        F[hdr(I, i, H_REXN) + (top) * hdr(I, i, H_K) + k] = F[exn + k]
+        for c in range(4):
+            F[hdr(I, i, H_RSTATIC) + ((top) * hdr(I, i, H_K) + k) * 4 + c] = F[hdr(I, i, H_RSTATIC) + ((top - 1) * hdr(I, i, H_K) + k) * 4 + c] + F[row + (k) * 4 + c]
+            F[hdr(I, i, H_RDYN) + ((top) * hdr(I, i, H_K) + k) * 4 + c] = F[hdr(I, i, H_RDYN) + ((top - 1) * hdr(I, i, H_K) + k) * 4 + c] + F[row + (k) * 4 + c] * F[exn + k]
+    I[hdr(I, i, H_JS) + J_RTOP] = top
+
+
+def pool_clocks(F, I, i, t, d, h):
+    """D_k(t) and H_k(t), the fatigue and recovery clocks, into ``d`` and ``h``."""
+    elapsed = t - F[hdr(I, i, H_FS) + S_EPOCH]
+    for k in range(I[hdr(I, i, H_IP) + I_K]):
+        F[d + k] = math.exp(-elapsed * F[hdr(I, i, H_TP) + T_RATE_FAT * hdr(I, i, H_K) + k])
+        F[h + k] = math.exp(-elapsed * F[hdr(I, i, H_TP) + T_RATE_REC * hdr(I, i, H_K) + k])
+
+
+def pool_advance_to(F, I, i, t):
+    """Renormalise the clocks when they near underflow (UnitPool.advance_to)."""
+    if not (I[hdr(I, i, H_IP) + I_FATIGUE] and t - F[hdr(I, i, H_FS) + S_EPOCH] > F[hdr(I, i, H_FP) + P_RENORM_S]):
+        return
+    k_types = I[hdr(I, i, H_IP) + I_K]
+    d, h = scratch(I, i, SCR_D), scratch(I, i, SCR_H)
+    pool_clocks(F, I, i, t, d, h)
+    for seg in range(I[hdr(I, i, H_JS) + J_RTOP] + 1):
+        for k in range(k_types):
+            F[hdr(I, i, H_REXN) + (seg) * hdr(I, i, H_K) + k] = F[hdr(I, i, H_REXN) + (seg) * hdr(I, i, H_K) + k] * F[d + k]
+            for c in range(4):
+                F[hdr(I, i, H_RDYN) + ((seg) * hdr(I, i, H_K) + k) * 4 + c] = F[hdr(I, i, H_RDYN) + ((seg) * hdr(I, i, H_K) + k) * 4 + c] * F[d + k]
+    for seg in range(I[hdr(I, i, H_JS) + J_UN]):
+        for k in range(k_types):
+            F[hdr(I, i, H_UDN) + (seg) * hdr(I, i, H_K) + k] = F[hdr(I, i, H_UDN) + (seg) * hdr(I, i, H_K) + k] * F[h + k]
+            F[hdr(I, i, H_UCUM) + (seg) * hdr(I, i, H_K) + k] = F[hdr(I, i, H_UCUM) + (seg) * hdr(I, i, H_K) + k] * F[h + k]
+    F[hdr(I, i, H_FS) + S_EPOCH] = t
+
+
+def pool_recruit(F, I, i, m, x_o, t):
+    """Recruit positions [M, m) at ``t`` with CE length ``x_o`` (UnitPool._recruit)."""
+    k_types = I[hdr(I, i, H_IP) + I_K]
+    fatigue = I[hdr(I, i, H_IP) + I_FATIGUE]
+    d, h = scratch(I, i, SCR_D), scratch(I, i, SCR_H)
+    if fatigue:
+        pool_clocks(F, I, i, t, d, h)
+    dn, exn, row = scratch(I, i, SCR_DN), scratch(I, i, SCR_EXN), scratch(I, i, SCR_ROW)
+    for k in range(k_types):
+        F[exn + k] = 0.0
+    pos = I[hdr(I, i, H_JS) + J_M]
+    while pos < m:
+        un = I[hdr(I, i, H_JS) + J_UN] - 1
+        end = I[hdr(I, i, H_UEND) + un]
+        for k in range(k_types):
+            F[dn + k] = F[hdr(I, i, H_UDN) + (un) * hdr(I, i, H_K) + k]
+        take = min(end, m)
+        if take < end:   # the rest keeps resting
+            I[hdr(I, i, H_USTART) + un] = take
+            for k in range(k_types):
+                below = F[hdr(I, i, H_UCUM) + (un - 1) * hdr(I, i, H_K) + k] if un > 0 else 0.0
+                n_rest = F[hdr(I, i, H_PREFIX) + (k * 3 + 0) * hdr(I, i, H_NP1) + end] - F[hdr(I, i, H_PREFIX) + (k * 3 + 0) * hdr(I, i, H_NP1) + take]
+                F[hdr(I, i, H_UCUM) + (un) * hdr(I, i, H_K) + k] = below + n_rest * F[dn + k]
+            un += 1
+        I[hdr(I, i, H_JS) + J_UN] = un
+        pool_static_row(F, I, i, pos, take, x_o, row)
+        if fatigue:
+            for k in range(k_types):
+                F[exn + k] = recruited_excess(F[dn + k], F[h + k], F[hdr(I, i, H_TP) + T_MU_MIN * hdr(I, i, H_K) + k], F[d + k])
+        pool_push_recruited(F, I, i, take, x_o, exn, row)
+        pos = take
+    I[hdr(I, i, H_JS) + J_M] = m
+
+
+def pool_release(F, I, i, m, t):
+    """Release positions [m, M) at ``t``, the last recruited first (UnitPool._release)."""
+    k_types = I[hdr(I, i, H_IP) + I_K]
+    fatigue = I[hdr(I, i, H_IP) + I_FATIGUE]
+    d, h = scratch(I, i, SCR_D), scratch(I, i, SCR_H)
+    if fatigue:
+        pool_clocks(F, I, i, t, d, h)
+    exn, row = scratch(I, i, SCR_EXN), scratch(I, i, SCR_ROW)
+    pos = I[hdr(I, i, H_JS) + J_M]
+    while pos > m:
+        top = I[hdr(I, i, H_JS) + J_RTOP]
+        start = I[hdr(I, i, H_REND) + top - 1]
+        cut = max(start, m)
+        x_o = F[hdr(I, i, H_RX) + top]
+        for k in range(k_types):
+            F[exn + k] = F[hdr(I, i, H_REXN) + (top) * hdr(I, i, H_K) + k]
+        I[hdr(I, i, H_JS) + J_RTOP] = top - 1
+        if cut > start:   # the bottom of the segment stays recruited
+            pool_static_row(F, I, i, start, cut, x_o, row)
+            pool_push_recruited(F, I, i, cut, x_o, exn, row)
+        un = I[hdr(I, i, H_JS) + J_UN]
+        if not fatigue:
+            # Resting units without fatigue are all fresh: one segment.
+            end = pos
+            if un > 0 and I[hdr(I, i, H_USTART) + un - 1] == pos:
+                end = I[hdr(I, i, H_UEND) + un - 1]
+                un -= 1
+            I[hdr(I, i, H_USTART) + un] = cut
+            I[hdr(I, i, H_UEND) + un] = end
+            for k in range(k_types):
+                F[hdr(I, i, H_UDN) + (un) * hdr(I, i, H_K) + k] = 0.0
+                F[hdr(I, i, H_UCUM) + (un) * hdr(I, i, H_K) + k] = 0.0
+            I[hdr(I, i, H_JS) + J_UN] = un + 1
+            pos = cut
+            continue
+        for k in range(k_types):
+            dn_k = resting_deficit(F[exn + k], F[d + k], F[hdr(I, i, H_TP) + T_MU_MIN * hdr(I, i, H_K) + k], F[h + k])
+            below = F[hdr(I, i, H_UCUM) + (un - 1) * hdr(I, i, H_K) + k] if un > 0 else 0.0
+            n_rel = F[hdr(I, i, H_PREFIX) + (k * 3 + 0) * hdr(I, i, H_NP1) + pos] - F[hdr(I, i, H_PREFIX) + (k * 3 + 0) * hdr(I, i, H_NP1) + cut]
+            F[hdr(I, i, H_UDN) + (un) * hdr(I, i, H_K) + k] = dn_k
+            F[hdr(I, i, H_UCUM) + (un) * hdr(I, i, H_K) + k] = below + n_rel * dn_k
+        I[hdr(I, i, H_USTART) + un] = cut
+        I[hdr(I, i, H_UEND) + un] = pos
+        I[hdr(I, i, H_JS) + J_UN] = un + 1
+        pos = cut
+    I[hdr(I, i, H_JS) + J_M] = m
+
+
+def pool_update(F, I, i, m, x_ce, t):
+    """Recruit or release so that positions [0, m) are recruited (UnitPool.update)."""
+    pool_advance_to(F, I, i, t)
+    if m > I[hdr(I, i, H_JS) + J_M]:
+        pool_recruit(F, I, i, m, x_ce, t)
+    elif m < I[hdr(I, i, H_JS) + J_M]:
+        pool_release(F, I, i, m, t)
+
+
+def pool_eff_f_iso(F, I, i, x_ce, t):
+    """[N] Eff.f_iso of the recruited units (UnitPool.eff_f_iso)."""
+    top = I[hdr(I, i, H_JS) + J_RTOP]
+    k_types = I[hdr(I, i, H_IP) + I_K]
+    fatigue = I[hdr(I, i, H_IP) + I_FATIGUE]
+    elapsed = t - F[hdr(I, i, H_FS) + S_EPOCH]
+    if I[hdr(I, i, H_IP) + I_INITIAL]:
+        f0 = 0.0
+        for k in range(k_types):
+            w = F[hdr(I, i, H_TP) + T_MU_MIN * hdr(I, i, H_K) + k] if fatigue else 1.0
+            f0 += w * F[hdr(I, i, H_RSTATIC) + ((top) * hdr(I, i, H_K) + k) * 4 + C_G]
+        if fatigue:
+            for k in range(k_types):
+                f0 += F[hdr(I, i, H_RDYN) + ((top) * hdr(I, i, H_K) + k) * 4 + C_G] * math.exp(-elapsed * F[hdr(I, i, H_TP) + T_RATE_FAT * hdr(I, i, H_K) + k])
+        return f0
+    s = F[hdr(I, i, H_FP) + P_SPREAD]
+    if s > 0.0 and not fl_clear(x_ce, s):
+        return pool_eff_f_iso_clipped(F, I, i, x_ce, t)
+    if s == 0.0:
+        fl = (FL_A * x_ce + FL_B) * x_ce + FL_C
+        if fl <= 0.0:
+            return 0.0
+        a2 = 0.0
+        a1 = 0.0
+        a0 = fl
+    else:
+        a2, a1, a0 = FL_A * x_ce * x_ce, FL_B * x_ce, FL_C
+    total = 0.0
+    for k in range(k_types):
+        w = F[hdr(I, i, H_TP) + T_MU_MIN * hdr(I, i, H_K) + k] if fatigue else 1.0
+        n = F[hdr(I, i, H_RSTATIC) + ((top) * hdr(I, i, H_K) + k) * 4 + C_N] * w
+        c1 = F[hdr(I, i, H_RSTATIC) + ((top) * hdr(I, i, H_K) + k) * 4 + C_C1] * w
+        c2 = F[hdr(I, i, H_RSTATIC) + ((top) * hdr(I, i, H_K) + k) * 4 + C_C2] * w
+        if fatigue:
+            d = math.exp(-elapsed * F[hdr(I, i, H_TP) + T_RATE_FAT * hdr(I, i, H_K) + k])
+            n = n + d * F[hdr(I, i, H_RDYN) + ((top) * hdr(I, i, H_K) + k) * 4 + C_N]
+            c1 = c1 + d * F[hdr(I, i, H_RDYN) + ((top) * hdr(I, i, H_K) + k) * 4 + C_C1]
+            c2 = c2 + d * F[hdr(I, i, H_RDYN) + ((top) * hdr(I, i, H_K) + k) * 4 + C_C2]
+        total += moment_force(F[hdr(I, i, H_TP) + T_F_MAX * hdr(I, i, H_K) + k], a2, a1, a0, n, c1, c2)
+    return total
+
+
+def pool_eff_f_iso_clipped(F, I, i, x_ce, t):
+    """[N] Eff.f_iso when some units may be off the FL range: segment by segment."""
+    k_types = I[hdr(I, i, H_IP) + I_K]
+    fatigue = I[hdr(I, i, H_IP) + I_FATIGUE]
+    elapsed = t - F[hdr(I, i, H_FS) + S_EPOCH]
+    sums = scratch(I, i, SCR_SUMS)
+    total = 0.0
+    for seg in range(1, I[hdr(I, i, H_JS) + J_RTOP] + 1):
+        for k in range(k_types):
+            F[sums + k] = 0.0
+        for p in range(I[hdr(I, i, H_REND) + seg - 1], I[hdr(I, i, H_REND) + seg]):
+            F[sums + I[hdr(I, i, H_TPOS) + p]] += force_length(F[hdr(I, i, H_CPOS) + p] * x_ce)
+        part = 0.0
+        for k in range(k_types):
+            mu = 1.0
+            if fatigue:
+                mu = F[hdr(I, i, H_TP) + T_MU_MIN * hdr(I, i, H_K) + k] + F[hdr(I, i, H_REXN) + (seg) * hdr(I, i, H_K) + k] * math.exp(
+                    -elapsed * F[hdr(I, i, H_TP) + T_RATE_FAT * hdr(I, i, H_K) + k])
+            part += F[hdr(I, i, H_TP) + T_F_MAX * hdr(I, i, H_K) + k] * F[sums + k] * mu
+        total += part
+    return total
+
+
+def pool_mean_fitness(F, I, i, t):
+    """[-] mean fitness over all N units (UnitPool.mean_fitness)."""
+    if not I[hdr(I, i, H_IP) + I_FATIGUE]:
+        return 1.0
+    top, un = I[hdr(I, i, H_JS) + J_RTOP], I[hdr(I, i, H_JS) + J_UN]
+    elapsed = t - F[hdr(I, i, H_FS) + S_EPOCH]
+    tired = 0.0
+    for k in range(I[hdr(I, i, H_IP) + I_K]):
+        tired += (1.0 - F[hdr(I, i, H_TP) + T_MU_MIN * hdr(I, i, H_K) + k]) * F[hdr(I, i, H_RSTATIC) + ((top) * hdr(I, i, H_K) + k) * 4 + C_N]
+    for k in range(I[hdr(I, i, H_IP) + I_K]):
+        tired -= F[hdr(I, i, H_RDYN) + ((top) * hdr(I, i, H_K) + k) * 4 + C_N] * math.exp(-elapsed * F[hdr(I, i, H_TP) + T_RATE_FAT * hdr(I, i, H_K) + k])
+    for k in range(I[hdr(I, i, H_IP) + I_K]):
+        rest = F[hdr(I, i, H_UCUM) + (un - 1) * hdr(I, i, H_K) + k] if un > 0 else 0.0
+        tired += rest * math.exp(-elapsed * F[hdr(I, i, H_TP) + T_RATE_REC * hdr(I, i, H_K) + k])
+    return 1.0 - tired / I[hdr(I, i, H_IP) + I_N]
+
+
+# -- the muscle ----------------------------------------------------------------------------------
+
+def eff_f_iso(F, I, i, l, t):
+    """[N] Eff.f_iso at CE length ``l`` and instant ``t`` (FesMuscle.eff_f_iso)."""
+    if I[hdr(I, i, H_IP) + I_MULTI]:
+        return pool_eff_f_iso(F, I, i, l / F[hdr(I, i, H_FP) + P_L_OPT], t)
+    a = piece_activation(F[hdr(I, i, H_FS) + S_PIECE + 1], F[hdr(I, i, H_FS) + S_PIECE + 2], F[hdr(I, i, H_FS) + S_PIECE + 3],
+                         t - F[hdr(I, i, H_FS) + S_PIECE])
+    if a <= 0.0:
+        return 0.0
+    mu = 1.0
+    if I[hdr(I, i, H_IP) + I_FATIGUE]:
+        mu = fitness_at(F[hdr(I, i, H_FS) + S_LAW + 1], F[hdr(I, i, H_FS) + S_LAW + 2], F[hdr(I, i, H_FS) + S_LAW + 3],
+                        t - F[hdr(I, i, H_FS) + S_LAW])
+    if I[hdr(I, i, H_IP) + I_INITIAL]:
+        f = F[hdr(I, i, H_FS) + S_F_SINGLE]
+    else:
+        f = F[hdr(I, i, H_FP) + P_F_ISO_MAX] * force_length(l / F[hdr(I, i, H_FP) + P_L_OPT])
+    return a * mu * f
+
+
+def velocity(F, I, i, l, dl, f0):
+    """[m/s] d l_CE / dt at F0 = ``f0`` (FesMuscle._velocity)."""
+    return fes_velocity(l, dl, f0, F[hdr(I, i, H_FP) + P_K_SE], F[hdr(I, i, H_FP) + P_L_REST], F[hdr(I, i, H_FP) + P_A], F[hdr(I, i, H_FP) + P_B],
+                        F[hdr(I, i, H_FP) + P_A_ECC], F[hdr(I, i, H_FP) + P_B_ECC], F[hdr(I, i, H_FP) + P_F_ISO_MAX],
+                        I[hdr(I, i, H_IP) + I_RELATIVE] != 0)
+
+
+def stiffness_rate(F, I, i, l, dl, t):
+    """[1/s] the CE's relaxation rate (FesMuscle.stiffness_rate)."""
+    return relaxation_rate(l, dl, eff_f_iso(F, I, i, l, t), F[hdr(I, i, H_FP) + P_K_SE], F[hdr(I, i, H_FP) + P_L_REST],
+                           F[hdr(I, i, H_FP) + P_A], F[hdr(I, i, H_FP) + P_B], F[hdr(I, i, H_FP) + P_A_ECC], F[hdr(I, i, H_FP) + P_B_ECC],
+                           F[hdr(I, i, H_FP) + P_F_ISO_MAX], I[hdr(I, i, H_IP) + I_RELATIVE] != 0)
+
+
+def substeps(F, I, i, h, l, dl, s0, s1):
+    """RK4 steps over [s0, s1] (FesMuscle.substeps)."""
+    r0 = stiffness_rate(F, I, i, l, dl, s0)
+    r1 = stiffness_rate(F, I, i, l, dl, 0.5 * (s0 + s1))
+    r2 = stiffness_rate(F, I, i, l, dl, s1)
+    return substep_count(h, max(r0, max(r1, r2)))
+
+
+def single_fatigue(F, I, i):
+    """True for a single muscle with Riener fatigue (the whole-muscle law)."""
+    return I[hdr(I, i, H_IP) + I_MULTI] == 0 and I[hdr(I, i, H_IP) + I_FATIGUE] != 0
+
+
+def begin_interval(F, I, i, s0, s1):
+    """The single muscle's fitness law over [s0, s1], a held at its midpoint value
+    (FesMuscle.begin_interval)."""
+    if not single_fatigue(F, I, i):
+        return
+    a = piece_activation(F[hdr(I, i, H_FS) + S_PIECE + 1], F[hdr(I, i, H_FS) + S_PIECE + 2], F[hdr(I, i, H_FS) + S_PIECE + 3],
+                         0.5 * (s0 + s1) - F[hdr(I, i, H_FS) + S_PIECE])
+    a = max(a, 0.0) if a > F[hdr(I, i, H_FP) + P_RELEASE] else 0.0
+    rate_f, rate_r = F[hdr(I, i, H_FP) + P_RATE_F0], F[hdr(I, i, H_FP) + P_RATE_R0]
+    lam = riener_rate(a, rate_f, rate_r)
+    F[hdr(I, i, H_FS) + S_LAW] = s0
+    F[hdr(I, i, H_FS) + S_LAW + 1] = F[hdr(I, i, H_FS) + S_MU]
+    F[hdr(I, i, H_FS) + S_LAW + 2] = riener_limit(a, F[hdr(I, i, H_FP) + P_MU_MIN0], rate_f, rate_r, lam)
+    F[hdr(I, i, H_FS) + S_LAW + 3] = lam
+
+
+def end_interval(F, I, i, s1):
+    """The single muscle's fitness at ``s1`` (FesMuscle.end_interval)."""
+    if single_fatigue(F, I, i):
+        F[hdr(I, i, H_FS) + S_MU] = fitness_at(F[hdr(I, i, H_FS) + S_LAW + 1], F[hdr(I, i, H_FS) + S_LAW + 2], F[hdr(I, i, H_FS) + S_LAW + 3],
+                                 s1 - F[hdr(I, i, H_FS) + S_LAW])
+
+
+def set_activation(F, I, i, a, t):
+    """a = R at ``t``, the memory updated from l_CE now (FesMuscle._set_activation)."""
+    if I[hdr(I, i, H_IP) + I_MULTI]:
+        m = recruited_units(a, I[hdr(I, i, H_IP) + I_N])
+        pool_update(F, I, i, m, F[hdr(I, i, H_FS) + S_L] / F[hdr(I, i, H_FP) + P_L_OPT], t)
+        I[hdr(I, i, H_JS) + J_NREC] = m
+    else:
+        if a == 0.0:
+            F[hdr(I, i, H_FS) + S_F_SINGLE] = 0.0
+        elif F[hdr(I, i, H_FS) + S_R] == 0.0:
+            F[hdr(I, i, H_FS) + S_F_SINGLE] = F[hdr(I, i, H_FP) + P_F_ISO_MAX] * force_length(F[hdr(I, i, H_FS) + S_L] / F[hdr(I, i, H_FP) + P_L_OPT])
+        I[hdr(I, i, H_JS) + J_NREC] = 1 if a > 0.0 else 0
+    F[hdr(I, i, H_FS) + S_R] = a
+
+
+def tau_for(F, I, i, a, u_d):
+    """[s] tau in force: ``tau_act_s`` while u_d > a, else ``tau_deact_s``."""
+    return F[hdr(I, i, H_FP) + P_TAU_ACT] if u_d > a else F[hdr(I, i, H_FP) + P_TAU_DEACT]
+
+
+def set_piece(F, I, i, s0, a0, u_d, tau):
+    """The activation's closed form from ``s0`` (FesMuscle._piece)."""
+    F[hdr(I, i, H_FS) + S_PIECE] = s0
+    F[hdr(I, i, H_FS) + S_PIECE + 1] = a0
+    F[hdr(I, i, H_FS) + S_PIECE + 2] = u_d
+    F[hdr(I, i, H_FS) + S_PIECE + 3] = tau
+
+
+def settle_now(F, I, i):
+    """Apply a delayed command due now if the activation follows it at once
+    (FesMuscle.settle_now)."""
+    t = F[hdr(I, i, H_FS) + S_T]
+    u_d = delay_settle(F, I, i, t)
+    if u_d != F[hdr(I, i, H_FS) + S_R] and tau_for(F, I, i, F[hdr(I, i, H_FS) + S_R], u_d) == 0.0:
+        set_activation(F, I, i, u_d, t)
+        set_piece(F, I, i, t, u_d, u_d, 0.0)
+        if eff_f_iso(F, I, i, F[hdr(I, i, H_FS) + S_L], t) == 0.0:
+            F[hdr(I, i, H_FS) + S_L] = F[hdr(I, i, H_FP) + P_L_REST] + F[hdr(I, i, H_FS) + S_DL]
+
+
+def give_command(F, I, i, u):
+    """Queue command ``u`` now and apply what is due (FesMuscle.give_command);
+    False if the delay line is full (nothing changed)."""
+    if not delay_push(F, I, i, F[hdr(I, i, H_FS) + S_T], u):
+        return False
+    F[hdr(I, i, H_FS) + S_CMD] = u
+    settle_now(F, I, i)
+    return True
+
+
+# -- the plan of a step's recruitment changes ------------------------------------------------
+
+def add_event(F, I, i, t, action, v0, v1, v2, v3):
+    """Append ``(t, action, values)`` to muscle ``i``'s plan."""
+    n = I[hdr(I, i, H_JS) + J_NEV]
+    F[hdr(I, i, H_EVT) + n] = t
+    I[hdr(I, i, H_EVA) + n] = action
+    F[hdr(I, i, H_EVV) + n * 4 + 0] = v0
+    F[hdr(I, i, H_EVV) + n * 4 + 1] = v1
+    F[hdr(I, i, H_EVV) + n * 4 + 2] = v2
+    F[hdr(I, i, H_EVV) + n * 4 + 3] = v3
+    I[hdr(I, i, H_JS) + J_NEV] = n + 1
+
+
+def group_target(m0, step, count, j):
+    """[-] the M of event ``j`` of a piece (FesMuscle._events): every unit, or
+    :data:`MAX_EVENTS_PER_PIECE` groups of equal counts (Python's round: half to even)."""
+    if count <= MAX_EVENTS_PER_PIECE:
+        return m0 + step * (j + 1)
+    x = count * (j + 1) / MAX_EVENTS_PER_PIECE
+    r = math.floor(x)
+    frac = x - r
+    if frac > 0.5 or (frac == 0.5 and r % 2 == 1):
+        r += 1
+    return m0 + step * int(r)
+
+
+def plan_events(F, I, i, s0, s1, a0, u_d, tau, m0):
+    """Recruitment events of a moving piece (FesMuscle._events); returns M at s1."""
+    n = I[hdr(I, i, H_IP) + I_N]
+    m1 = recruited_units(activation_at(a0, u_d, tau, s1 - s0), n)
+    if m1 == m0:
+        return m0
+    step = 1 if m1 > m0 else -1
+    count = abs(m1 - m0)
+    n_events = count if count <= MAX_EVENTS_PER_PIECE else MAX_EVENTS_PER_PIECE
+    m = m0
+    for j in range(n_events):
+        m = group_target(m0, step, count, j)
+        level = (m - 0.5) / n if step > 0 else (m + 0.5) / n
+        s = s0 + time_to_reach(a0, u_d, tau, level)
+        add_event(F, I, i, min(max(s, s0), s1), A_RECRUIT, m, 0.0, 0.0, 0.0)
+    return m
+
+
+def plan(F, I, i, t0, t1):
+    """The recruitment changes of the step [t0, t1] into muscle ``i``'s event
+    table (FesMuscle.plan); consumes the delayed commands due in the step."""
+    cap = hdr(I, i, H_CAPDQ)
+    I[hdr(I, i, H_JS) + J_NEV] = 0
+    a, m = F[hdr(I, i, H_FS) + S_R], I[hdr(I, i, H_JS) + J_NREC]
+    start, u_d = t0, F[hdr(I, i, H_FS) + S_UD]
+    done = False
+    while not done:
+        # The next piece of constant delayed command (DelayLine.pieces).
+        s0, piece_u = start, u_d
+        s1 = t1
+        done = True
+        while I[hdr(I, i, H_JS) + J_DCOUNT] > 0 and F[hdr(I, i, H_DQT) + I[hdr(I, i, H_JS) + J_DHEAD]] < t1 - TIME_TOL_S:
+            head = I[hdr(I, i, H_JS) + J_DHEAD]
+            t_switch, u_next = F[hdr(I, i, H_DQT) + head], F[hdr(I, i, H_DQU) + head]
+            I[hdr(I, i, H_JS) + J_DHEAD] = (head + 1) % cap
+            I[hdr(I, i, H_JS) + J_DCOUNT] -= 1
+            u_d = u_next
+            if t_switch > start + TIME_TOL_S:
+                s1 = t_switch
+                start = t_switch
+                done = False
+                break
+            piece_u = u_next
+        if done:
+            F[hdr(I, i, H_FS) + S_UD] = u_d
+        a, m = plan_piece(F, I, i, s0, s1, piece_u, a, m)
+    add_event(F, I, i, t1, A_END, a, 0.0, 0.0, 0.0)
+
+
+def plan_piece(F, I, i, s0, s1, u_d, a, m):
+    """Events of one piece [s0, s1] of constant delayed command (the loop body of
+    FesMuscle.plan); returns a and M at s1."""
+    multi = I[hdr(I, i, H_IP) + I_MULTI] != 0
+    tau = tau_for(F, I, i, a, u_d) if u_d != a else 0.0
+    if tau == 0.0:
+        if u_d != a:
+            add_event(F, I, i, s0, A_JUMP, u_d, 0.0, 0.0, 0.0)
+            a = u_d
+            m = recruited_units(a, I[hdr(I, i, H_IP) + I_N]) if multi else (1 if a > 0.0 else 0)
+        add_event(F, I, i, s0, A_PIECE, s0, a, a, 0.0)
+        return a, m
+    add_event(F, I, i, s0, A_PIECE, s0, a, u_d, tau)
+    if multi:
+        m = plan_events(F, I, i, s0, s1, a, u_d, tau, m)
+        return activation_at(a, u_d, tau, s1 - s0), m
+    if a == 0.0:
+        add_event(F, I, i, s0, A_RISE, 0.0, 0.0, 0.0, 0.0)
+    a1 = activation_at(a, u_d, tau, s1 - s0)
+    level = F[hdr(I, i, H_FP) + P_RELEASE]
+    if u_d < a and u_d < level and a1 < level < a:
+        s_rel = s0 + time_to_reach(a, u_d, tau, level)
+        add_event(F, I, i, s_rel, A_RELEASE, 0.0, 0.0, 0.0, 0.0)
+        if u_d > 0.0:   # rising again towards a command below one unit
+            add_event(F, I, i, s_rel, A_PIECE, s_rel, 0.0, u_d, F[hdr(I, i, H_FP) + P_TAU_ACT])
+            add_event(F, I, i, s_rel, A_RISE, 0.0, 0.0, 0.0, 0.0)
+            a1 = activation_at(0.0, u_d, F[hdr(I, i, H_FP) + P_TAU_ACT], s1 - s_rel)
+        else:
+            add_event(F, I, i, s_rel, A_PIECE, s_rel, 0.0, 0.0, 0.0)
+            a1 = 0.0
+    return a1, m
+
+
+def apply(F, I, i, e, t):
+    """Apply event ``e`` of muscle ``i``'s plan at ``t`` (FesMuscle.apply)."""
+    action = I[hdr(I, i, H_EVA) + e]
+    if action == A_PIECE:
+        set_piece(F, I, i, F[hdr(I, i, H_EVV) + e * 4 + 0], F[hdr(I, i, H_EVV) + e * 4 + 1], F[hdr(I, i, H_EVV) + e * 4 + 2], F[hdr(I, i, H_EVV) + e * 4 + 3])
+    elif action == A_RECRUIT:
+        m = int(F[hdr(I, i, H_EVV) + e * 4 + 0])
+        pool_update(F, I, i, m, F[hdr(I, i, H_FS) + S_L] / F[hdr(I, i, H_FP) + P_L_OPT], t)
+        I[hdr(I, i, H_JS) + J_NREC] = m
+    elif action == A_JUMP:
+        set_activation(F, I, i, F[hdr(I, i, H_EVV) + e * 4 + 0], t)
+    elif action == A_RISE:
+        F[hdr(I, i, H_FS) + S_F_SINGLE] = F[hdr(I, i, H_FP) + P_F_ISO_MAX] * force_length(F[hdr(I, i, H_FS) + S_L] / F[hdr(I, i, H_FP) + P_L_OPT])
+        I[hdr(I, i, H_JS) + J_NREC] = 1
+    elif action == A_RELEASE:
+        set_activation(F, I, i, 0.0, t)
+    else:   # A_END
+        a = F[hdr(I, i, H_EVV) + e * 4 + 0]
+        F[hdr(I, i, H_FS) + S_R] = a
+        if not I[hdr(I, i, H_IP) + I_MULTI]:
+            I[hdr(I, i, H_JS) + J_NREC] = 1 if a > 0.0 else 0
+
+
+# -- one muscle with its MTU length imposed --------------------------------------------------
+
+def muscle_rk4(F, I, i, s0, s1, t0, dl0, rate):
+    """One RK4 step of l_CE over [s0, s1] (FesMuscle._rk4)."""
+    h = s1 - s0
+    initial = I[hdr(I, i, H_IP) + I_INITIAL] != 0
+    l = F[hdr(I, i, H_FS) + S_L]
+    f0 = eff_f_iso(F, I, i, l, s0)
+    dl_a = dl0 + rate * (s0 - t0)
+    dl_b = dl0 + rate * (s1 - t0)
+    f0_end = eff_f_iso(F, I, i, l, s1)
+    if f0 > 0.0 or f0_end > 0.0:
+        mid, dl_m = s0 + 0.5 * h, 0.5 * (dl_a + dl_b)
+        k1 = velocity(F, I, i, l, dl_a, f0)
+        l2 = l + 0.5 * h * k1
+        if initial:
+            f0_mid = eff_f_iso(F, I, i, l2, mid)
+            k2 = velocity(F, I, i, l2, dl_m, f0_mid)
+            l3 = l + 0.5 * h * k2
+            k3 = velocity(F, I, i, l3, dl_m, f0_mid)
+            l4 = l + h * k3
+            k4 = velocity(F, I, i, l4, dl_b, f0_end)
+        else:
+            k2 = velocity(F, I, i, l2, dl_m, eff_f_iso(F, I, i, l2, mid))
+            l3 = l + 0.5 * h * k2
+            k3 = velocity(F, I, i, l3, dl_m, eff_f_iso(F, I, i, l3, mid))
+            l4 = l + h * k3
+            k4 = velocity(F, I, i, l4, dl_b, eff_f_iso(F, I, i, l4, s1))
+        l = l + h * (k1 + 2.0 * k2 + 2.0 * k3 + k4) / 6.0
+        if not initial and eff_f_iso(F, I, i, l, s1) == 0.0:
+            l = F[hdr(I, i, H_FP) + P_L_REST] + dl_b   # the instantaneous CE left the FL range
+        elif initial and f0_end == 0.0:
+            l = F[hdr(I, i, H_FP) + P_L_REST] + dl_b   # single: released within the piece
+    else:
+        l = F[hdr(I, i, H_FP) + P_L_REST] + dl_b       # the free CE takes up the SE slack
+    F[hdr(I, i, H_FS) + S_L] = l
+
+
+def muscle_integrate(F, I, i, s0, s1, t0, dl0, rate):
+    """RK4 of l_CE over [s0, s1], no recruitment change inside (FesMuscle._integrate)."""
+    h = s1 - s0
+    if h <= 0.0:
+        return
+    begin_interval(F, I, i, s0, s1)
+    n = substeps(F, I, i, h, F[hdr(I, i, H_FS) + S_L], dl0 + rate * (s0 - t0), s0, s1)
+    for j in range(n):
+        a = s0 + h * j / n
+        b = s1 if j == n - 1 else s0 + h * (j + 1) / n
+        muscle_rk4(F, I, i, a, b, t0, dl0, rate)
+    end_interval(F, I, i, s1)
+
+
+def muscle_advance(F, I, i, u, dl1, dt):
+    """One step: command ``u`` given at its start, dl_MT ramping to ``dl1``
+    (FesMuscle._advance); returns :data:`OK` or :data:`DELAY_FULL`."""
+    t0, dl0 = F[hdr(I, i, H_FS) + S_T], F[hdr(I, i, H_FS) + S_DL]
+    t1 = t0 + dt
+    if not give_command(F, I, i, u):
+        return DELAY_FULL
+    rate = (dl1 - dl0) / dt
+    plan(F, I, i, t0, t1)
+    s = t0
+    for e in range(I[hdr(I, i, H_JS) + J_NEV]):
+        instant = F[hdr(I, i, H_EVT) + e]
+        muscle_integrate(F, I, i, s, instant, t0, dl0, rate)
+        apply(F, I, i, e, instant)
+        s = instant
+    F[hdr(I, i, H_FS) + S_V_FREE] = rate
+    F[hdr(I, i, H_FS) + S_DL] = dl1
+    F[hdr(I, i, H_FS) + S_T] = t1
+    settle_now(F, I, i)
+    if I[hdr(I, i, H_IP) + I_MULTI]:
+        pool_advance_to(F, I, i, t1)
+    return OK
+
+
+def muscle_outputs(F, I, i, out):
+    """The outputs now into ``out`` (12,), MuscleOutputs' order (FesMuscle.outputs)."""
+    l, dl, t = F[hdr(I, i, H_FS) + S_L], F[hdr(I, i, H_FS) + S_DL], F[hdr(I, i, H_FS) + S_T]
+    r = F[hdr(I, i, H_FS) + S_R]
+    set_piece(F, I, i, t, r, r, 0.0)
+    F[hdr(I, i, H_FS) + S_LAW] = t
+    F[hdr(I, i, H_FS) + S_LAW + 1] = F[hdr(I, i, H_FS) + S_MU]
+    F[hdr(I, i, H_FS) + S_LAW + 2] = F[hdr(I, i, H_FS) + S_MU]
+    F[hdr(I, i, H_FS) + S_LAW + 3] = 0.0
+    stretch = dl - (l - F[hdr(I, i, H_FP) + P_L_REST])
+    f_se = F[hdr(I, i, H_FP) + P_K_SE] * stretch if stretch > 0.0 else 0.0
+    f_pe = F[hdr(I, i, H_FP) + P_K_PE] * dl if dl > 0.0 else 0.0
+    f0 = eff_f_iso(F, I, i, l, t)
+    v = velocity(F, I, i, l, dl, f0) if f0 > 0.0 else F[hdr(I, i, H_FS) + S_V_FREE]
+    out[0] = t
+    out[1] = r
+    out[2] = I[hdr(I, i, H_JS) + J_NREC]
+    out[3] = dl
+    out[4] = l
+    out[5] = v
+    out[6] = f_se
+    out[7] = f_pe
+    out[8] = f_se + f_pe
+    out[9] = f0
+    out[10] = F[hdr(I, i, H_FS) + S_CMD]
+    out[11] = pool_mean_fitness(F, I, i, t) if I[hdr(I, i, H_IP) + I_MULTI] else F[hdr(I, i, H_FS) + S_MU]
+
+
+def muscle_run(F, I, i, r_start, dl_end, dt, r_end, have_r_end, out):
+    """Advance ``len(dl_end)`` steps (FesMuscle.run), outputs of step k in ``out[k]``.
+
+    :return: the number of steps done (fewer if the delay line filled up)
+    """
+    for k in range(dl_end.shape[0]):
+        if muscle_advance(F, I, i, r_start[k], dl_end[k], dt) != OK:
+            return k
+        if have_r_end and r_end[k] != F[hdr(I, i, H_FS) + S_CMD]:
+            if not give_command(F, I, i, r_end[k]):
+                return k
+        muscle_outputs(F, I, i, out[k])
+    return dl_end.shape[0]
+
+
+# -- building a bundle ---------------------------------------------------------------------
+
+def delay_capacity(emd_s: float, dt_s: float) -> int:
+    """Commands the delay line may hold at once at step ``dt_s``: two a step over
+    the delay (one given at a step's start, one at its end), the one in force,
+    and one each way for the rounding of the step ends."""
+    return 2 * int(math.ceil(emd_s / dt_s)) + 4
+
+
+def event_capacity(delay_cap: int) -> int:
+    """Events a step's plan may hold: each piece (at most one more than the
+    pending commands) gives a piece event and up to MAX_EVENTS_PER_PIECE
+    recruitments, or a jump, or single's five; one end."""
+    return (delay_cap + 1) * (MAX_EVENTS_PER_PIECE + 2) + 1
+
+
+class FesBundle:
+    """The flat state of one or several FES muscles (see the module docstring).
+
+    ``F`` (float64) and ``I`` (int64) hold every muscle's regions
+    (:data:`REGIONS`) one after the other; ``I`` starts with a header per
+    muscle giving each region's offset. :meth:`view` shows a region as an array.
+
+    :param params: each muscle's parameters (any variant and FES feature)
+    :param dt_s: [s] the smallest step the delay lines are sized for;
+        :meth:`ensure_delay` grows them for a shorter one
+    """
+
+    def __init__(self, params: Sequence[MuscleParams], dt_s: float = 1e-3) -> None:
+        self.params = list(params)
+        self._build(max([delay_capacity(p.emd_s, dt_s) for p in self.params], default=4))
+        for i, p in enumerate(self.params):
+            self._fill(i, p)
+            self.reset(i)
+
+    def _sizes(self, i: int) -> tuple:
+        p = self.params[i]
+        return p.n_units, p.n_fibre_types, self.cap, event_capacity(self.cap)
+
+    def _build(self, cap: int) -> None:
+        """Lay out the regions for delay lines of ``cap`` commands (F, I zeroed)."""
+        self.cap = cap
+        nm = len(self.params)
+        offset = {'F': 0, 'I': nm * N_HDR}
+        header = np.zeros(nm * N_HDR, dtype=np.int64)
+        for i in range(nm):
+            n, k, c, e = self._sizes(i)
+            for _, h, where, size in REGIONS:
+                header[i * N_HDR + h] = offset[where]
+                offset[where] += size(n, k, c, e)
+            header[i * N_HDR + H_CAPDQ] = c
+            header[i * N_HDR + H_CAPEV] = e
+            header[i * N_HDR + H_K] = k
+            header[i * N_HDR + H_NP1] = n + 1
+        self.F = np.zeros(max(offset['F'], 1))
+        self.I = np.zeros(offset['I'], dtype=np.int64)
+        self.I[:nm * N_HDR] = header
+
+    def view(self, i: int, name: str) -> np.ndarray:
+        """Region ``name`` of muscle ``i`` (a writable 1-D view)."""
+        for region, h, where, size in REGIONS:
+            if region == name:
+                start = self.I[i * N_HDR + h]
+                return getattr(self, where)[start:start + size(*self._sizes(i))]
+        raise KeyError(name)
+
+    def ensure_delay(self, dt_s: float) -> None:
+        """Make room in the delay lines for a step of ``dt_s``, keeping the state."""
+        cap = max([delay_capacity(p.emd_s, dt_s) for p in self.params], default=4)
+        if cap <= self.cap:
+            return
+        old = {(i, name): self.view(i, name).copy() for i in range(len(self.params))
+               for name, *_ in REGIONS}
+        old_cap = self.cap
+        self._build(cap)
+        for (i, name), values in old.items():
+            if name in ('dq_t', 'dq_u'):
+                js = old[(i, 'js')]
+                idx = (js[J_DHEAD] + np.arange(js[J_DCOUNT])) % old_cap
+                self.view(i, name)[:len(idx)] = values[idx]
+            elif not name.startswith('ev_'):   # the plan is rebuilt every step
+                self.view(i, name)[:] = values
+        for i in range(len(self.params)):
+            self.view(i, 'js')[J_DHEAD] = 0
+
+    def _fill(self, i: int, p: MuscleParams) -> None:
+        """The parameters and the unit layout of muscle ``i``."""
+        fp, ip = self.view(i, 'fp'), self.view(i, 'ip')
+        fp[P_K_SE], fp[P_K_PE] = p.k_se_n_per_m, p.k_pe_n_per_m
+        fp[P_L_REST], fp[P_L_OPT] = p.l_rest_m, p.l_opt_m
+        fp[P_A], fp[P_B], fp[P_A_ECC], fp[P_B_ECC] = (p.fv_a_n, p.fv_b_m_per_s, p.fv_a_ecc_n,
+                                                      p.fv_b_ecc_m_per_s)
+        fp[P_F_ISO_MAX] = p.f_iso_max_n
+        fp[P_TAU_ACT], fp[P_TAU_DEACT], fp[P_EMD] = p.tau_act_s, p.tau_deact_s, p.emd_s
+        fp[P_RELEASE] = 0.5 / p.n_units if p.tau_deact_s > 0.0 else 0.0
+        fp[P_SPREAD] = p.unit_length_spread
+        rate_fat = [1.0 / v for v in p.per_type('tau_fatigue_s')]
+        rate_rec = [1.0 / v for v in p.per_type('tau_recovery_s')]
+        fp[P_RENORM_S] = _RENORMALISE_AFTER_TAUS / max(max(rate_fat), max(rate_rec))
+        fp[P_MU_MIN0] = p.fatigue_min[0]
+        fp[P_RATE_F0], fp[P_RATE_R0] = 1.0 / p.tau_fatigue_s[0], 1.0 / p.tau_recovery_s[0]
+        ip[I_MULTI] = p.units == 'multi'
+        ip[I_INITIAL] = p.length == 'initial'
+        ip[I_RELATIVE] = p.fv_scaling == 'relative'
+        ip[I_FATIGUE] = p.fatigue == 'riener'
+        ip[I_N] = n = p.n_units
+        ip[I_K] = k = p.n_fibre_types
+        if p.units != 'multi':
+            return
+        layout = UnitLayout(p)
+        tp = self.view(i, 'tp').reshape(4, k)
+        tp[T_F_MAX] = layout.f_max
+        tp[T_MU_MIN] = p.per_type('fatigue_min')
+        tp[T_RATE_FAT] = rate_fat
+        tp[T_RATE_REC] = rate_rec
+        types_ = layout.types_of(0, n).astype(np.int64)
+        self.view(i, 'tpos')[:] = types_
+        prefix = self.view(i, 'prefix').reshape(k, 3, n + 1)
+        if layout._prefix is not None:
+            prefix[:] = layout._prefix
+            self.view(i, 'cpos')[:] = length_scale(np.arange(n), layout.spread)
+        else:
+            # Blocks of types, no spread: c = 1, every moment is the unit count.
+            self.view(i, 'cpos')[:] = 1.0
+            for t in range(k):
+                prefix[t, :, :] = np.concatenate(([0.0], np.cumsum(types_ == t, dtype=float)))
+
+    def reset(self, i: int) -> None:
+        """Muscle ``i`` at rest (FesMuscle.reset): no command, every unit fresh and free."""
+        p = self.params[i]
+        fs, js = self.view(i, 'fs'), self.view(i, 'js')
+        fs[:] = 0.0
+        fs[S_L] = p.l_rest_m
+        fs[S_MU] = 1.0
+        fs[S_PIECE:S_PIECE + 4] = (0.0, 0.0, 0.0, 1.0)
+        fs[S_LAW:S_LAW + 4] = (0.0, 1.0, 1.0, 0.0)
+        js[:] = 0
+        js[J_UN] = 1
+        for name in ('r_x', 'r_exn', 'r_static', 'r_dyn', 'u_dn', 'u_cum'):
+            self.view(i, name)[:] = 0.0
+        self.view(i, 'r_end')[0] = 0
+        self.view(i, 'u_start')[0] = 0
+        self.view(i, 'u_end')[0] = p.n_units
+
+    def outputs(self, i: int, kernels=None) -> np.ndarray:
+        """Muscle ``i``'s outputs now (MuscleOutputs' order), by ``kernels``
+        (:func:`compiled`; default: this module's plain functions)."""
+        out = np.zeros(N_OUT)
+        (kernels or _plain()).muscle_outputs(self.F, self.I, i, out)
+        return out
+
+
+def _plain() -> types.SimpleNamespace:
+    """This module's plain functions, as a namespace like :func:`compiled`'s."""
+    import sys
+    return sys.modules[__name__]
+
+
+# -- compiling ------------------------------------------------------------------------------
+
+#: The shared equations of other modules, compiled over this module's scope
+#: (whose imports include the constants they read), small enough to inline.
+_EQUATIONS = ('force_length', 'force_velocity_inverse', 'activation_at', 'time_to_reach',
+              'piece_activation', 'fitness_at', 'riener_rate', 'riener_limit',
+              'fes_velocity', 'relaxation_rate', 'substep_count', 'recruited_units',
+              'fl_clear', 'type_fl_sum', 'moment_force', 'recruited_excess',
+              'resting_deficit')
+#: This module's functions, callees before callers.
+_KERNELS = ('hdr', 'scratch', 'delay_push', 'delay_settle', 'pool_static_row', 'pool_push_recruited',
+            'pool_clocks', 'pool_advance_to', 'pool_recruit', 'pool_release', 'pool_update',
+            'pool_eff_f_iso_clipped', 'pool_eff_f_iso', 'pool_mean_fitness', 'eff_f_iso',
+            'velocity', 'stiffness_rate', 'substeps', 'single_fatigue', 'begin_interval',
+            'end_interval', 'set_activation', 'tau_for', 'set_piece', 'settle_now',
+            'give_command', 'add_event', 'group_target', 'plan_events', 'plan_piece', 'plan',
+            'apply', 'muscle_rk4', 'muscle_integrate', 'muscle_advance', 'muscle_outputs',
+            'muscle_run')
+#: Kernels called at every RK4 stage or event, inlined into their callers: a
+#: call passes the whole bundle (and counts references to each of its arrays).
+_HOT = ('delay_push', 'delay_settle', 'pool_eff_f_iso', 'eff_f_iso', 'velocity',
+        'stiffness_rate', 'substeps', 'single_fatigue', 'begin_interval', 'end_interval',
+        'tau_for', 'set_piece', 'add_event', 'muscle_rk4')
+#: The modules whose code the kernels inline: their digest names the cache entries.
+_DIGEST_OF = (curves, stimulus, memory, units, unit_pool, fes_muscle)
+#: The compiled namespace once built (None until then).
+_compiled = None
+
+
+
+
+def compiled() -> types.SimpleNamespace:
+    """The numba-compiled kernels (imports numba on the first call).
+
+    The entry points have explicit signatures, so they are compiled, or loaded
+    from numba's disk cache, here and once.
+
+    :raises ImportError: if numba cannot be imported
+    """
+    global _compiled
+    if _compiled is not None:
+        return _compiled
+    from . import engine   # imports numba lazily
+    import sys
+    this = sys.modules[__name__]
+    leaf = {'error_model': 'numpy', 'inline': 'always'}
+    body = {'error_model': 'numpy'}
+    options = {name: leaf for name in _EQUATIONS}
+    options.update({name: body for name in _KERNELS})
+    options.update({name: leaf for name in ('hdr', 'scratch')})
+
+    def run_signature(numba):
+        f8, i8 = numba.float64, numba.int64
+        c1, c2 = f8[::1], f8[:, ::1]
+        return i8(c1, i8[::1], i8, c1, c1, f8, c1, numba.boolean, c2)
+
+    _compiled = engine.compile_functions(
+        globals(), _EQUATIONS + _KERNELS, digest_of=_DIGEST_OF + (this,),
+        signatures={'muscle_run': run_signature}, options=options)
+    return _compiled
+
+
+def run_muscle(bundle: FesBundle, i: int, r_start, dl_end_m, dt_s: float, r_end=None,
+               kernels=None) -> np.ndarray:
+    """Run muscle ``i`` of ``bundle`` for ``len(dl_end_m)`` steps (FesMuscle.run).
+
+    :param r_start: [-] command given at the start of each step
+    :param dl_end_m: [m] dl_MT at the end of each step
+    :param dt_s: [s] step length
+    :param r_end: [-] command given at the end of each step, or None
+    :param kernels: :func:`compiled`, or None for the plain functions
+    :return: (steps, N_OUT) outputs at the end of each step, MuscleOutputs' order
+    """
+    bundle.ensure_delay(dt_s)
+    r_start = np.ascontiguousarray(r_start, dtype=float)
+    dl_end = np.ascontiguousarray(dl_end_m, dtype=float)
+    have_end = r_end is not None
+    r_end = np.ascontiguousarray(r_end if have_end else r_start, dtype=float)
+    out = np.zeros((len(dl_end), N_OUT))
+    done = (kernels or _plain()).muscle_run(bundle.F, bundle.I, i, r_start, dl_end,
+                                            float(dt_s), r_end, have_end, out)
+    if done != len(dl_end):   # delay_capacity bounds the commands pending
+        raise RuntimeError(f'the delay line of muscle {i} overflowed at step {done}')
+    return out

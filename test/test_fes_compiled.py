@@ -1,0 +1,199 @@
+"""The compiled FES muscle (model/fes_kernels.py) against FesMuscle, the reference.
+
+Random parameters and random protocols (commands held for a few steps or
+changing every step, given at a step's start and sometimes at its end, the
+MTU length wandering): every output of every step agrees to 1e-9 (N, m, m/s).
+Each test switches on one more FES feature, in the order they were covered.
+"""
+import math
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, assume, given, settings, strategies as st
+
+from hill_muscle_ros.model import fes_kernels
+from hill_muscle_ros.model.fes_muscle import FesMuscle
+from hill_muscle_ros.model.params import MuscleParams
+
+#: [N], [m], [m/s] agreement asked of every output (the forces' is the goal's 1e-9 N).
+TOL = 1e-9
+#: Hypothesis examples per test: enough to hit events, releases and segment splits,
+#: while the Python reference stays quick (units below 200).
+EXAMPLES = 40
+
+
+
+@pytest.fixture(scope='module')
+def kernels():
+    return fes_kernels.compiled()
+
+
+def _reference(params, r_start, r_end, dl, dt):
+    muscle = FesMuscle(params)
+    columns = [[0.0] * len(dl) for _ in range(fes_kernels.N_OUT)]
+    muscle.run(r_start, dl, dt, r_end, columns)
+    return np.array(columns).T
+
+
+def _compare(kernels, params, protocol):
+    r_start, r_end, dl, dt = protocol
+    ref = _reference(params, r_start, r_end, dl, dt)
+    got = fes_kernels.run_muscle(fes_kernels.FesBundle([params]), 0, r_start, dl, dt,
+                                 r_end, kernels)
+    assert np.abs(got - ref).max() <= TOL, np.abs(got - ref).max(axis=0)
+
+
+@st.composite
+def protocols(draw):
+    """Commands held for 1-20 steps (1: changing every step), some given at a
+    step's end too; dl_MT a random walk within a few mm; dt 0.2-2 ms."""
+    steps = draw(st.integers(20, 250))
+    dt = draw(st.sampled_from([2e-4, 5e-4, 1e-3, 2e-3]))
+    hold = draw(st.integers(1, 20))
+    rng = np.random.default_rng(draw(st.integers(0, 2 ** 32 - 1)))
+    levels = rng.choice([0.0, 1.0, *rng.uniform(0.0, 1.0, 6)], size=steps // hold + 1)
+    r_start = np.repeat(levels, hold)[:steps]
+    r_end = None
+    if draw(st.booleans()):
+        r_end = np.where(rng.uniform(size=steps) < 0.2, rng.uniform(size=steps), r_start)
+    dl = np.clip(np.cumsum(rng.normal(0.0, draw(st.sampled_from([1e-5, 1e-4, 5e-4])),
+                                      steps)), -0.03, 0.03)
+    return r_start, r_end, dl, dt
+
+
+def activation(draw):
+    """Delay and activation/deactivation time constants (0: instantaneous)."""
+    return dict(emd_s=draw(st.sampled_from([0.0, 0.0005, 0.0123, 0.031])),
+                tau_act_s=draw(st.sampled_from([0.0, 0.004, 0.025])),
+                tau_deact_s=draw(st.sampled_from([0.0, 0.006, 0.028])))
+
+
+def _params(**fields):
+    try:
+        return MuscleParams(**fields)
+    except ValueError:
+        assume(False)
+
+
+@st.composite
+def delay_activation_params(draw):
+    return _params(units=draw(st.sampled_from(['multi', 'single'])),
+                   length=draw(st.sampled_from(['initial', 'instantaneous'])),
+                   n_units=draw(st.integers(1, 150)), **activation(draw))
+
+
+@st.composite
+def fatigue_params(draw):
+    return _params(units=draw(st.sampled_from(['multi', 'single'])),
+                   length=draw(st.sampled_from(['initial', 'instantaneous'])),
+                   n_units=draw(st.integers(1, 150)), fatigue='riener',
+                   fatigue_min=(draw(st.floats(0.0, 0.9)),),
+                   tau_fatigue_s=(draw(st.sampled_from([0.05, 0.5, 30.0])),),
+                   tau_recovery_s=(draw(st.sampled_from([0.08, 1.0, 50.0])),),
+                   **activation(draw))
+
+
+@st.composite
+def fibre_type_params(draw):
+    k = draw(st.integers(1, 3))
+    fractions = tuple(draw(st.floats(0.1, 1.0)) for _ in range(k))
+    return _params(units='multi', length=draw(st.sampled_from(['initial', 'instantaneous'])),
+                   n_units=draw(st.integers(3, 150)), fatigue=draw(
+                       st.sampled_from(['none', 'riener'])),
+                   fibre_fractions=fractions,
+                   fibre_force_weights=tuple(draw(st.floats(0.2, 3.0)) for _ in range(k)),
+                   tau_fatigue_s=tuple(draw(st.sampled_from([0.1, 2.0, 30.0]))
+                                       for _ in range(k)),
+                   recruitment_order=draw(st.sampled_from(['size', 'reverse', 'random'])),
+                   recruitment_seed=draw(st.integers(0, 5)), **activation(draw))
+
+
+@st.composite
+def spread_params(draw):
+    k = draw(st.integers(1, 2))
+    return _params(units='multi', length=draw(st.sampled_from(['initial', 'instantaneous'])),
+                   n_units=draw(st.integers(1, 150)),
+                   fatigue=draw(st.sampled_from(['none', 'riener'])),
+                   fibre_fractions=(0.5,) * k,
+                   unit_length_spread=draw(st.sampled_from([0.05, 0.3, 0.6])),
+                   recruitment_order=draw(st.sampled_from(['size', 'random'])),
+                   **activation(draw))
+
+
+@st.composite
+def relative_params(draw):
+    units = draw(st.sampled_from(['multi', 'single']))
+    return _params(units=units, length=draw(st.sampled_from(['initial', 'instantaneous'])),
+                   n_units=draw(st.integers(1, 150)), fv_scaling='relative',
+                   fatigue=draw(st.sampled_from(['none', 'riener'])),
+                   unit_length_spread=draw(st.sampled_from([0.0, 0.2])) if units == 'multi'
+                   else 0.0, **activation(draw))
+
+
+SETTINGS = settings(max_examples=EXAMPLES, deadline=None,
+                    suppress_health_check=[HealthCheck.too_slow,
+                                           HealthCheck.function_scoped_fixture])
+
+
+@SETTINGS
+@given(params=delay_activation_params(), protocol=protocols())
+def test_delay_and_activation_match_the_reference(kernels, params, protocol):
+    _compare(kernels, params, protocol)
+
+
+@SETTINGS
+@given(params=fatigue_params(), protocol=protocols())
+def test_fatigue_matches_the_reference(kernels, params, protocol):
+    _compare(kernels, params, protocol)
+
+
+@SETTINGS
+@given(params=fibre_type_params(), protocol=protocols())
+def test_fibre_types_match_the_reference(kernels, params, protocol):
+    _compare(kernels, params, protocol)
+
+
+@SETTINGS
+@given(params=spread_params(), protocol=protocols())
+def test_unit_length_spread_matches_the_reference(kernels, params, protocol):
+    _compare(kernels, params, protocol)
+
+
+@SETTINGS
+@given(params=relative_params(), protocol=protocols())
+def test_relative_fv_scaling_matches_the_reference(kernels, params, protocol):
+    _compare(kernels, params, protocol)
+
+
+def test_knee_quadriceps_preset_matches_the_reference(kernels):
+    """Every feature at once, 1000 units: the knee preset's quadriceps for 2 s of
+    a pulse train switched on and off."""
+    from hill_muscle_ros.model.limb import LimbPlant
+    import yaml
+    from pathlib import Path
+    data = yaml.safe_load((Path(__file__).parents[1] / 'config' / 'knee.yaml').read_text())
+    plant = LimbPlant.from_mapping(data['/**']['ros__parameters'], ignore=('rate_hz',))
+    params = plant.muscles[0].params
+    t = np.arange(2000) * 1e-3
+    r = np.where((t % 0.5) < 0.3, 0.6, 0.0)
+    dl = 0.004 * np.sin(2.0 * math.pi * t)
+    _compare(kernels, params, (r, None, dl, 1e-3))
+
+
+def test_delay_line_grows_for_a_shorter_step(kernels):
+    """A bundle sized for 1 ms steps runs 0.1 ms steps with a 31 ms delay: the
+    ring buffer grows, keeping the commands pending."""
+    params = MuscleParams(emd_s=0.031, tau_act_s=0.01, tau_deact_s=0.01, n_units=20)
+    bundle = fes_kernels.FesBundle([params], dt_s=1e-3)
+    r = np.linspace(0.0, 1.0, 40)
+    first = fes_kernels.run_muscle(bundle, 0, r, np.zeros(40), 1e-3, None, kernels)
+    cap = bundle.cap
+    second = fes_kernels.run_muscle(bundle, 0, r[::-1], np.zeros(40), 1e-4, None, kernels)
+    assert bundle.cap > cap
+    ref = _reference(params, r, None, np.zeros(40), 1e-3)
+    muscle = FesMuscle(params)
+    muscle.run(r, np.zeros(40), 1e-3)
+    cols = [[0.0] * 40 for _ in range(fes_kernels.N_OUT)]
+    muscle.run(r[::-1], np.zeros(40), 1e-4, None, cols)
+    assert np.abs(first - ref[:40]).max() <= TOL
+    assert np.abs(second - np.array(cols).T).max() <= TOL
