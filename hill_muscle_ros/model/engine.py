@@ -107,7 +107,7 @@ def use_compiled(work: int, min_work: int, loaded: bool) -> bool:
     """Whether a loop of ``work`` iterations should take its compiled version now.
 
     Loading compiled code costs a fixed time (importing numba, and numba's
-    own set-up on its first compiled call: about 0.7 s with a warm cache,
+    own set-up on its first compiled call: about 0.85 s with a warm cache,
     BENCHMARKS.md), which a short loop never wins back. So ``auto`` takes the
     compiled version only if it is already loaded in this process or the loop
     is long enough to repay the loading (``work >= min_work``); ``compiled``

@@ -511,12 +511,14 @@ _RUN_KERNELS = ('eff_f_iso', 'ce_velocity', 'step_one', 'recruited_units', 'stac
 _compiled_run = None
 
 #: [-] steps of one run from which ``simulate`` loads the compiled run when it
-#: is not loaded yet (``HILL_MUSCLE_ENGINE=auto``, :func:`.engine.use_compiled`):
-#: loading costs about 0.7 s with a warm cache (import numba 0.3-0.4 s, numba's
-#: set-up on its first call 0.35-0.45 s, of which scipy.linalg, imported by
-#: numba, 0.2 s) against 2-2.5 us a step saved (the Python loop's cost,
-#: BENCHMARKS.md section 1), so it pays from about 300,000 steps (5 min at 1 kHz).
-RUN_MIN_STEPS = 300_000
+#: is not loaded yet (``HILL_MUSCLE_ENGINE=auto``, :func:`.engine.use_compiled`).
+#: Measured (BENCHMARKS.md, bench_compiled.py): loading costs about 0.85 s with
+#: a warm cache (import numba 0.4 s; numba's set-up on its first call 0.45 s,
+#: of which 0.2 s is scipy.linalg, which numba imports), and the compiled run
+#: saves 1.0-1.8 us a step against the Python loop (R held mostly / changing
+#: every step), so loading pays from about 470,000-850,000 steps; from 500,000
+#: (8 min 20 s at 1 kHz) a long run never loses much either way.
+RUN_MIN_STEPS = 500_000
 
 
 def run_loaded() -> bool:
