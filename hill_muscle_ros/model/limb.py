@@ -554,7 +554,15 @@ def simulate_limb(plant: LimbPlant, protocol: LimbProtocol,
 
     The sample at t_k shows the state at t_k with the commands of t_k given;
     the step from t_k holds the commands and the external torque of t_k.
+    On the compiled engine (:func:`.engine.choice`) the loop runs compiled
+    (:mod:`.limb_kernels`, the same results to 1e-9 rad and 1e-9 N).
     """
+    from . import engine
+    if engine.choice() == engine.COMPILED:
+        from .limb_kernels import simulate_limb_compiled
+        result = simulate_limb_compiled(plant, protocol, rate_hz)
+        if result is not None:
+            return result
     limb = Limb(plant)
     t = sample_times(protocol.duration_s, rate_hz)
     u = protocol.commands(t, plant)

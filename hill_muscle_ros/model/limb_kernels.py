@@ -1,0 +1,392 @@
+"""The limb over flat arrays: :class:`~hill_muscle_ros.model.limb.Limb`'s step as plain
+functions for Python and numba.
+
+The joint and its muscles are integrated together exactly as
+:meth:`Limb.step <hill_muscle_ros.model.limb.Limb.step>` does it: each
+muscle plans its recruitment changes of the step, the events of all muscles
+are taken in time order (a stable sort: each muscle keeps its own order), the
+joint and every CE length are integrated with RK4 up to each event, with as
+many substeps as the stiffest CE needs. The muscles are those of
+:mod:`.fes_kernels` (every variant and FES feature), their equations the
+shared ones; the joint's are written here once and are the reference's
+(the reference's ``_forces`` and ``_rk4`` are the readable form of the same
+sums, checked against these to 1e-9 rad and 1e-9 N by test_limb_compiled).
+
+:func:`simulate_limb_compiled` is :func:`~hill_muscle_ros.model.limb.simulate_limb`
+on the compiled engine; ``simulate_limb`` calls it when
+:func:`~hill_muscle_ros.model.engine.choice` is ``compiled``.
+"""
+from __future__ import annotations
+
+import math
+import sys
+import types
+
+import numpy as np
+
+from . import curves, fes_kernels, fes_muscle, memory, stimulus, unit_pool, units
+from .fes_kernels import (A_END, DELAY_FULL, OK, H_FS, P_K_PE, P_K_SE, P_L_REST, S_CMD,
+                          S_DL, S_L, S_R, S_T, FesBundle, apply, begin_interval, eff_f_iso,
+                          end_interval, give_command, hdr, plan, settle_now, substeps,
+                          velocity, H_FP, H_JS, H_EVT, J_NEV)
+
+# Entries of the limb's float array ``L``: the joint, its state, then per muscle
+# (from L_MUSCLES, L_PER_MUSCLE each) its action sign, moment arm and reference angle.
+(L_INERTIA, L_MASS, L_GRAVITY, L_COM, L_STIFFNESS, L_EQUILIBRIUM, L_DAMPING, L_THETA,
+ L_OMEGA, L_T, L_TAU, L_MUSCLES) = range(12)
+M_SIGN, M_ARM, M_REF = range(3)
+L_PER_MUSCLE = 3
+# Rows of the stage scratch ``W`` (rows of muscles): CE lengths of the four
+# stages, CE velocities of the four stages, free flags.
+W_L1, W_L2, W_L3, W_L4, W_V1, W_V2, W_V3, W_V4, W_FREE = range(9)
+N_W = 9
+#: Status of a limb step beyond fes_kernels' OK and DELAY_FULL: muscle i is
+#: stretched out of range at the step's end (status DL_OUT_OF_RANGE + i).
+DL_OUT_OF_RANGE = 2
+#: A failed run returns -(k STATUS_BASE + status), k the failed step: more than
+#: any status (DL_OUT_OF_RANGE + the number of muscles).
+STATUS_BASE = 1 << 20
+
+
+def muscle_slot(i):
+    """Index in ``L`` of muscle ``i``'s entries."""
+    return L_MUSCLES + L_PER_MUSCLE * i
+
+
+def dl_mt(L, i, theta):
+    """[m] muscle ``i``'s MTU length change at ``theta``: -s r (theta - theta_ref)."""
+    j = muscle_slot(i)
+    return -L[j + M_SIGN] * L[j + M_ARM] * (theta - L[j + M_REF])
+
+
+def forces(F, I, L, W, nm, theta, omega, stage, t, v_row):
+    """[rad/s^2] the joint's angular acceleration at one RK4 stage, and each CE's
+    velocity into row ``v_row`` of ``W`` (Limb._forces).
+
+    :param stage: row of ``W`` holding the stage's CE lengths
+    """
+    torque = 0.0
+    for i in range(nm):
+        j = muscle_slot(i)
+        fp = hdr(I, i, H_FP)
+        s_r = L[j + M_SIGN] * L[j + M_ARM]
+        dl = -s_r * (theta - L[j + M_REF])
+        if W[W_FREE, i] != 0.0:
+            f_se = 0.0
+            W[v_row, i] = -s_r * omega          # the free CE follows its MTU
+        else:
+            l = W[stage, i]
+            stretch = dl - (l - F[fp + P_L_REST])
+            f_se = F[fp + P_K_SE] * stretch if stretch > 0.0 else 0.0
+            W[v_row, i] = velocity(F, I, i, l, dl, eff_f_iso(F, I, i, l, t))
+        f_pe = F[fp + P_K_PE] * dl if dl > 0.0 else 0.0
+        torque += s_r * (f_se + f_pe)
+    return (torque - L[L_MASS] * L[L_GRAVITY] * L[L_COM] * math.sin(theta)
+            - L[L_STIFFNESS] * (theta - L[L_EQUILIBRIUM])
+            - L[L_DAMPING] * omega + L[L_TAU]) / L[L_INERTIA]
+
+
+def limb_rk4(F, I, L, W, nm, s0, s1):
+    """One RK4 step of the joint and every CE over [s0, s1] (Limb._rk4)."""
+    h = s1 - s0
+    for i in range(nm):
+        fs = hdr(I, i, H_FS)
+        l = F[fs + S_L]
+        W[W_L1, i] = l
+        W[W_FREE, i] = 1.0 if (eff_f_iso(F, I, i, l, s0) == 0.0
+                               and eff_f_iso(F, I, i, l, s1) == 0.0) else 0.0
+    th, om = L[L_THETA], L[L_OMEGA]
+    mid = s0 + 0.5 * h
+    a1 = forces(F, I, L, W, nm, th, om, W_L1, s0, W_V1)
+    th2, om2 = th + 0.5 * h * om, om + 0.5 * h * a1
+    for i in range(nm):
+        W[W_L2, i] = W[W_L1, i] + 0.5 * h * W[W_V1, i]
+    a2 = forces(F, I, L, W, nm, th2, om2, W_L2, mid, W_V2)
+    th3, om3 = th + 0.5 * h * om2, om + 0.5 * h * a2
+    for i in range(nm):
+        W[W_L3, i] = W[W_L1, i] + 0.5 * h * W[W_V2, i]
+    a3 = forces(F, I, L, W, nm, th3, om3, W_L3, mid, W_V3)
+    th4, om4 = th + h * om3, om + h * a3
+    for i in range(nm):
+        W[W_L4, i] = W[W_L1, i] + h * W[W_V3, i]
+    a4 = forces(F, I, L, W, nm, th4, om4, W_L4, s1, W_V4)
+    theta = th + h * (om + 2.0 * om2 + 2.0 * om3 + om4) / 6.0
+    L[L_THETA] = theta
+    L[L_OMEGA] = om + h * (a1 + 2.0 * a2 + 2.0 * a3 + a4) / 6.0
+    for i in range(nm):
+        fs = hdr(I, i, H_FS)
+        dl = dl_mt(L, i, theta)
+        l = W[W_L1, i] + h * (W[W_V1, i] + 2.0 * W[W_V2, i] + 2.0 * W[W_V3, i]
+                              + W[W_V4, i]) / 6.0
+        if W[W_FREE, i] != 0.0 or eff_f_iso(F, I, i, l, s1) == 0.0:
+            l = F[hdr(I, i, H_FP) + P_L_REST] + dl
+        F[fs + S_L] = l
+        F[fs + S_DL] = dl
+
+
+def limb_integrate(F, I, L, W, nm, s0, s1):
+    """RK4 of the joint and every CE over [s0, s1], no recruitment change inside,
+    cut as the stiffest CE needs (Limb._integrate)."""
+    h = s1 - s0
+    if h <= 0.0:
+        return
+    for i in range(nm):
+        begin_interval(F, I, i, s0, s1)
+    n = 1
+    for i in range(nm):
+        fs = hdr(I, i, H_FS)
+        k = substeps(F, I, i, h, F[fs + S_L], F[fs + S_DL], s0, s1)
+        n = k if (i == 0 or k > n) else n
+    for j in range(n):
+        a = s0 + h * j / n
+        b = s1 if j == n - 1 else s0 + h * (j + 1) / n
+        limb_rk4(F, I, L, W, nm, a, b)
+    for i in range(nm):
+        end_interval(F, I, i, s1)
+
+
+def limb_step(F, I, L, W, TT, TI, nm, us, tau, dt, dl_limit):
+    """One step with each muscle's command ``us[i]`` and the external torque held
+    (Limb.step, inputs already checked).
+
+    :param TT: [s] timeline instants, room for every muscle's events
+    :param TI: (2, len(TT)) int64 timeline muscle and event indices
+    :param dl_limit: [m] largest |dl_MT| at the step's end
+    :return: :data:`OK`, :data:`DELAY_FULL`, or :data:`DL_OUT_OF_RANGE` + i
+    """
+    t0 = L[L_T]
+    t1 = t0 + dt
+    L[L_TAU] = tau
+    n_events = 0
+    for i in range(nm):
+        fs = hdr(I, i, H_FS)
+        F[fs + S_T] = t0
+        if not give_command(F, I, i, us[i]):
+            return DELAY_FULL
+        plan(F, I, i, t0, t1)
+        evt = hdr(I, i, H_EVT)
+        for e in range(I[hdr(I, i, H_JS) + J_NEV]):
+            # Insertion into the sorted timeline after every equal instant: stable.
+            instant = F[evt + e]
+            k = n_events
+            while k > 0 and TT[k - 1] > instant:
+                TT[k] = TT[k - 1]
+                TI[0, k] = TI[0, k - 1]
+                TI[1, k] = TI[1, k - 1]
+                k -= 1
+            TT[k] = instant
+            TI[0, k] = i
+            TI[1, k] = e
+            n_events += 1
+    s = t0
+    for k in range(n_events):
+        instant = TT[k]
+        i = TI[0, k]
+        limb_integrate(F, I, L, W, nm, s, instant)
+        apply(F, I, i, TI[1, k], instant)
+        fs = hdr(I, i, H_FS)
+        if eff_f_iso(F, I, i, F[fs + S_L], instant) == 0.0:
+            # Released: the CE is free now.
+            F[fs + S_L] = F[hdr(I, i, H_FP) + P_L_REST] + F[fs + S_DL]
+        s = max(s, instant)
+    limb_integrate(F, I, L, W, nm, s, t1)
+    L[L_T] = t1
+    for i in range(nm):
+        F[hdr(I, i, H_FS) + S_T] = t1
+        settle_now(F, I, i)
+    for i in range(nm):
+        if not abs(dl_mt(L, i, L[L_THETA])) <= dl_limit:
+            return DL_OUT_OF_RANGE + i
+    return OK
+
+
+def limb_record(F, I, L, nm, row):
+    """The limb's outputs now into ``row``: t, theta, omega, then per muscle its
+    command, recruitment, dl_MT, l_CE and force (simulate_limb's columns)."""
+    row[0] = L[L_T]
+    row[1] = L[L_THETA]
+    row[2] = L[L_OMEGA]
+    for i in range(nm):
+        fs, fp = hdr(I, i, H_FS), hdr(I, i, H_FP)
+        dl, l = F[fs + S_DL], F[fs + S_L]
+        stretch = dl - (l - F[fp + P_L_REST])
+        f = (F[fp + P_K_SE] * stretch if stretch > 0.0 else 0.0) + (
+            F[fp + P_K_PE] * dl if dl > 0.0 else 0.0)
+        base = 3 + 5 * i
+        row[base] = F[fs + S_CMD]
+        row[base + 1] = F[fs + S_R]
+        row[base + 2] = dl
+        row[base + 3] = l
+        row[base + 4] = f
+
+
+def limb_run(F, I, L, W, TT, TI, nm, u, tau, dt, dl_limit, rows):
+    """simulate_limb's loop: the commands of t_0 given, then per step the step and
+    the next sample's commands; the sample of t_k in ``rows[k]``.
+
+    :param u: [-] (steps, nm) commands per sample
+    :param tau: [N m] (steps,) external torque per sample
+    :return: samples written (all on success); on a failed step k,
+        -(k STATUS_BASE + status)
+    """
+    for i in range(nm):
+        if not give_command(F, I, i, u[0, i]):
+            return -DELAY_FULL
+    limb_record(F, I, L, nm, rows[0])
+    for k in range(u.shape[0] - 1):
+        status = limb_step(F, I, L, W, TT, TI, nm, u[k], tau[k], dt, dl_limit)
+        if status != OK:
+            return -(k * STATUS_BASE + status)
+        for i in range(nm):
+            if u[k + 1, i] != F[hdr(I, i, H_FS) + S_CMD]:
+                if not give_command(F, I, i, u[k + 1, i]):
+                    return -(k * STATUS_BASE + DELAY_FULL)
+        limb_record(F, I, L, nm, rows[k + 1])
+    return u.shape[0]
+
+
+# -- the limb's arrays ---------------------------------------------------------------------
+
+class LimbArrays:
+    """The flat state of a limb: its muscles' :class:`~.fes_kernels.FesBundle`, the
+    joint array ``L``, the stage scratch ``W`` and the timeline ``TT``/``TI``.
+
+    :param plant: the joint and its muscles
+    :param dt_s: [s] the step the delay lines are sized for
+    """
+
+    def __init__(self, plant, dt_s: float) -> None:
+        self.plant = plant
+        self.nm = nm = len(plant.muscles)
+        self.bundle = FesBundle([m.params for m in plant.muscles], dt_s)
+        self.L = np.zeros(L_MUSCLES + L_PER_MUSCLE * max(nm, 1))
+        j = plant.joint
+        self.L[[L_INERTIA, L_MASS, L_GRAVITY, L_COM, L_STIFFNESS, L_EQUILIBRIUM,
+                L_DAMPING]] = (j.inertia_kg_m2, j.mass_kg, j.gravity_m_per_s2,
+                               j.com_distance_m, j.stiffness_n_m_per_rad, j.equilibrium_rad,
+                               j.damping_n_m_s_per_rad)
+        for i, m in enumerate(plant.muscles):
+            slot = muscle_slot(i)
+            self.L[slot + M_SIGN] = m.sign
+            self.L[slot + M_ARM] = m.moment_arm_m
+            self.L[slot + M_REF] = m.reference_angle_rad
+        self.W = np.zeros((N_W, max(nm, 1)))
+        self._size_timeline()
+        self.reset()
+
+    def _size_timeline(self) -> None:
+        total = sum(int(self.bundle.I[i * fes_kernels.N_HDR + fes_kernels.H_CAPEV])
+                    for i in range(self.nm))
+        self.TT = np.zeros(max(total, 1))
+        self.TI = np.zeros((2, max(total, 1)), dtype=np.int64)
+
+    def reset(self) -> None:
+        """Limb.reset: theta_0, at rest, each CE at l_rest + dl_MT(theta_0)."""
+        self.L[L_THETA] = self.plant.joint.initial_angle_rad
+        self.L[L_OMEGA] = self.L[L_T] = self.L[L_TAU] = 0.0
+        for i, m in enumerate(self.plant.muscles):
+            self.bundle.reset(i)
+            fs = self.bundle.view(i, 'fs')
+            fs[S_DL] = dl = dl_mt(self.L, i, self.L[L_THETA])
+            fs[S_L] = m.params.l_rest_m + dl
+
+    def ensure_delay(self, dt_s: float) -> None:
+        """Room in the delay lines and the timeline for steps of ``dt_s``."""
+        cap = self.bundle.cap
+        self.bundle.ensure_delay(dt_s)
+        if self.bundle.cap != cap:
+            self._size_timeline()
+
+
+# -- compiling ------------------------------------------------------------------------------
+
+_KERNELS = ('muscle_slot', 'dl_mt', 'forces', 'limb_rk4', 'limb_integrate', 'limb_step',
+            'limb_record', 'limb_run')
+#: The modules whose code the kernels inline: their digest names the cache entries.
+_DIGEST_OF = (curves, stimulus, memory, units, unit_pool, fes_muscle, fes_kernels)
+_compiled = None
+
+
+def compiled() -> types.SimpleNamespace:
+    """The numba-compiled limb kernels, calling :func:`.fes_kernels.compiled`'s muscle.
+
+    :raises ImportError: if numba cannot be imported
+    """
+    global _compiled
+    if _compiled is not None:
+        return _compiled
+    from . import engine
+    muscle = fes_kernels.compiled()
+    scope = dict(globals())
+    for name in ('apply', 'begin_interval', 'eff_f_iso', 'end_interval', 'give_command',
+                 'hdr', 'plan', 'settle_now', 'substeps', 'velocity'):
+        scope[name] = getattr(muscle, name)
+    leaf = {'error_model': 'numpy', 'inline': 'always'}
+    body = {'error_model': 'numpy'}
+    options = {name: body for name in _KERNELS}
+    options.update({'muscle_slot': leaf, 'dl_mt': leaf})
+
+    def run_signature(numba):
+        f8, i8 = numba.float64, numba.int64
+        c1, c2 = f8[::1], f8[:, ::1]
+        return i8(c1, i8[::1], c1, c2, c1, i8[:, ::1], i8, c2, c1, f8, f8, c2)
+
+    _compiled = engine.compile_functions(
+        scope, _KERNELS, digest_of=_DIGEST_OF + (sys.modules[__name__],),
+        signatures={'limb_run': run_signature}, options=options)
+    return _compiled
+
+
+def run_limb(arrays: LimbArrays, u: np.ndarray, tau: np.ndarray, dt_s: float,
+             kernels=None) -> np.ndarray:
+    """simulate_limb's loop on ``arrays`` (from its current state): the rows of
+    :func:`~hill_muscle_ros.model.limb.limb_columns`, the time column from the state.
+
+    :param u: [-] (samples, muscles) commands, checked in [0, 1]
+    :param tau: [N m] (samples,) external torque, checked
+    :param kernels: :func:`compiled`, or None for the plain functions
+    :raises ValueError: as Limb.step, when a muscle is stretched out of range
+    """
+    from .muscle import DL_MT_LIMIT_M
+    arrays.ensure_delay(dt_s)
+    nm = arrays.nm
+    u = np.ascontiguousarray(u, dtype=float).reshape(len(tau), nm)
+    tau = np.ascontiguousarray(tau, dtype=float)
+    rows = np.zeros((len(tau), 3 + 5 * nm))
+    b = arrays.bundle
+    run = (kernels or sys.modules[__name__]).limb_run
+    done = run(b.F, b.I, arrays.L, arrays.W, arrays.TT, arrays.TI, nm, u, tau, float(dt_s),
+               DL_MT_LIMIT_M, rows)
+    if done >= 0:
+        return rows
+    k, status = divmod(-done, STATUS_BASE)
+    if status == DELAY_FULL:   # delay_capacity bounds the commands pending
+        raise RuntimeError(f'a muscle\'s delay line overflowed at step {k}')
+    i = status - DL_OUT_OF_RANGE
+    theta = arrays.L[L_THETA]
+    dl = dl_mt(arrays.L, i, theta)
+    raise ValueError(f'muscle `{arrays.plant.muscles[i].name}` is stretched '
+                     f'{dl:.4g} m from rest at {math.degrees(theta):.1f} '
+                     f'deg: beyond ±{DL_MT_LIMIT_M} m; check its moment arm')
+
+
+def simulate_limb_compiled(plant, protocol, rate_hz: float = 1000.0, kernels=None):
+    """:func:`~hill_muscle_ros.model.limb.simulate_limb` on the compiled engine.
+
+    :param kernels: :func:`compiled` (the default), or this module for the plain functions
+    :return: the :class:`~hill_muscle_ros.model.limb.LimbResult`, or None if a
+        command or the torque is outside what Limb.step accepts: the Python loop
+        then raises the error that names the value and the step
+    """
+    from .limb import TORQUE_LIMIT_N_M, LimbResult, limb_columns
+    from .simulate import sample_times
+    t = sample_times(protocol.duration_s, rate_hz)
+    u = np.asarray(protocol.commands(t, plant), dtype=float)
+    tau = np.asarray(protocol.external_torque_n_m(t), dtype=float)
+    if not (np.all((u >= 0.0) & (u <= 1.0)) and np.all(np.abs(tau) <= TORQUE_LIMIT_N_M)):
+        return None
+    dt = 1.0 / rate_hz
+    rows = run_limb(LimbArrays(plant, dt), u, tau, dt,
+                    compiled() if kernels is None else kernels)
+    rows[:, 0] = t
+    return LimbResult(t, dict(zip(limb_columns(plant), rows.T)))

@@ -1,0 +1,126 @@
+"""The compiled limb (model/limb_kernels.py) against Limb, the reference.
+
+simulate_limb on the Python engine and on the compiled one, on the knee and
+ankle presets with random commands (held, stepping, ramping: changing every
+step) and random external torques: every column of every sample agrees to
+1e-9 (rad, rad/s, m, N).
+"""
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from hypothesis import HealthCheck, given, settings, strategies as st
+
+from hill_muscle_ros.model import engine, limb_kernels
+from hill_muscle_ros.model.limb import LimbPlant, LimbProtocol, simulate_limb
+
+#: [rad], [rad/s], [m], [N]: agreement asked of every column.
+TOL = 1e-9
+CONFIG = Path(__file__).parents[1] / 'config'
+
+
+def _plant(name):
+    data = yaml.safe_load((CONFIG / f'{name}.yaml').read_text())['/**']['ros__parameters']
+    return LimbPlant.from_mapping(data, ignore=('rate_hz',))
+
+
+PLANTS = {name: _plant(name) for name in ('knee', 'ankle')}
+
+
+@pytest.fixture(scope='module')
+def kernels():
+    return limb_kernels.compiled()
+
+
+def _python(plant, protocol, monkeypatch):
+    monkeypatch.setenv(engine.ENV_VAR, 'python')
+    try:
+        return simulate_limb(plant, protocol)
+    finally:
+        monkeypatch.delenv(engine.ENV_VAR)
+
+
+def _assert_same(ref, got):
+    assert ref.columns.keys() == got.columns.keys()
+    worst = {k: float(np.abs(ref[k] - got[k]).max()) for k in ref.columns}
+    assert max(worst.values()) <= TOL, worst
+
+
+@st.composite
+def limb_protocols(draw, names):
+    """Per muscle random recruitment knots (steps where a time repeats, ramps
+    between), a random external torque, 0.2-1.2 s."""
+    duration = draw(st.sampled_from([0.2, 0.6, 1.2]))
+    rng = np.random.default_rng(draw(st.integers(0, 2 ** 32 - 1)))
+
+    def knots(low, high, count):
+        times = np.sort(rng.uniform(0.0, duration, count)).round(4)
+        if count > 1 and rng.uniform() < 0.5:
+            times[1] = times[0]   # a step
+        return [[float(t), float(v)] for t, v in zip(times, rng.uniform(low, high, count))]
+
+    muscles = {name: {'recruitment': knots(0.0, 1.0, draw(st.integers(1, 6)))}
+               for name in names}
+    torque = knots(-3.0, 3.0, draw(st.integers(1, 4)))
+    return LimbProtocol.from_mapping({'name': 'random', 'duration_s': duration,
+                                      'muscles': muscles, 'external_torque_n_m': torque})
+
+
+SETTINGS = settings(max_examples=12, deadline=None,
+                    suppress_health_check=[HealthCheck.too_slow,
+                                           HealthCheck.function_scoped_fixture])
+
+
+@SETTINGS
+@given(protocol=limb_protocols(['quadriceps', 'hamstrings']))
+def test_knee_matches_the_reference(kernels, monkeypatch, protocol):
+    plant = PLANTS['knee']
+    _assert_same(_python(plant, protocol, monkeypatch),
+                 limb_kernels.simulate_limb_compiled(plant, protocol, 1000.0, kernels))
+
+
+@SETTINGS
+@given(protocol=limb_protocols(['tibialis_anterior']))
+def test_ankle_matches_the_reference(kernels, monkeypatch, protocol):
+    plant = PLANTS['ankle']
+    _assert_same(_python(plant, protocol, monkeypatch),
+                 limb_kernels.simulate_limb_compiled(plant, protocol, 1000.0, kernels))
+
+
+def test_simulate_limb_runs_compiled_when_the_engine_is_compiled(kernels, monkeypatch):
+    """The knee extension protocol through simulate_limb: the compiled engine is
+    taken (its result object comes from simulate_limb_compiled) and agrees."""
+    plant = PLANTS['knee']
+    protocol = LimbProtocol.from_yaml(CONFIG / 'protocols' / 'knee_extension.yaml')
+    calls = []
+    original = limb_kernels.simulate_limb_compiled
+
+    def spy(*args, **kwargs):
+        calls.append(args)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(limb_kernels, 'simulate_limb_compiled', spy)
+    monkeypatch.setenv(engine.ENV_VAR, 'compiled')
+    got = simulate_limb(plant, protocol)
+    monkeypatch.delenv(engine.ENV_VAR)
+    assert len(calls) == 1
+    _assert_same(_python(plant, protocol, monkeypatch), got)
+
+
+def test_a_muscle_stretched_out_of_range_raises_as_the_reference(kernels, monkeypatch):
+    """A moment arm that stretches the MTU beyond its limit: the same ValueError."""
+    import dataclasses
+    plant = PLANTS['ankle']
+    muscle = dataclasses.replace(plant.muscles[0], moment_arm_m=1.0)
+    plant = dataclasses.replace(plant, muscles=(muscle,),
+                                joint=dataclasses.replace(plant.joint,
+                                                          initial_angle_rad=0.0))
+    protocol = LimbProtocol.from_mapping({
+        'name': 'push', 'duration_s': 2.0, 'muscles': {muscle.name: {'recruitment': [[0, 0]]}},
+        'external_torque_n_m': [[0.0, 500.0]]})
+    with pytest.raises(ValueError) as ref:
+        _python(plant, protocol, monkeypatch)
+    with pytest.raises(ValueError) as got:
+        limb_kernels.simulate_limb_compiled(plant, protocol, 1000.0, kernels)
+    assert str(got.value) == str(ref.value)
