@@ -257,7 +257,7 @@ def bench_single_step(runs: int) -> dict:
         top = 0
         for _ in range(STEP_CALLS):
             top = run(r1, dl1, r1, DT_S, state, top, True, True, n_units, f_max, params,
-                      count, f_unit, total, out)
+                      count, f_unit, total, out, 0)
 
     make_outputs = tuple.__new__
     fields = MuscleOutputs
@@ -267,7 +267,7 @@ def bench_single_step(runs: int) -> dict:
         top = 0
         for _ in range(STEP_CALLS):
             top = run(r1, dl1, r1, DT_S, state, top, True, True, n_units, f_max, params,
-                      count, f_unit, total, out)
+                      count, f_unit, total, out, 0)
             make_outputs(fields, out[:, 0].tolist())
 
     one = Muscle(MuscleParams())

@@ -303,7 +303,7 @@ N_RUN_OUTPUTS = 12
 
 def run_muscle(r_start, dl_end, r_end, dt: float, state, top: int, multi: bool,
                initial: bool, n_units: float, f_iso_max: float, params, count, f_unit, total,
-               out) -> int:
+               out, first: int) -> int:
     """``Muscle.run`` of one muscle of the paper's model over whole input sequences.
 
     Step k: apply ``r_start[k]`` (:func:`recruit_one` at the CE length of that
@@ -329,7 +329,9 @@ def run_muscle(r_start, dl_end, r_end, dt: float, state, top: int, multi: bool,
         entries for a multi/initial muscle (sentinel first), updated
     :param f_unit: [N] the run stack's forces per unit, updated
     :param total: [N] the run stack's cumulative forces, updated
-    :param out: (N_RUN_OUTPUTS, n) written: row ``RUN_*`` of step k at column k
+    :param out: (N_RUN_OUTPUTS, first + n) or wider, written: row ``RUN_*`` of
+        step k at column ``first + k``
+    :param first: column of the first step's outputs in ``out``
     :return: [-] runs on the run stack at the end
     """
     k_se, k_pe, l_rest, l_opt = params[P_K_SE], params[P_K_PE], params[P_L_REST], params[P_L_OPT]
@@ -384,18 +386,19 @@ def run_muscle(r_start, dl_end, r_end, dt: float, state, top: int, multi: bool,
         t += dt
         f_se = series_force(k_se, dl1, l, l_rest)
         f_pe = parallel_force(k_pe, dl1)
-        out[RUN_T, k] = t
-        out[RUN_R, k] = r_now
-        out[RUN_M, k] = m_now
-        out[RUN_DL_MT, k] = dl1
-        out[RUN_L_CE, k] = l
-        out[RUN_V_CE, k] = v
-        out[RUN_F_SE, k] = f_se
-        out[RUN_F_PE, k] = f_pe
-        out[RUN_FORCE, k] = f_se + f_pe
-        out[RUN_EFF_F_ISO, k] = f0
-        out[RUN_COMMAND, k] = r_now
-        out[RUN_FITNESS, k] = 1.0   # no fatigue in the paper's model
+        j = first + k
+        out[RUN_T, j] = t
+        out[RUN_R, j] = r_now
+        out[RUN_M, j] = m_now
+        out[RUN_DL_MT, j] = dl1
+        out[RUN_L_CE, j] = l
+        out[RUN_V_CE, j] = v
+        out[RUN_F_SE, j] = f_se
+        out[RUN_F_PE, j] = f_pe
+        out[RUN_FORCE, j] = f_se + f_pe
+        out[RUN_EFF_F_ISO, j] = f0
+        out[RUN_COMMAND, j] = r_now
+        out[RUN_FITNESS, j] = 1.0   # no fatigue in the paper's model
     state[S_T] = t
     state[S_L_CE] = l
     state[S_DL_MT] = dl0
@@ -529,7 +532,7 @@ def run_loaded() -> bool:
 def _run_muscle_signature(numba):
     f8, c1, i1 = numba.float64, numba.float64[::1], numba.int64[::1]
     return numba.int64(c1, c1, c1, f8, c1, numba.int64, numba.boolean, numba.boolean, f8, f8,
-                       c1, i1, c1, c1, numba.float64[:, ::1])
+                       c1, i1, c1, c1, numba.float64[:, ::1], numba.int64)
 
 
 def compiled_run() -> types.SimpleNamespace:
@@ -549,7 +552,8 @@ def compiled_run() -> types.SimpleNamespace:
     return _compiled_run
 
 
-def run_compiled(muscle, r_start, dl_mt_end_m, dt_s: float, r_end=None):
+def run_compiled(muscle, r_start, dl_mt_end_m, dt_s: float, r_end=None, out=None,
+                 first: int = 0):
     """:meth:`Muscle.run <hill_muscle_ros.model.muscle.Muscle.run>` compiled:
     the same steps, the same state afterwards, the outputs as one array.
 
@@ -562,8 +566,11 @@ def run_compiled(muscle, r_start, dl_mt_end_m, dt_s: float, r_end=None):
     :param dl_mt_end_m: [m] (n,) dl_MT at the end of each step
     :param dt_s: [s] step length, > 0
     :param r_end: [-] (n,) R applied after each step (default ``r_start``)
-    :return: (N_RUN_OUTPUTS, n) float array, row ``RUN_*`` (the fields of
-        ``MuscleOutputs`` in their order) of step k at column k
+    :param out: (N_RUN_OUTPUTS, first + n) C-contiguous float array to write
+        into (a new one of (N_RUN_OUTPUTS, n) if omitted)
+    :param first: column of the first step's outputs in ``out``
+    :return: ``out``: row ``RUN_*`` (the fields of ``MuscleOutputs`` in their
+        order) of step k at column ``first + k``
     """
     import numpy as np   # the model's arrays; numpy is imported with the package anyway
 
@@ -594,9 +601,13 @@ def run_compiled(muscle, r_start, dl_mt_end_m, dt_s: float, r_end=None):
         count[:top + 1] = mem._count[:top + 1]
         f_unit[:top + 1] = mem._f_unit[:top + 1]
         total[:top + 1] = mem._total[:top + 1]
-    out = np.empty((N_RUN_OUTPUTS, dl_end.shape[0]))
+    if out is None:
+        out = np.empty((N_RUN_OUTPUTS, dl_end.shape[0]))
+    elif not (out.shape[0] == N_RUN_OUTPUTS and out.shape[1] >= first + dl_end.shape[0]):
+        raise ValueError(f'`out` must have shape ({N_RUN_OUTPUTS}, >= {first + dl_end.shape[0]}), '
+                         f'got {out.shape}')
     top = run(r_start, dl_end, r_end, float(dt_s), state, top, muscle._multi, muscle._initial,
-              float(p.n_units), p.f_iso_max_n, params, count, f_unit, total, out)
+              float(p.n_units), p.f_iso_max_n, params, count, f_unit, total, out, first)
     if stacked:
         mem._count = count[:top + 1].tolist()
         mem._f_unit = f_unit[:top + 1].tolist()

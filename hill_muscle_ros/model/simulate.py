@@ -113,14 +113,20 @@ def simulate(protocol: Protocol, params: MuscleParams | None = None,
     if type(muscle) is Muscle and engine.use_compiled(n_steps, kernels.RUN_MIN_STEPS,
                                                       kernels.run_loaded()):
         # The same loop compiled (model/kernels.py), when it is loaded or the
-        # run repays loading it (HILL_MUSCLE_ENGINE: model/engine.py).
-        columns = kernels.run_compiled(muscle, r[:-1], dl[1:], dt, r[1:])
-    else:
-        # Plain lists of Python floats: indexing them is several times cheaper
-        # than indexing NumPy arrays in the hot loop.
-        columns = [[0.0] * n_steps for _ in first]
-        r_list = r.tolist()
-        muscle.run(r_list[:-1], dl.tolist()[1:], dt, r_end=r_list[1:], columns=columns)
+        # run repays loading it (HILL_MUSCLE_ENGINE: model/engine.py). It
+        # writes straight into the result's rows, after the first sample.
+        out = np.empty((kernels.N_RUN_OUTPUTS, n_steps + 1))
+        out[:, 0] = first
+        kernels.run_compiled(muscle, r[:-1], dl[1:], dt, r[1:], out=out, first=1)
+        fields = dict(zip(first._fields, out))
+        fields['n_recruited'] = out[kernels.RUN_M].astype(type(first.n_recruited))
+        fields['t_s'] = t   # the sample times are the inputs themselves
+        return SimulationResult(**fields)
+    # Plain lists of Python floats: indexing them is several times cheaper
+    # than indexing NumPy arrays in the hot loop.
+    columns = [[0.0] * n_steps for _ in first]
+    r_list = r.tolist()
+    muscle.run(r_list[:-1], dl.tolist()[1:], dt, r_end=r_list[1:], columns=columns)
     # The sample times are the inputs themselves.
     fields = {'t_s': t}
     for name, value, col in zip(first._fields, first, columns):
