@@ -122,7 +122,8 @@ def simulate_counting(monkeypatch, protocol) -> tuple:
     """simulate(protocol) and the number of compiled runs it made."""
     calls = []
     real = kernels.run_compiled
-    monkeypatch.setattr(kernels, 'run_compiled', lambda *a: calls.append(1) or real(*a))
+    monkeypatch.setattr(kernels, 'run_compiled',
+                        lambda *a, **kw: calls.append(1) or real(*a, **kw))
     result = simulate(protocol)
     monkeypatch.setattr(kernels, 'run_compiled', real)
     return result, len(calls)
