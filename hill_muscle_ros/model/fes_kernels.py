@@ -64,8 +64,10 @@ N_IP = 6
 T_F_MAX, T_MU_MIN, T_RATE_FAT, T_RATE_REC = range(4)
 # Columns of the float state ``fs``.
 (S_T, S_L, S_DL, S_R, S_CMD, S_F_SINGLE, S_MU, S_V_FREE, S_PIECE, _S1, _S2, _S3, S_LAW,
- _S5, _S6, _S7, S_EPOCH, S_UD) = range(18)
-N_FS = 18
+ _S5, _S6, _S7, S_EPOCH, S_UD, S_CACHE) = range(19)
+#: Entries of the cache of Eff.f_iso (multi/initial): instants, values, next slot.
+N_CACHE = 2 * 3 + 1
+N_FS = S_CACHE + N_CACHE
 # Columns of the integer state ``js``.
 J_NREC, J_M, J_RTOP, J_UN, J_DHEAD, J_DCOUNT, J_NEV = range(7)
 N_JS = 7
@@ -123,6 +125,20 @@ def hdr(I, i, h):
 def scratch(I, i, slot):
     """Offset in F of scratch slot ``slot`` (SCR_*) of muscle ``i``."""
     return I[i * N_HDR + H_SCR] + slot * I[i * N_HDR + H_K]
+
+
+def forget_eff_f_iso(F, I, i):
+    """Empty the Eff.f_iso cache of muscle ``i``: its unit pool changed.
+
+    A multi/initial muscle's Eff.f_iso depends on the instant alone between
+    pool changes, and an RK4 step asks for it at three instants (start,
+    middle, end) up to seven times per muscle, plus the substep count's three:
+    the cache keeps the last three instants' values (NaN keys match nothing).
+    """
+    c = I[i * N_HDR + H_FS] + S_CACHE
+    F[c] = math.nan
+    F[c + 1] = math.nan
+    F[c + 2] = math.nan
 
 
 # -- the delay line ------------------------------------------------------------------------
@@ -214,6 +230,7 @@ def pool_advance_to(F, I, i, t):
     """Renormalise the clocks when they near underflow (UnitPool.advance_to)."""
     if not (I[hdr(I, i, H_IP) + I_FATIGUE] and t - F[hdr(I, i, H_FS) + S_EPOCH] > F[hdr(I, i, H_FP) + P_RENORM_S]):
         return
+    forget_eff_f_iso(F, I, i)
     k_types = I[hdr(I, i, H_IP) + I_K]
     d, h = scratch(I, i, SCR_D), scratch(I, i, SCR_H)
     pool_clocks(F, I, i, t, d, h)
@@ -314,6 +331,7 @@ def pool_release(F, I, i, m, t):
 def pool_update(F, I, i, m, x_ce, t):
     """Recruit or release so that positions [0, m) are recruited (UnitPool.update)."""
     pool_advance_to(F, I, i, t)
+    forget_eff_f_iso(F, I, i)
     if m > I[hdr(I, i, H_JS) + J_M]:
         pool_recruit(F, I, i, m, x_ce, t)
     elif m < I[hdr(I, i, H_JS) + J_M]:
@@ -327,6 +345,10 @@ def pool_eff_f_iso(F, I, i, x_ce, t):
     fatigue = I[hdr(I, i, H_IP) + I_FATIGUE]
     elapsed = t - F[hdr(I, i, H_FS) + S_EPOCH]
     if I[hdr(I, i, H_IP) + I_INITIAL]:
+        c = hdr(I, i, H_FS) + S_CACHE
+        for slot in range(3):
+            if F[c + slot] == t:
+                return F[c + 3 + slot]
         f0 = 0.0
         for k in range(k_types):
             w = F[hdr(I, i, H_TP) + T_MU_MIN * hdr(I, i, H_K) + k] if fatigue else 1.0
@@ -334,6 +356,10 @@ def pool_eff_f_iso(F, I, i, x_ce, t):
         if fatigue:
             for k in range(k_types):
                 f0 += F[hdr(I, i, H_RDYN) + ((top) * hdr(I, i, H_K) + k) * 4 + C_G] * math.exp(-elapsed * F[hdr(I, i, H_TP) + T_RATE_FAT * hdr(I, i, H_K) + k])
+        slot = int(F[c + 6])
+        F[c + slot] = t
+        F[c + 3 + slot] = f0
+        F[c + 6] = (slot + 1) % 3
         return f0
     s = F[hdr(I, i, H_FP) + P_SPREAD]
     if s > 0.0 and not fl_clear(x_ce, s):
@@ -910,6 +936,7 @@ class FesBundle:
         fs[S_MU] = 1.0
         fs[S_PIECE:S_PIECE + 4] = (0.0, 0.0, 0.0, 1.0)
         fs[S_LAW:S_LAW + 4] = (0.0, 1.0, 1.0, 0.0)
+        fs[S_CACHE:S_CACHE + 3] = math.nan
         js[:] = 0
         js[J_UN] = 1
         for name in ('r_x', 'r_exn', 'r_static', 'r_dyn', 'u_dn', 'u_cum'):
@@ -942,7 +969,7 @@ _EQUATIONS = ('force_length', 'force_velocity_inverse', 'activation_at', 'time_t
               'fl_clear', 'type_fl_sum', 'moment_force', 'recruited_excess',
               'resting_deficit')
 #: This module's functions, callees before callers.
-_KERNELS = ('hdr', 'scratch', 'delay_push', 'delay_settle', 'pool_static_row', 'pool_push_recruited',
+_KERNELS = ('hdr', 'scratch', 'forget_eff_f_iso', 'delay_push', 'delay_settle', 'pool_static_row', 'pool_push_recruited',
             'pool_clocks', 'pool_advance_to', 'pool_recruit', 'pool_release', 'pool_update',
             'pool_eff_f_iso_clipped', 'pool_eff_f_iso', 'pool_mean_fitness', 'eff_f_iso',
             'velocity', 'stiffness_rate', 'substeps', 'single_fatigue', 'begin_interval',
@@ -981,7 +1008,7 @@ def compiled() -> types.SimpleNamespace:
     body = {'error_model': 'numpy'}
     options = {name: leaf for name in _EQUATIONS}
     options.update({name: body for name in _KERNELS})
-    options.update({name: leaf for name in ('hdr', 'scratch')})
+    options.update({name: leaf for name in ('hdr', 'scratch', 'forget_eff_f_iso')})
 
     def run_signature(numba):
         f8, i8 = numba.float64, numba.int64
