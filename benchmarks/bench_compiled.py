@@ -394,7 +394,7 @@ def write_section(add, m: dict) -> None:
     saved = ss['python'].median - ss['kernel_outputs'].median
     add(f'One step a call, as the simulator node steps (`Muscle.step` once a tick; '
         f'{STEP_CALLS:,} calls, us a call): the Python step **{ss["python"].fmt()}**; the '
-        f'compiled kernel called for one step on arrays made once (numba\'s dispatch of 15 '
+        f'compiled kernel called for one step on arrays made once (numba\'s dispatch of 16 '
         f'arguments) **{ss["kernel"].fmt()}**, and with its outputs made into a '
         f'`MuscleOutputs` **{ss["kernel_outputs"].fmt()}**; with the Muscle\'s state read '
         f'and written around it (`kernels.run_compiled`) **{ss["wrapper"].fmt()}**.')
