@@ -114,7 +114,8 @@ class Muscle:
     All stepping goes through one hot loop, :meth:`run`, which advances any
     number of steps over input sequences: :meth:`step` (the ROS node, once a
     tick) calls it with one step, :func:`~hill_muscle_ros.model.simulate.simulate`
-    (the CLI) with a whole protocol. :meth:`outputs` and :meth:`eff_f_iso`
+    (the CLI) with a whole protocol, or the same loop compiled
+    (:func:`~hill_muscle_ros.model.kernels.run_compiled`) where that pays. :meth:`outputs` and :meth:`eff_f_iso`
     evaluate the readable curves of :mod:`.curves` and are the reference the
     tests compare the hot loop against.
 
