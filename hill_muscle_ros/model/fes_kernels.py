@@ -145,223 +145,258 @@ def forget_eff_f_iso(F, I, i):
 
 def delay_push(F, I, i, t, u):
     """Give command ``u`` at ``t`` (DelayLine.push); False if the ring is full."""
+    fs, fp, js = hdr(I, i, H_FS), hdr(I, i, H_FP), hdr(I, i, H_JS)
     cap = hdr(I, i, H_CAPDQ)
-    n = I[hdr(I, i, H_JS) + J_DCOUNT]
-    head = I[hdr(I, i, H_JS) + J_DHEAD]
-    last = F[hdr(I, i, H_DQU) + (head + n - 1) % cap] if n > 0 else F[hdr(I, i, H_FS) + S_UD]
+    n = I[js + J_DCOUNT]
+    head = I[js + J_DHEAD]
+    last = F[hdr(I, i, H_DQU) + (head + n - 1) % cap] if n > 0 else F[fs + S_UD]
     if u != last:
         if n == cap:
             return False
         k = (head + n) % cap
-        F[hdr(I, i, H_DQT) + k] = t + F[hdr(I, i, H_FP) + P_EMD]
+        F[hdr(I, i, H_DQT) + k] = t + F[fp + P_EMD]
         F[hdr(I, i, H_DQU) + k] = u
-        I[hdr(I, i, H_JS) + J_DCOUNT] = n + 1
+        I[js + J_DCOUNT] = n + 1
     return True
 
 
 def delay_settle(F, I, i, t):
     """Take every switch due at or before ``t`` (DelayLine.settle): u_d now."""
+    fs, js = hdr(I, i, H_FS), hdr(I, i, H_JS)
     cap = hdr(I, i, H_CAPDQ)
-    while I[hdr(I, i, H_JS) + J_DCOUNT] > 0 and F[hdr(I, i, H_DQT) + I[hdr(I, i, H_JS) + J_DHEAD]] <= t + TIME_TOL_S:
-        F[hdr(I, i, H_FS) + S_UD] = F[hdr(I, i, H_DQU) + I[hdr(I, i, H_JS) + J_DHEAD]]
-        I[hdr(I, i, H_JS) + J_DHEAD] = (I[hdr(I, i, H_JS) + J_DHEAD] + 1) % cap
-        I[hdr(I, i, H_JS) + J_DCOUNT] -= 1
-    return F[hdr(I, i, H_FS) + S_UD]
+    while I[js + J_DCOUNT] > 0 and F[hdr(I, i, H_DQT) + I[js + J_DHEAD]] <= t + TIME_TOL_S:
+        F[fs + S_UD] = F[hdr(I, i, H_DQU) + I[js + J_DHEAD]]
+        I[js + J_DHEAD] = (I[js + J_DHEAD] + 1) % cap
+        I[js + J_DCOUNT] -= 1
+    return F[fs + S_UD]
 
 
 # -- the unit pool (multi) -------------------------------------------------------------------
 
+def per_type(I, i, h, row, k):
+    """Offset in F of entry ``k`` of row ``row`` of a per-type region (header ``h``)."""
+    return hdr(I, i, h) + row * hdr(I, i, H_K) + k
+
+
+def per_sum(I, i, h, seg, k, c):
+    """Offset in F of column ``c`` (C_*) of type ``k`` of segment ``seg`` of a
+    region of static sums (header H_RSTATIC or H_RDYN)."""
+    return hdr(I, i, h) + (seg * hdr(I, i, H_K) + k) * 4 + c
+
+
+def moment(F, I, i, k, c, p0, p1):
+    """Moment ``c`` (0: n, 1: sum c, 2: sum c^2) of type ``k`` over positions [p0, p1)."""
+    base = hdr(I, i, H_PREFIX) + (k * 3 + c) * hdr(I, i, H_NP1)
+    return F[base + p1] - F[base + p0]
+
+
 def pool_static_row(F, I, i, p0, p1, x_o, row):
     """Per type: g = f_max sum FL(c x_o) (initial), n, sum c, sum c^2 over [p0, p1)
-    (UnitPool._static_row), written to ``row`` (K, 4)."""
-    k_types = I[hdr(I, i, H_IP) + I_K]
-    s = F[hdr(I, i, H_FP) + P_SPREAD]
+    (UnitPool._static_row), written to F from offset ``row`` (K rows of 4)."""
+    fp = hdr(I, i, H_FP)
+    ip = hdr(I, i, H_IP)
+    k_types, initial = I[ip + I_K], I[ip + I_INITIAL]
+    s = F[fp + P_SPREAD]
     clear = s == 0.0 or fl_clear(x_o, s)
     for k in range(k_types):
-        n = F[hdr(I, i, H_PREFIX) + (k * 3 + 0) * hdr(I, i, H_NP1) + p1] - F[hdr(I, i, H_PREFIX) + (k * 3 + 0) * hdr(I, i, H_NP1) + p0]
-        c1 = F[hdr(I, i, H_PREFIX) + (k * 3 + 1) * hdr(I, i, H_NP1) + p1] - F[hdr(I, i, H_PREFIX) + (k * 3 + 1) * hdr(I, i, H_NP1) + p0]
-        c2 = F[hdr(I, i, H_PREFIX) + (k * 3 + 2) * hdr(I, i, H_NP1) + p1] - F[hdr(I, i, H_PREFIX) + (k * 3 + 2) * hdr(I, i, H_NP1) + p0]
-        F[row + (k) * 4 + C_N] = n
-        F[row + (k) * 4 + C_C1] = c1
-        F[row + (k) * 4 + C_C2] = c2
-        F[row + (k) * 4 + C_G] = 0.0
-        if I[hdr(I, i, H_IP) + I_INITIAL] and clear:
-            F[row + (k) * 4 + C_G] = type_fl_sum(F[hdr(I, i, H_TP) + T_F_MAX * hdr(I, i, H_K) + k], x_o, s, n, c1, c2)
-    if I[hdr(I, i, H_IP) + I_INITIAL] and not clear:
+        n = moment(F, I, i, k, 0, p0, p1)
+        c1 = moment(F, I, i, k, 1, p0, p1)
+        c2 = moment(F, I, i, k, 2, p0, p1)
+        r = row + 4 * k
+        F[r + C_N] = n
+        F[r + C_C1] = c1
+        F[r + C_C2] = c2
+        F[r + C_G] = 0.0
+        if initial and clear:
+            F[r + C_G] = type_fl_sum(F[per_type(I, i, H_TP, T_F_MAX, k)], x_o, s, n, c1, c2)
+    if initial and not clear:
         # Some units may be off the FL range: unit by unit (UnitLayout.fl_sums).
+        cpos, tpos = hdr(I, i, H_CPOS), hdr(I, i, H_TPOS)
         for p in range(p0, p1):
-            F[row + I[hdr(I, i, H_TPOS) + p] * 4 + C_G] += force_length(
-                F[hdr(I, i, H_CPOS) + p] * x_o)
+            F[row + 4 * I[tpos + p] + C_G] += force_length(F[cpos + p] * x_o)
         for k in range(k_types):
-            F[row + (k) * 4 + C_G] = F[hdr(I, i, H_TP) + T_F_MAX * hdr(I, i, H_K) + k] * F[row + (k) * 4 + C_G]
+            F[row + 4 * k + C_G] = F[per_type(I, i, H_TP, T_F_MAX, k)] * F[row + 4 * k + C_G]
 
 
 def pool_push_recruited(F, I, i, end, x_o, exn, row):
-    """Push a recruited segment (UnitPool._push_recruited)."""
-    top = I[hdr(I, i, H_JS) + J_RTOP]
-    k_types = I[hdr(I, i, H_IP) + I_K]
-    if not I[hdr(I, i, H_IP) + I_FATIGUE] and not I[hdr(I, i, H_IP) + I_INITIAL] and top > 0:
+    """Push a recruited segment (UnitPool._push_recruited); ``exn`` and ``row`` are
+    offsets in F of its excesses (K) and its static row (K rows of 4)."""
+    ip, js = hdr(I, i, H_IP), hdr(I, i, H_JS)
+    top = I[js + J_RTOP]
+    k_types = I[ip + I_K]
+    if not I[ip + I_FATIGUE] and not I[ip + I_INITIAL] and top > 0:
         # Nothing tells these units apart: one segment for the recruited prefix.
         I[hdr(I, i, H_REND) + top] = end
         for k in range(k_types):
             for c in range(4):
-                F[hdr(I, i, H_RSTATIC) + ((top) * hdr(I, i, H_K) + k) * 4 + c] = F[hdr(I, i, H_RSTATIC) + ((top) * hdr(I, i, H_K) + k) * 4 + c] + F[row + (k) * 4 + c]
+                F[per_sum(I, i, H_RSTATIC, top, k, c)] += F[row + 4 * k + c]
         return
     top += 1
     I[hdr(I, i, H_REND) + top] = end
     F[hdr(I, i, H_RX) + top] = x_o
     for k in range(k_types):
-        F[hdr(I, i, H_REXN) + (top) * hdr(I, i, H_K) + k] = F[exn + k]
+        F[per_type(I, i, H_REXN, top, k)] = F[exn + k]
         for c in range(4):
-            F[hdr(I, i, H_RSTATIC) + ((top) * hdr(I, i, H_K) + k) * 4 + c] = F[hdr(I, i, H_RSTATIC) + ((top - 1) * hdr(I, i, H_K) + k) * 4 + c] + F[row + (k) * 4 + c]
-            F[hdr(I, i, H_RDYN) + ((top) * hdr(I, i, H_K) + k) * 4 + c] = F[hdr(I, i, H_RDYN) + ((top - 1) * hdr(I, i, H_K) + k) * 4 + c] + F[row + (k) * 4 + c] * F[exn + k]
-    I[hdr(I, i, H_JS) + J_RTOP] = top
+            F[per_sum(I, i, H_RSTATIC, top, k, c)] = (
+                F[per_sum(I, i, H_RSTATIC, top - 1, k, c)] + F[row + 4 * k + c])
+            F[per_sum(I, i, H_RDYN, top, k, c)] = (
+                F[per_sum(I, i, H_RDYN, top - 1, k, c)] + F[row + 4 * k + c] * F[exn + k])
+    I[js + J_RTOP] = top
 
 
 def pool_clocks(F, I, i, t, d, h):
-    """D_k(t) and H_k(t), the fatigue and recovery clocks, into ``d`` and ``h``."""
-    elapsed = t - F[hdr(I, i, H_FS) + S_EPOCH]
-    for k in range(I[hdr(I, i, H_IP) + I_K]):
-        F[d + k] = math.exp(-elapsed * F[hdr(I, i, H_TP) + T_RATE_FAT * hdr(I, i, H_K) + k])
-        F[h + k] = math.exp(-elapsed * F[hdr(I, i, H_TP) + T_RATE_REC * hdr(I, i, H_K) + k])
+    """D_k(t) and H_k(t), the fatigue and recovery clocks, into F at ``d`` and ``h``."""
+    fs, ip = hdr(I, i, H_FS), hdr(I, i, H_IP)
+    elapsed = t - F[fs + S_EPOCH]
+    for k in range(I[ip + I_K]):
+        F[d + k] = math.exp(-elapsed * F[per_type(I, i, H_TP, T_RATE_FAT, k)])
+        F[h + k] = math.exp(-elapsed * F[per_type(I, i, H_TP, T_RATE_REC, k)])
 
 
 def pool_advance_to(F, I, i, t):
     """Renormalise the clocks when they near underflow (UnitPool.advance_to)."""
-    if not (I[hdr(I, i, H_IP) + I_FATIGUE] and t - F[hdr(I, i, H_FS) + S_EPOCH] > F[hdr(I, i, H_FP) + P_RENORM_S]):
+    fp, js, ip = hdr(I, i, H_FP), hdr(I, i, H_JS), hdr(I, i, H_IP)
+    fs = hdr(I, i, H_FS)
+    if not (I[ip + I_FATIGUE]
+            and t - F[fs + S_EPOCH] > F[fp + P_RENORM_S]):
         return
     forget_eff_f_iso(F, I, i)
-    k_types = I[hdr(I, i, H_IP) + I_K]
+    k_types = I[ip + I_K]
     d, h = scratch(I, i, SCR_D), scratch(I, i, SCR_H)
     pool_clocks(F, I, i, t, d, h)
-    for seg in range(I[hdr(I, i, H_JS) + J_RTOP] + 1):
+    for seg in range(I[js + J_RTOP] + 1):
         for k in range(k_types):
-            F[hdr(I, i, H_REXN) + (seg) * hdr(I, i, H_K) + k] = F[hdr(I, i, H_REXN) + (seg) * hdr(I, i, H_K) + k] * F[d + k]
+            F[per_type(I, i, H_REXN, seg, k)] *= F[d + k]
             for c in range(4):
-                F[hdr(I, i, H_RDYN) + ((seg) * hdr(I, i, H_K) + k) * 4 + c] = F[hdr(I, i, H_RDYN) + ((seg) * hdr(I, i, H_K) + k) * 4 + c] * F[d + k]
-    for seg in range(I[hdr(I, i, H_JS) + J_UN]):
+                F[per_sum(I, i, H_RDYN, seg, k, c)] *= F[d + k]
+    for seg in range(I[js + J_UN]):
         for k in range(k_types):
-            F[hdr(I, i, H_UDN) + (seg) * hdr(I, i, H_K) + k] = F[hdr(I, i, H_UDN) + (seg) * hdr(I, i, H_K) + k] * F[h + k]
-            F[hdr(I, i, H_UCUM) + (seg) * hdr(I, i, H_K) + k] = F[hdr(I, i, H_UCUM) + (seg) * hdr(I, i, H_K) + k] * F[h + k]
-    F[hdr(I, i, H_FS) + S_EPOCH] = t
+            F[per_type(I, i, H_UDN, seg, k)] *= F[h + k]
+            F[per_type(I, i, H_UCUM, seg, k)] *= F[h + k]
+    F[fs + S_EPOCH] = t
 
 
 def pool_recruit(F, I, i, m, x_o, t):
     """Recruit positions [M, m) at ``t`` with CE length ``x_o`` (UnitPool._recruit)."""
-    k_types = I[hdr(I, i, H_IP) + I_K]
-    fatigue = I[hdr(I, i, H_IP) + I_FATIGUE]
+    ip, js = hdr(I, i, H_IP), hdr(I, i, H_JS)
+    k_types, fatigue = I[ip + I_K], I[ip + I_FATIGUE]
     d, h = scratch(I, i, SCR_D), scratch(I, i, SCR_H)
     if fatigue:
         pool_clocks(F, I, i, t, d, h)
     dn, exn, row = scratch(I, i, SCR_DN), scratch(I, i, SCR_EXN), scratch(I, i, SCR_ROW)
     for k in range(k_types):
         F[exn + k] = 0.0
-    pos = I[hdr(I, i, H_JS) + J_M]
+    pos = I[js + J_M]
     while pos < m:
-        un = I[hdr(I, i, H_JS) + J_UN] - 1
+        un = I[js + J_UN] - 1   # pop the lowest resting segment
         end = I[hdr(I, i, H_UEND) + un]
         for k in range(k_types):
-            F[dn + k] = F[hdr(I, i, H_UDN) + (un) * hdr(I, i, H_K) + k]
+            F[dn + k] = F[per_type(I, i, H_UDN, un, k)]
         take = min(end, m)
         if take < end:   # the rest keeps resting
             I[hdr(I, i, H_USTART) + un] = take
             for k in range(k_types):
-                below = F[hdr(I, i, H_UCUM) + (un - 1) * hdr(I, i, H_K) + k] if un > 0 else 0.0
-                n_rest = F[hdr(I, i, H_PREFIX) + (k * 3 + 0) * hdr(I, i, H_NP1) + end] - F[hdr(I, i, H_PREFIX) + (k * 3 + 0) * hdr(I, i, H_NP1) + take]
-                F[hdr(I, i, H_UCUM) + (un) * hdr(I, i, H_K) + k] = below + n_rest * F[dn + k]
+                below = F[per_type(I, i, H_UCUM, un - 1, k)] if un > 0 else 0.0
+                n_rest = moment(F, I, i, k, 0, take, end)
+                F[per_type(I, i, H_UCUM, un, k)] = below + n_rest * F[dn + k]
             un += 1
-        I[hdr(I, i, H_JS) + J_UN] = un
+        I[js + J_UN] = un
         pool_static_row(F, I, i, pos, take, x_o, row)
         if fatigue:
             for k in range(k_types):
-                F[exn + k] = recruited_excess(F[dn + k], F[h + k], F[hdr(I, i, H_TP) + T_MU_MIN * hdr(I, i, H_K) + k], F[d + k])
+                F[exn + k] = recruited_excess(F[dn + k], F[h + k],
+                                              F[per_type(I, i, H_TP, T_MU_MIN, k)], F[d + k])
         pool_push_recruited(F, I, i, take, x_o, exn, row)
         pos = take
-    I[hdr(I, i, H_JS) + J_M] = m
+    I[js + J_M] = m
 
 
 def pool_release(F, I, i, m, t):
     """Release positions [m, M) at ``t``, the last recruited first (UnitPool._release)."""
-    k_types = I[hdr(I, i, H_IP) + I_K]
-    fatigue = I[hdr(I, i, H_IP) + I_FATIGUE]
+    ip, js = hdr(I, i, H_IP), hdr(I, i, H_JS)
+    k_types, fatigue = I[ip + I_K], I[ip + I_FATIGUE]
     d, h = scratch(I, i, SCR_D), scratch(I, i, SCR_H)
     if fatigue:
         pool_clocks(F, I, i, t, d, h)
     exn, row = scratch(I, i, SCR_EXN), scratch(I, i, SCR_ROW)
-    pos = I[hdr(I, i, H_JS) + J_M]
+    u_start, u_end = hdr(I, i, H_USTART), hdr(I, i, H_UEND)
+    pos = I[js + J_M]
     while pos > m:
-        top = I[hdr(I, i, H_JS) + J_RTOP]
+        top = I[js + J_RTOP]
         start = I[hdr(I, i, H_REND) + top - 1]
         cut = max(start, m)
         x_o = F[hdr(I, i, H_RX) + top]
         for k in range(k_types):
-            F[exn + k] = F[hdr(I, i, H_REXN) + (top) * hdr(I, i, H_K) + k]
-        I[hdr(I, i, H_JS) + J_RTOP] = top - 1
+            F[exn + k] = F[per_type(I, i, H_REXN, top, k)]
+        I[js + J_RTOP] = top - 1   # pop
         if cut > start:   # the bottom of the segment stays recruited
             pool_static_row(F, I, i, start, cut, x_o, row)
             pool_push_recruited(F, I, i, cut, x_o, exn, row)
-        un = I[hdr(I, i, H_JS) + J_UN]
+        un = I[js + J_UN]
         if not fatigue:
             # Resting units without fatigue are all fresh: one segment.
             end = pos
-            if un > 0 and I[hdr(I, i, H_USTART) + un - 1] == pos:
-                end = I[hdr(I, i, H_UEND) + un - 1]
+            if un > 0 and I[u_start + un - 1] == pos:
+                end = I[u_end + un - 1]
                 un -= 1
-            I[hdr(I, i, H_USTART) + un] = cut
-            I[hdr(I, i, H_UEND) + un] = end
+            I[u_start + un] = cut
+            I[u_end + un] = end
             for k in range(k_types):
-                F[hdr(I, i, H_UDN) + (un) * hdr(I, i, H_K) + k] = 0.0
-                F[hdr(I, i, H_UCUM) + (un) * hdr(I, i, H_K) + k] = 0.0
-            I[hdr(I, i, H_JS) + J_UN] = un + 1
+                F[per_type(I, i, H_UDN, un, k)] = 0.0
+                F[per_type(I, i, H_UCUM, un, k)] = 0.0
+            I[js + J_UN] = un + 1
             pos = cut
             continue
         for k in range(k_types):
-            dn_k = resting_deficit(F[exn + k], F[d + k], F[hdr(I, i, H_TP) + T_MU_MIN * hdr(I, i, H_K) + k], F[h + k])
-            below = F[hdr(I, i, H_UCUM) + (un - 1) * hdr(I, i, H_K) + k] if un > 0 else 0.0
-            n_rel = F[hdr(I, i, H_PREFIX) + (k * 3 + 0) * hdr(I, i, H_NP1) + pos] - F[hdr(I, i, H_PREFIX) + (k * 3 + 0) * hdr(I, i, H_NP1) + cut]
-            F[hdr(I, i, H_UDN) + (un) * hdr(I, i, H_K) + k] = dn_k
-            F[hdr(I, i, H_UCUM) + (un) * hdr(I, i, H_K) + k] = below + n_rel * dn_k
-        I[hdr(I, i, H_USTART) + un] = cut
-        I[hdr(I, i, H_UEND) + un] = pos
-        I[hdr(I, i, H_JS) + J_UN] = un + 1
+            dn_k = resting_deficit(F[exn + k], F[d + k],
+                                   F[per_type(I, i, H_TP, T_MU_MIN, k)], F[h + k])
+            below = F[per_type(I, i, H_UCUM, un - 1, k)] if un > 0 else 0.0
+            F[per_type(I, i, H_UDN, un, k)] = dn_k
+            F[per_type(I, i, H_UCUM, un, k)] = below + moment(F, I, i, k, 0, cut, pos) * dn_k
+        I[u_start + un] = cut
+        I[u_end + un] = pos
+        I[js + J_UN] = un + 1
         pos = cut
-    I[hdr(I, i, H_JS) + J_M] = m
+    I[js + J_M] = m
 
 
 def pool_update(F, I, i, m, x_ce, t):
     """Recruit or release so that positions [0, m) are recruited (UnitPool.update)."""
+    js = hdr(I, i, H_JS)
     pool_advance_to(F, I, i, t)
     forget_eff_f_iso(F, I, i)
-    if m > I[hdr(I, i, H_JS) + J_M]:
+    if m > I[js + J_M]:
         pool_recruit(F, I, i, m, x_ce, t)
-    elif m < I[hdr(I, i, H_JS) + J_M]:
+    elif m < I[js + J_M]:
         pool_release(F, I, i, m, t)
 
 
 def pool_eff_f_iso(F, I, i, x_ce, t):
     """[N] Eff.f_iso of the recruited units (UnitPool.eff_f_iso)."""
-    top = I[hdr(I, i, H_JS) + J_RTOP]
-    k_types = I[hdr(I, i, H_IP) + I_K]
-    fatigue = I[hdr(I, i, H_IP) + I_FATIGUE]
-    elapsed = t - F[hdr(I, i, H_FS) + S_EPOCH]
-    if I[hdr(I, i, H_IP) + I_INITIAL]:
-        c = hdr(I, i, H_FS) + S_CACHE
+    fp, js = hdr(I, i, H_FP), hdr(I, i, H_JS)
+    ip, fs = hdr(I, i, H_IP), hdr(I, i, H_FS)
+    top = I[js + J_RTOP]
+    k_types, fatigue = I[ip + I_K], I[ip + I_FATIGUE]
+    elapsed = t - F[fs + S_EPOCH]
+    if I[ip + I_INITIAL]:
+        c = fs + S_CACHE
         for slot in range(3):
             if F[c + slot] == t:
                 return F[c + 3 + slot]
         f0 = 0.0
         for k in range(k_types):
-            w = F[hdr(I, i, H_TP) + T_MU_MIN * hdr(I, i, H_K) + k] if fatigue else 1.0
-            f0 += w * F[hdr(I, i, H_RSTATIC) + ((top) * hdr(I, i, H_K) + k) * 4 + C_G]
+            w = F[per_type(I, i, H_TP, T_MU_MIN, k)] if fatigue else 1.0
+            f0 += w * F[per_sum(I, i, H_RSTATIC, top, k, C_G)]
         if fatigue:
             for k in range(k_types):
-                f0 += F[hdr(I, i, H_RDYN) + ((top) * hdr(I, i, H_K) + k) * 4 + C_G] * math.exp(-elapsed * F[hdr(I, i, H_TP) + T_RATE_FAT * hdr(I, i, H_K) + k])
+                f0 += F[per_sum(I, i, H_RDYN, top, k, C_G)] * math.exp(
+                    -elapsed * F[per_type(I, i, H_TP, T_RATE_FAT, k)])
         slot = int(F[c + 6])
         F[c + slot] = t
         F[c + 3 + slot] = f0
         F[c + 6] = (slot + 1) % 3
         return f0
-    s = F[hdr(I, i, H_FP) + P_SPREAD]
+    s = F[fp + P_SPREAD]
     if s > 0.0 and not fl_clear(x_ce, s):
         return pool_eff_f_iso_clipped(F, I, i, x_ce, t)
     if s == 0.0:
@@ -375,92 +410,102 @@ def pool_eff_f_iso(F, I, i, x_ce, t):
         a2, a1, a0 = FL_A * x_ce * x_ce, FL_B * x_ce, FL_C
     total = 0.0
     for k in range(k_types):
-        w = F[hdr(I, i, H_TP) + T_MU_MIN * hdr(I, i, H_K) + k] if fatigue else 1.0
-        n = F[hdr(I, i, H_RSTATIC) + ((top) * hdr(I, i, H_K) + k) * 4 + C_N] * w
-        c1 = F[hdr(I, i, H_RSTATIC) + ((top) * hdr(I, i, H_K) + k) * 4 + C_C1] * w
-        c2 = F[hdr(I, i, H_RSTATIC) + ((top) * hdr(I, i, H_K) + k) * 4 + C_C2] * w
+        w = F[per_type(I, i, H_TP, T_MU_MIN, k)] if fatigue else 1.0
+        n = F[per_sum(I, i, H_RSTATIC, top, k, C_N)] * w
+        c1 = F[per_sum(I, i, H_RSTATIC, top, k, C_C1)] * w
+        c2 = F[per_sum(I, i, H_RSTATIC, top, k, C_C2)] * w
         if fatigue:
-            d = math.exp(-elapsed * F[hdr(I, i, H_TP) + T_RATE_FAT * hdr(I, i, H_K) + k])
-            n = n + d * F[hdr(I, i, H_RDYN) + ((top) * hdr(I, i, H_K) + k) * 4 + C_N]
-            c1 = c1 + d * F[hdr(I, i, H_RDYN) + ((top) * hdr(I, i, H_K) + k) * 4 + C_C1]
-            c2 = c2 + d * F[hdr(I, i, H_RDYN) + ((top) * hdr(I, i, H_K) + k) * 4 + C_C2]
-        total += moment_force(F[hdr(I, i, H_TP) + T_F_MAX * hdr(I, i, H_K) + k], a2, a1, a0, n, c1, c2)
+            d = math.exp(-elapsed * F[per_type(I, i, H_TP, T_RATE_FAT, k)])
+            n = n + d * F[per_sum(I, i, H_RDYN, top, k, C_N)]
+            c1 = c1 + d * F[per_sum(I, i, H_RDYN, top, k, C_C1)]
+            c2 = c2 + d * F[per_sum(I, i, H_RDYN, top, k, C_C2)]
+        total += moment_force(F[per_type(I, i, H_TP, T_F_MAX, k)], a2, a1, a0, n, c1, c2)
     return total
 
 
 def pool_eff_f_iso_clipped(F, I, i, x_ce, t):
     """[N] Eff.f_iso when some units may be off the FL range: segment by segment."""
-    k_types = I[hdr(I, i, H_IP) + I_K]
-    fatigue = I[hdr(I, i, H_IP) + I_FATIGUE]
-    elapsed = t - F[hdr(I, i, H_FS) + S_EPOCH]
+    fs, js = hdr(I, i, H_FS), hdr(I, i, H_JS)
+    ip = hdr(I, i, H_IP)
+    k_types, fatigue = I[ip + I_K], I[ip + I_FATIGUE]
+    elapsed = t - F[fs + S_EPOCH]
     sums = scratch(I, i, SCR_SUMS)
+    r_end, cpos, tpos = hdr(I, i, H_REND), hdr(I, i, H_CPOS), hdr(I, i, H_TPOS)
     total = 0.0
-    for seg in range(1, I[hdr(I, i, H_JS) + J_RTOP] + 1):
+    for seg in range(1, I[js + J_RTOP] + 1):
         for k in range(k_types):
             F[sums + k] = 0.0
-        for p in range(I[hdr(I, i, H_REND) + seg - 1], I[hdr(I, i, H_REND) + seg]):
-            F[sums + I[hdr(I, i, H_TPOS) + p]] += force_length(F[hdr(I, i, H_CPOS) + p] * x_ce)
+        for p in range(I[r_end + seg - 1], I[r_end + seg]):
+            F[sums + I[tpos + p]] += force_length(F[cpos + p] * x_ce)
         part = 0.0
         for k in range(k_types):
             mu = 1.0
             if fatigue:
-                mu = F[hdr(I, i, H_TP) + T_MU_MIN * hdr(I, i, H_K) + k] + F[hdr(I, i, H_REXN) + (seg) * hdr(I, i, H_K) + k] * math.exp(
-                    -elapsed * F[hdr(I, i, H_TP) + T_RATE_FAT * hdr(I, i, H_K) + k])
-            part += F[hdr(I, i, H_TP) + T_F_MAX * hdr(I, i, H_K) + k] * F[sums + k] * mu
+                mu = F[per_type(I, i, H_TP, T_MU_MIN, k)] + F[per_type(I, i, H_REXN, seg, k)] * (
+                    math.exp(-elapsed * F[per_type(I, i, H_TP, T_RATE_FAT, k)]))
+            part += F[per_type(I, i, H_TP, T_F_MAX, k)] * F[sums + k] * mu
         total += part
     return total
 
 
 def pool_mean_fitness(F, I, i, t):
     """[-] mean fitness over all N units (UnitPool.mean_fitness)."""
-    if not I[hdr(I, i, H_IP) + I_FATIGUE]:
+    fs, js = hdr(I, i, H_FS), hdr(I, i, H_JS)
+    ip = hdr(I, i, H_IP)
+    if not I[ip + I_FATIGUE]:
         return 1.0
-    top, un = I[hdr(I, i, H_JS) + J_RTOP], I[hdr(I, i, H_JS) + J_UN]
-    elapsed = t - F[hdr(I, i, H_FS) + S_EPOCH]
+    k_types = I[ip + I_K]
+    top, un = I[js + J_RTOP], I[js + J_UN]
+    elapsed = t - F[fs + S_EPOCH]
     tired = 0.0
-    for k in range(I[hdr(I, i, H_IP) + I_K]):
-        tired += (1.0 - F[hdr(I, i, H_TP) + T_MU_MIN * hdr(I, i, H_K) + k]) * F[hdr(I, i, H_RSTATIC) + ((top) * hdr(I, i, H_K) + k) * 4 + C_N]
-    for k in range(I[hdr(I, i, H_IP) + I_K]):
-        tired -= F[hdr(I, i, H_RDYN) + ((top) * hdr(I, i, H_K) + k) * 4 + C_N] * math.exp(-elapsed * F[hdr(I, i, H_TP) + T_RATE_FAT * hdr(I, i, H_K) + k])
-    for k in range(I[hdr(I, i, H_IP) + I_K]):
-        rest = F[hdr(I, i, H_UCUM) + (un - 1) * hdr(I, i, H_K) + k] if un > 0 else 0.0
-        tired += rest * math.exp(-elapsed * F[hdr(I, i, H_TP) + T_RATE_REC * hdr(I, i, H_K) + k])
-    return 1.0 - tired / I[hdr(I, i, H_IP) + I_N]
+    for k in range(k_types):
+        tired += (1.0 - F[per_type(I, i, H_TP, T_MU_MIN, k)]) * F[
+            per_sum(I, i, H_RSTATIC, top, k, C_N)]
+    for k in range(k_types):
+        tired -= F[per_sum(I, i, H_RDYN, top, k, C_N)] * math.exp(
+            -elapsed * F[per_type(I, i, H_TP, T_RATE_FAT, k)])
+    for k in range(k_types):
+        rest = F[per_type(I, i, H_UCUM, un - 1, k)] if un > 0 else 0.0
+        tired += rest * math.exp(-elapsed * F[per_type(I, i, H_TP, T_RATE_REC, k)])
+    return 1.0 - tired / I[ip + I_N]
 
 
 # -- the muscle ----------------------------------------------------------------------------------
 
 def eff_f_iso(F, I, i, l, t):
     """[N] Eff.f_iso at CE length ``l`` and instant ``t`` (FesMuscle.eff_f_iso)."""
-    if I[hdr(I, i, H_IP) + I_MULTI]:
-        return pool_eff_f_iso(F, I, i, l / F[hdr(I, i, H_FP) + P_L_OPT], t)
-    a = piece_activation(F[hdr(I, i, H_FS) + S_PIECE + 1], F[hdr(I, i, H_FS) + S_PIECE + 2], F[hdr(I, i, H_FS) + S_PIECE + 3],
-                         t - F[hdr(I, i, H_FS) + S_PIECE])
+    fs, fp, ip = hdr(I, i, H_FS), hdr(I, i, H_FP), hdr(I, i, H_IP)
+    if I[ip + I_MULTI]:
+        return pool_eff_f_iso(F, I, i, l / F[fp + P_L_OPT], t)
+    a = piece_activation(F[fs + S_PIECE + 1], F[fs + S_PIECE + 2], F[fs + S_PIECE + 3],
+                         t - F[fs + S_PIECE])
     if a <= 0.0:
         return 0.0
     mu = 1.0
-    if I[hdr(I, i, H_IP) + I_FATIGUE]:
-        mu = fitness_at(F[hdr(I, i, H_FS) + S_LAW + 1], F[hdr(I, i, H_FS) + S_LAW + 2], F[hdr(I, i, H_FS) + S_LAW + 3],
-                        t - F[hdr(I, i, H_FS) + S_LAW])
-    if I[hdr(I, i, H_IP) + I_INITIAL]:
-        f = F[hdr(I, i, H_FS) + S_F_SINGLE]
+    if I[ip + I_FATIGUE]:
+        mu = fitness_at(F[fs + S_LAW + 1], F[fs + S_LAW + 2], F[fs + S_LAW + 3],
+                        t - F[fs + S_LAW])
+    if I[ip + I_INITIAL]:
+        f = F[fs + S_F_SINGLE]
     else:
-        f = F[hdr(I, i, H_FP) + P_F_ISO_MAX] * force_length(l / F[hdr(I, i, H_FP) + P_L_OPT])
+        f = F[fp + P_F_ISO_MAX] * force_length(l / F[fp + P_L_OPT])
     return a * mu * f
 
 
 def velocity(F, I, i, l, dl, f0):
     """[m/s] d l_CE / dt at F0 = ``f0`` (FesMuscle._velocity)."""
-    return fes_velocity(l, dl, f0, F[hdr(I, i, H_FP) + P_K_SE], F[hdr(I, i, H_FP) + P_L_REST], F[hdr(I, i, H_FP) + P_A], F[hdr(I, i, H_FP) + P_B],
-                        F[hdr(I, i, H_FP) + P_A_ECC], F[hdr(I, i, H_FP) + P_B_ECC], F[hdr(I, i, H_FP) + P_F_ISO_MAX],
-                        I[hdr(I, i, H_IP) + I_RELATIVE] != 0)
+    fp, ip = hdr(I, i, H_FP), hdr(I, i, H_IP)
+    return fes_velocity(l, dl, f0, F[fp + P_K_SE], F[fp + P_L_REST], F[fp + P_A], F[fp + P_B],
+                        F[fp + P_A_ECC], F[fp + P_B_ECC], F[fp + P_F_ISO_MAX],
+                        I[ip + I_RELATIVE] != 0)
 
 
 def stiffness_rate(F, I, i, l, dl, t):
     """[1/s] the CE's relaxation rate (FesMuscle.stiffness_rate)."""
-    return relaxation_rate(l, dl, eff_f_iso(F, I, i, l, t), F[hdr(I, i, H_FP) + P_K_SE], F[hdr(I, i, H_FP) + P_L_REST],
-                           F[hdr(I, i, H_FP) + P_A], F[hdr(I, i, H_FP) + P_B], F[hdr(I, i, H_FP) + P_A_ECC], F[hdr(I, i, H_FP) + P_B_ECC],
-                           F[hdr(I, i, H_FP) + P_F_ISO_MAX], I[hdr(I, i, H_IP) + I_RELATIVE] != 0)
+    fp, ip = hdr(I, i, H_FP), hdr(I, i, H_IP)
+    return relaxation_rate(l, dl, eff_f_iso(F, I, i, l, t), F[fp + P_K_SE], F[fp + P_L_REST],
+                           F[fp + P_A], F[fp + P_B], F[fp + P_A_ECC], F[fp + P_B_ECC],
+                           F[fp + P_F_ISO_MAX], I[ip + I_RELATIVE] != 0)
 
 
 def substeps(F, I, i, h, l, dl, s0, s1):
@@ -473,78 +518,86 @@ def substeps(F, I, i, h, l, dl, s0, s1):
 
 def single_fatigue(F, I, i):
     """True for a single muscle with Riener fatigue (the whole-muscle law)."""
-    return I[hdr(I, i, H_IP) + I_MULTI] == 0 and I[hdr(I, i, H_IP) + I_FATIGUE] != 0
+    ip = hdr(I, i, H_IP)
+    return I[ip + I_MULTI] == 0 and I[ip + I_FATIGUE] != 0
 
 
 def begin_interval(F, I, i, s0, s1):
     """The single muscle's fitness law over [s0, s1], a held at its midpoint value
     (FesMuscle.begin_interval)."""
+    fs, fp = hdr(I, i, H_FS), hdr(I, i, H_FP)
     if not single_fatigue(F, I, i):
         return
-    a = piece_activation(F[hdr(I, i, H_FS) + S_PIECE + 1], F[hdr(I, i, H_FS) + S_PIECE + 2], F[hdr(I, i, H_FS) + S_PIECE + 3],
-                         0.5 * (s0 + s1) - F[hdr(I, i, H_FS) + S_PIECE])
-    a = max(a, 0.0) if a > F[hdr(I, i, H_FP) + P_RELEASE] else 0.0
-    rate_f, rate_r = F[hdr(I, i, H_FP) + P_RATE_F0], F[hdr(I, i, H_FP) + P_RATE_R0]
+    a = piece_activation(F[fs + S_PIECE + 1], F[fs + S_PIECE + 2], F[fs + S_PIECE + 3],
+                         0.5 * (s0 + s1) - F[fs + S_PIECE])
+    a = max(a, 0.0) if a > F[fp + P_RELEASE] else 0.0
+    rate_f, rate_r = F[fp + P_RATE_F0], F[fp + P_RATE_R0]
     lam = riener_rate(a, rate_f, rate_r)
-    F[hdr(I, i, H_FS) + S_LAW] = s0
-    F[hdr(I, i, H_FS) + S_LAW + 1] = F[hdr(I, i, H_FS) + S_MU]
-    F[hdr(I, i, H_FS) + S_LAW + 2] = riener_limit(a, F[hdr(I, i, H_FP) + P_MU_MIN0], rate_f, rate_r, lam)
-    F[hdr(I, i, H_FS) + S_LAW + 3] = lam
+    F[fs + S_LAW] = s0
+    F[fs + S_LAW + 1] = F[fs + S_MU]
+    F[fs + S_LAW + 2] = riener_limit(a, F[fp + P_MU_MIN0], rate_f, rate_r, lam)
+    F[fs + S_LAW + 3] = lam
 
 
 def end_interval(F, I, i, s1):
     """The single muscle's fitness at ``s1`` (FesMuscle.end_interval)."""
+    fs = hdr(I, i, H_FS)
     if single_fatigue(F, I, i):
-        F[hdr(I, i, H_FS) + S_MU] = fitness_at(F[hdr(I, i, H_FS) + S_LAW + 1], F[hdr(I, i, H_FS) + S_LAW + 2], F[hdr(I, i, H_FS) + S_LAW + 3],
-                                 s1 - F[hdr(I, i, H_FS) + S_LAW])
+        F[fs + S_MU] = fitness_at(F[fs + S_LAW + 1], F[fs + S_LAW + 2], F[fs + S_LAW + 3],
+                                 s1 - F[fs + S_LAW])
 
 
 def set_activation(F, I, i, a, t):
     """a = R at ``t``, the memory updated from l_CE now (FesMuscle._set_activation)."""
-    if I[hdr(I, i, H_IP) + I_MULTI]:
-        m = recruited_units(a, I[hdr(I, i, H_IP) + I_N])
-        pool_update(F, I, i, m, F[hdr(I, i, H_FS) + S_L] / F[hdr(I, i, H_FP) + P_L_OPT], t)
-        I[hdr(I, i, H_JS) + J_NREC] = m
+    fs, fp, js, ip = hdr(I, i, H_FS), hdr(I, i, H_FP), hdr(I, i, H_JS), hdr(I, i, H_IP)
+    if I[ip + I_MULTI]:
+        m = recruited_units(a, I[ip + I_N])
+        pool_update(F, I, i, m, F[fs + S_L] / F[fp + P_L_OPT], t)
+        I[js + J_NREC] = m
     else:
         if a == 0.0:
-            F[hdr(I, i, H_FS) + S_F_SINGLE] = 0.0
-        elif F[hdr(I, i, H_FS) + S_R] == 0.0:
-            F[hdr(I, i, H_FS) + S_F_SINGLE] = F[hdr(I, i, H_FP) + P_F_ISO_MAX] * force_length(F[hdr(I, i, H_FS) + S_L] / F[hdr(I, i, H_FP) + P_L_OPT])
-        I[hdr(I, i, H_JS) + J_NREC] = 1 if a > 0.0 else 0
-    F[hdr(I, i, H_FS) + S_R] = a
+            F[fs + S_F_SINGLE] = 0.0
+        elif F[fs + S_R] == 0.0:
+            F[fs + S_F_SINGLE] = F[fp + P_F_ISO_MAX] * force_length(F[fs + S_L] / F[fp + P_L_OPT])
+        I[js + J_NREC] = 1 if a > 0.0 else 0
+    F[fs + S_R] = a
 
 
 def tau_for(F, I, i, a, u_d):
     """[s] tau in force: ``tau_act_s`` while u_d > a, else ``tau_deact_s``."""
-    return F[hdr(I, i, H_FP) + P_TAU_ACT] if u_d > a else F[hdr(I, i, H_FP) + P_TAU_DEACT]
+    fp = hdr(I, i, H_FP)
+    return F[fp + P_TAU_ACT] if u_d > a else F[fp + P_TAU_DEACT]
 
 
 def set_piece(F, I, i, s0, a0, u_d, tau):
     """The activation's closed form from ``s0`` (FesMuscle._piece)."""
-    F[hdr(I, i, H_FS) + S_PIECE] = s0
-    F[hdr(I, i, H_FS) + S_PIECE + 1] = a0
-    F[hdr(I, i, H_FS) + S_PIECE + 2] = u_d
-    F[hdr(I, i, H_FS) + S_PIECE + 3] = tau
+    fs = hdr(I, i, H_FS)
+    F[fs + S_PIECE] = s0
+    F[fs + S_PIECE + 1] = a0
+    F[fs + S_PIECE + 2] = u_d
+    F[fs + S_PIECE + 3] = tau
 
 
 def settle_now(F, I, i):
     """Apply a delayed command due now if the activation follows it at once
     (FesMuscle.settle_now)."""
-    t = F[hdr(I, i, H_FS) + S_T]
+    fs, fp = hdr(I, i, H_FS), hdr(I, i, H_FP)
+    t = F[fs + S_T]
     u_d = delay_settle(F, I, i, t)
-    if u_d != F[hdr(I, i, H_FS) + S_R] and tau_for(F, I, i, F[hdr(I, i, H_FS) + S_R], u_d) == 0.0:
+    if u_d != F[fs + S_R] and tau_for(F, I, i, F[fs + S_R], u_d) == 0.0:
         set_activation(F, I, i, u_d, t)
         set_piece(F, I, i, t, u_d, u_d, 0.0)
-        if eff_f_iso(F, I, i, F[hdr(I, i, H_FS) + S_L], t) == 0.0:
-            F[hdr(I, i, H_FS) + S_L] = F[hdr(I, i, H_FP) + P_L_REST] + F[hdr(I, i, H_FS) + S_DL]
+        if eff_f_iso(F, I, i, F[fs + S_L], t) == 0.0:
+            F[fs + S_L] = F[fp + P_L_REST] + F[fs + S_DL]
 
 
 def give_command(F, I, i, u):
     """Queue command ``u`` now and apply what is due (FesMuscle.give_command);
     False if the delay line is full (nothing changed)."""
-    if not delay_push(F, I, i, F[hdr(I, i, H_FS) + S_T], u):
+    fs = hdr(I, i, H_FS)
+    if not delay_push(F, I, i, F[fs + S_T], u):
         return False
-    F[hdr(I, i, H_FS) + S_CMD] = u
+    F[fs + S_CMD] = u
     settle_now(F, I, i)
     return True
 
@@ -553,14 +606,15 @@ def give_command(F, I, i, u):
 
 def add_event(F, I, i, t, action, v0, v1, v2, v3):
     """Append ``(t, action, values)`` to muscle ``i``'s plan."""
-    n = I[hdr(I, i, H_JS) + J_NEV]
+    js = hdr(I, i, H_JS)
+    n = I[js + J_NEV]
     F[hdr(I, i, H_EVT) + n] = t
     I[hdr(I, i, H_EVA) + n] = action
     F[hdr(I, i, H_EVV) + n * 4 + 0] = v0
     F[hdr(I, i, H_EVV) + n * 4 + 1] = v1
     F[hdr(I, i, H_EVV) + n * 4 + 2] = v2
     F[hdr(I, i, H_EVV) + n * 4 + 3] = v3
-    I[hdr(I, i, H_JS) + J_NEV] = n + 1
+    I[js + J_NEV] = n + 1
 
 
 def group_target(m0, step, count, j):
@@ -578,7 +632,8 @@ def group_target(m0, step, count, j):
 
 def plan_events(F, I, i, s0, s1, a0, u_d, tau, m0):
     """Recruitment events of a moving piece (FesMuscle._events); returns M at s1."""
-    n = I[hdr(I, i, H_IP) + I_N]
+    ip = hdr(I, i, H_IP)
+    n = I[ip + I_N]
     m1 = recruited_units(activation_at(a0, u_d, tau, s1 - s0), n)
     if m1 == m0:
         return m0
@@ -597,21 +652,22 @@ def plan_events(F, I, i, s0, s1, a0, u_d, tau, m0):
 def plan(F, I, i, t0, t1):
     """The recruitment changes of the step [t0, t1] into muscle ``i``'s event
     table (FesMuscle.plan); consumes the delayed commands due in the step."""
+    fs, js = hdr(I, i, H_FS), hdr(I, i, H_JS)
     cap = hdr(I, i, H_CAPDQ)
-    I[hdr(I, i, H_JS) + J_NEV] = 0
-    a, m = F[hdr(I, i, H_FS) + S_R], I[hdr(I, i, H_JS) + J_NREC]
-    start, u_d = t0, F[hdr(I, i, H_FS) + S_UD]
+    I[js + J_NEV] = 0
+    a, m = F[fs + S_R], I[js + J_NREC]
+    start, u_d = t0, F[fs + S_UD]
     done = False
     while not done:
         # The next piece of constant delayed command (DelayLine.pieces).
         s0, piece_u = start, u_d
         s1 = t1
         done = True
-        while I[hdr(I, i, H_JS) + J_DCOUNT] > 0 and F[hdr(I, i, H_DQT) + I[hdr(I, i, H_JS) + J_DHEAD]] < t1 - TIME_TOL_S:
-            head = I[hdr(I, i, H_JS) + J_DHEAD]
+        while I[js + J_DCOUNT] > 0 and F[hdr(I, i, H_DQT) + I[js + J_DHEAD]] < t1 - TIME_TOL_S:
+            head = I[js + J_DHEAD]
             t_switch, u_next = F[hdr(I, i, H_DQT) + head], F[hdr(I, i, H_DQU) + head]
-            I[hdr(I, i, H_JS) + J_DHEAD] = (head + 1) % cap
-            I[hdr(I, i, H_JS) + J_DCOUNT] -= 1
+            I[js + J_DHEAD] = (head + 1) % cap
+            I[js + J_DCOUNT] -= 1
             u_d = u_next
             if t_switch > start + TIME_TOL_S:
                 s1 = t_switch
@@ -620,7 +676,7 @@ def plan(F, I, i, t0, t1):
                 break
             piece_u = u_next
         if done:
-            F[hdr(I, i, H_FS) + S_UD] = u_d
+            F[fs + S_UD] = u_d
         a, m = plan_piece(F, I, i, s0, s1, piece_u, a, m)
     add_event(F, I, i, t1, A_END, a, 0.0, 0.0, 0.0)
 
@@ -628,13 +684,14 @@ def plan(F, I, i, t0, t1):
 def plan_piece(F, I, i, s0, s1, u_d, a, m):
     """Events of one piece [s0, s1] of constant delayed command (the loop body of
     FesMuscle.plan); returns a and M at s1."""
-    multi = I[hdr(I, i, H_IP) + I_MULTI] != 0
+    fp, ip = hdr(I, i, H_FP), hdr(I, i, H_IP)
+    multi = I[ip + I_MULTI] != 0
     tau = tau_for(F, I, i, a, u_d) if u_d != a else 0.0
     if tau == 0.0:
         if u_d != a:
             add_event(F, I, i, s0, A_JUMP, u_d, 0.0, 0.0, 0.0)
             a = u_d
-            m = recruited_units(a, I[hdr(I, i, H_IP) + I_N]) if multi else (1 if a > 0.0 else 0)
+            m = recruited_units(a, I[ip + I_N]) if multi else (1 if a > 0.0 else 0)
         add_event(F, I, i, s0, A_PIECE, s0, a, a, 0.0)
         return a, m
     add_event(F, I, i, s0, A_PIECE, s0, a, u_d, tau)
@@ -644,14 +701,14 @@ def plan_piece(F, I, i, s0, s1, u_d, a, m):
     if a == 0.0:
         add_event(F, I, i, s0, A_RISE, 0.0, 0.0, 0.0, 0.0)
     a1 = activation_at(a, u_d, tau, s1 - s0)
-    level = F[hdr(I, i, H_FP) + P_RELEASE]
+    level = F[fp + P_RELEASE]
     if u_d < a and u_d < level and a1 < level < a:
         s_rel = s0 + time_to_reach(a, u_d, tau, level)
         add_event(F, I, i, s_rel, A_RELEASE, 0.0, 0.0, 0.0, 0.0)
         if u_d > 0.0:   # rising again towards a command below one unit
-            add_event(F, I, i, s_rel, A_PIECE, s_rel, 0.0, u_d, F[hdr(I, i, H_FP) + P_TAU_ACT])
+            add_event(F, I, i, s_rel, A_PIECE, s_rel, 0.0, u_d, F[fp + P_TAU_ACT])
             add_event(F, I, i, s_rel, A_RISE, 0.0, 0.0, 0.0, 0.0)
-            a1 = activation_at(0.0, u_d, F[hdr(I, i, H_FP) + P_TAU_ACT], s1 - s_rel)
+            a1 = activation_at(0.0, u_d, F[fp + P_TAU_ACT], s1 - s_rel)
         else:
             add_event(F, I, i, s_rel, A_PIECE, s_rel, 0.0, 0.0, 0.0)
             a1 = 0.0
@@ -660,34 +717,37 @@ def plan_piece(F, I, i, s0, s1, u_d, a, m):
 
 def apply(F, I, i, e, t):
     """Apply event ``e`` of muscle ``i``'s plan at ``t`` (FesMuscle.apply)."""
+    fs, fp, js, ip = hdr(I, i, H_FS), hdr(I, i, H_FP), hdr(I, i, H_JS), hdr(I, i, H_IP)
     action = I[hdr(I, i, H_EVA) + e]
     if action == A_PIECE:
-        set_piece(F, I, i, F[hdr(I, i, H_EVV) + e * 4 + 0], F[hdr(I, i, H_EVV) + e * 4 + 1], F[hdr(I, i, H_EVV) + e * 4 + 2], F[hdr(I, i, H_EVV) + e * 4 + 3])
+        v = hdr(I, i, H_EVV) + e * 4
+        set_piece(F, I, i, F[v], F[v + 1], F[v + 2], F[v + 3])
     elif action == A_RECRUIT:
         m = int(F[hdr(I, i, H_EVV) + e * 4 + 0])
-        pool_update(F, I, i, m, F[hdr(I, i, H_FS) + S_L] / F[hdr(I, i, H_FP) + P_L_OPT], t)
-        I[hdr(I, i, H_JS) + J_NREC] = m
+        pool_update(F, I, i, m, F[fs + S_L] / F[fp + P_L_OPT], t)
+        I[js + J_NREC] = m
     elif action == A_JUMP:
         set_activation(F, I, i, F[hdr(I, i, H_EVV) + e * 4 + 0], t)
     elif action == A_RISE:
-        F[hdr(I, i, H_FS) + S_F_SINGLE] = F[hdr(I, i, H_FP) + P_F_ISO_MAX] * force_length(F[hdr(I, i, H_FS) + S_L] / F[hdr(I, i, H_FP) + P_L_OPT])
-        I[hdr(I, i, H_JS) + J_NREC] = 1
+        F[fs + S_F_SINGLE] = F[fp + P_F_ISO_MAX] * force_length(F[fs + S_L] / F[fp + P_L_OPT])
+        I[js + J_NREC] = 1
     elif action == A_RELEASE:
         set_activation(F, I, i, 0.0, t)
     else:   # A_END
         a = F[hdr(I, i, H_EVV) + e * 4 + 0]
-        F[hdr(I, i, H_FS) + S_R] = a
-        if not I[hdr(I, i, H_IP) + I_MULTI]:
-            I[hdr(I, i, H_JS) + J_NREC] = 1 if a > 0.0 else 0
+        F[fs + S_R] = a
+        if not I[ip + I_MULTI]:
+            I[js + J_NREC] = 1 if a > 0.0 else 0
 
 
 # -- one muscle with its MTU length imposed --------------------------------------------------
 
 def muscle_rk4(F, I, i, s0, s1, t0, dl0, rate):
     """One RK4 step of l_CE over [s0, s1] (FesMuscle._rk4)."""
+    fs, fp, ip = hdr(I, i, H_FS), hdr(I, i, H_FP), hdr(I, i, H_IP)
     h = s1 - s0
-    initial = I[hdr(I, i, H_IP) + I_INITIAL] != 0
-    l = F[hdr(I, i, H_FS) + S_L]
+    initial = I[ip + I_INITIAL] != 0
+    l = F[fs + S_L]
     f0 = eff_f_iso(F, I, i, l, s0)
     dl_a = dl0 + rate * (s0 - t0)
     dl_b = dl0 + rate * (s1 - t0)
@@ -711,21 +771,22 @@ def muscle_rk4(F, I, i, s0, s1, t0, dl0, rate):
             k4 = velocity(F, I, i, l4, dl_b, eff_f_iso(F, I, i, l4, s1))
         l = l + h * (k1 + 2.0 * k2 + 2.0 * k3 + k4) / 6.0
         if not initial and eff_f_iso(F, I, i, l, s1) == 0.0:
-            l = F[hdr(I, i, H_FP) + P_L_REST] + dl_b   # the instantaneous CE left the FL range
+            l = F[fp + P_L_REST] + dl_b   # the instantaneous CE left the FL range
         elif initial and f0_end == 0.0:
-            l = F[hdr(I, i, H_FP) + P_L_REST] + dl_b   # single: released within the piece
+            l = F[fp + P_L_REST] + dl_b   # single: released within the piece
     else:
-        l = F[hdr(I, i, H_FP) + P_L_REST] + dl_b       # the free CE takes up the SE slack
-    F[hdr(I, i, H_FS) + S_L] = l
+        l = F[fp + P_L_REST] + dl_b       # the free CE takes up the SE slack
+    F[fs + S_L] = l
 
 
 def muscle_integrate(F, I, i, s0, s1, t0, dl0, rate):
     """RK4 of l_CE over [s0, s1], no recruitment change inside (FesMuscle._integrate)."""
+    fs = hdr(I, i, H_FS)
     h = s1 - s0
     if h <= 0.0:
         return
     begin_interval(F, I, i, s0, s1)
-    n = substeps(F, I, i, h, F[hdr(I, i, H_FS) + S_L], dl0 + rate * (s0 - t0), s0, s1)
+    n = substeps(F, I, i, h, F[fs + S_L], dl0 + rate * (s0 - t0), s0, s1)
     for j in range(n):
         a = s0 + h * j / n
         b = s1 if j == n - 1 else s0 + h * (j + 1) / n
@@ -736,44 +797,46 @@ def muscle_integrate(F, I, i, s0, s1, t0, dl0, rate):
 def muscle_advance(F, I, i, u, dl1, dt):
     """One step: command ``u`` given at its start, dl_MT ramping to ``dl1``
     (FesMuscle._advance); returns :data:`OK` or :data:`DELAY_FULL`."""
-    t0, dl0 = F[hdr(I, i, H_FS) + S_T], F[hdr(I, i, H_FS) + S_DL]
+    fs, js, ip = hdr(I, i, H_FS), hdr(I, i, H_JS), hdr(I, i, H_IP)
+    t0, dl0 = F[fs + S_T], F[fs + S_DL]
     t1 = t0 + dt
     if not give_command(F, I, i, u):
         return DELAY_FULL
     rate = (dl1 - dl0) / dt
     plan(F, I, i, t0, t1)
     s = t0
-    for e in range(I[hdr(I, i, H_JS) + J_NEV]):
+    for e in range(I[js + J_NEV]):
         instant = F[hdr(I, i, H_EVT) + e]
         muscle_integrate(F, I, i, s, instant, t0, dl0, rate)
         apply(F, I, i, e, instant)
         s = instant
-    F[hdr(I, i, H_FS) + S_V_FREE] = rate
-    F[hdr(I, i, H_FS) + S_DL] = dl1
-    F[hdr(I, i, H_FS) + S_T] = t1
+    F[fs + S_V_FREE] = rate
+    F[fs + S_DL] = dl1
+    F[fs + S_T] = t1
     settle_now(F, I, i)
-    if I[hdr(I, i, H_IP) + I_MULTI]:
+    if I[ip + I_MULTI]:
         pool_advance_to(F, I, i, t1)
     return OK
 
 
 def muscle_outputs(F, I, i, out):
     """The outputs now into ``out`` (12,), MuscleOutputs' order (FesMuscle.outputs)."""
-    l, dl, t = F[hdr(I, i, H_FS) + S_L], F[hdr(I, i, H_FS) + S_DL], F[hdr(I, i, H_FS) + S_T]
-    r = F[hdr(I, i, H_FS) + S_R]
+    fs, fp, js, ip = hdr(I, i, H_FS), hdr(I, i, H_FP), hdr(I, i, H_JS), hdr(I, i, H_IP)
+    l, dl, t = F[fs + S_L], F[fs + S_DL], F[fs + S_T]
+    r = F[fs + S_R]
     set_piece(F, I, i, t, r, r, 0.0)
-    F[hdr(I, i, H_FS) + S_LAW] = t
-    F[hdr(I, i, H_FS) + S_LAW + 1] = F[hdr(I, i, H_FS) + S_MU]
-    F[hdr(I, i, H_FS) + S_LAW + 2] = F[hdr(I, i, H_FS) + S_MU]
-    F[hdr(I, i, H_FS) + S_LAW + 3] = 0.0
-    stretch = dl - (l - F[hdr(I, i, H_FP) + P_L_REST])
-    f_se = F[hdr(I, i, H_FP) + P_K_SE] * stretch if stretch > 0.0 else 0.0
-    f_pe = F[hdr(I, i, H_FP) + P_K_PE] * dl if dl > 0.0 else 0.0
+    F[fs + S_LAW] = t
+    F[fs + S_LAW + 1] = F[fs + S_MU]
+    F[fs + S_LAW + 2] = F[fs + S_MU]
+    F[fs + S_LAW + 3] = 0.0
+    stretch = dl - (l - F[fp + P_L_REST])
+    f_se = F[fp + P_K_SE] * stretch if stretch > 0.0 else 0.0
+    f_pe = F[fp + P_K_PE] * dl if dl > 0.0 else 0.0
     f0 = eff_f_iso(F, I, i, l, t)
-    v = velocity(F, I, i, l, dl, f0) if f0 > 0.0 else F[hdr(I, i, H_FS) + S_V_FREE]
+    v = velocity(F, I, i, l, dl, f0) if f0 > 0.0 else F[fs + S_V_FREE]
     out[0] = t
     out[1] = r
-    out[2] = I[hdr(I, i, H_JS) + J_NREC]
+    out[2] = I[js + J_NREC]
     out[3] = dl
     out[4] = l
     out[5] = v
@@ -781,8 +844,8 @@ def muscle_outputs(F, I, i, out):
     out[7] = f_pe
     out[8] = f_se + f_pe
     out[9] = f0
-    out[10] = F[hdr(I, i, H_FS) + S_CMD]
-    out[11] = pool_mean_fitness(F, I, i, t) if I[hdr(I, i, H_IP) + I_MULTI] else F[hdr(I, i, H_FS) + S_MU]
+    out[10] = F[fs + S_CMD]
+    out[11] = pool_mean_fitness(F, I, i, t) if I[ip + I_MULTI] else F[fs + S_MU]
 
 
 def muscle_run(F, I, i, r_start, dl_end, dt, r_end, have_r_end, out):
@@ -790,10 +853,11 @@ def muscle_run(F, I, i, r_start, dl_end, dt, r_end, have_r_end, out):
 
     :return: the number of steps done (fewer if the delay line filled up)
     """
+    fs = hdr(I, i, H_FS)
     for k in range(dl_end.shape[0]):
         if muscle_advance(F, I, i, r_start[k], dl_end[k], dt) != OK:
             return k
-        if have_r_end and r_end[k] != F[hdr(I, i, H_FS) + S_CMD]:
+        if have_r_end and r_end[k] != F[fs + S_CMD]:
             if not give_command(F, I, i, r_end[k]):
                 return k
         muscle_outputs(F, I, i, out[k])
@@ -969,7 +1033,8 @@ _EQUATIONS = ('force_length', 'force_velocity_inverse', 'activation_at', 'time_t
               'fl_clear', 'type_fl_sum', 'moment_force', 'recruited_excess',
               'resting_deficit')
 #: This module's functions, callees before callers.
-_KERNELS = ('hdr', 'scratch', 'forget_eff_f_iso', 'delay_push', 'delay_settle', 'pool_static_row', 'pool_push_recruited',
+_KERNELS = ('hdr', 'scratch', 'forget_eff_f_iso', 'per_type', 'per_sum', 'moment',
+            'delay_push', 'delay_settle', 'pool_static_row', 'pool_push_recruited',
             'pool_clocks', 'pool_advance_to', 'pool_recruit', 'pool_release', 'pool_update',
             'pool_eff_f_iso_clipped', 'pool_eff_f_iso', 'pool_mean_fitness', 'eff_f_iso',
             'velocity', 'stiffness_rate', 'substeps', 'single_fatigue', 'begin_interval',
@@ -977,11 +1042,6 @@ _KERNELS = ('hdr', 'scratch', 'forget_eff_f_iso', 'delay_push', 'delay_settle', 
             'give_command', 'add_event', 'group_target', 'plan_events', 'plan_piece', 'plan',
             'apply', 'muscle_rk4', 'muscle_integrate', 'muscle_advance', 'muscle_outputs',
             'muscle_run')
-#: Kernels called at every RK4 stage or event, inlined into their callers: a
-#: call passes the whole bundle (and counts references to each of its arrays).
-_HOT = ('delay_push', 'delay_settle', 'pool_eff_f_iso', 'eff_f_iso', 'velocity',
-        'stiffness_rate', 'substeps', 'single_fatigue', 'begin_interval', 'end_interval',
-        'tau_for', 'set_piece', 'add_event', 'muscle_rk4')
 #: The modules whose code the kernels inline: their digest names the cache entries.
 _DIGEST_OF = (curves, stimulus, memory, units, unit_pool, fes_muscle)
 #: The compiled namespace once built (None until then).
@@ -1008,7 +1068,8 @@ def compiled() -> types.SimpleNamespace:
     body = {'error_model': 'numpy'}
     options = {name: leaf for name in _EQUATIONS}
     options.update({name: body for name in _KERNELS})
-    options.update({name: leaf for name in ('hdr', 'scratch', 'forget_eff_f_iso')})
+    options.update({name: leaf for name in ('hdr', 'scratch', 'forget_eff_f_iso', 'per_type',
+                                            'per_sum', 'moment')})
 
     def run_signature(numba):
         f8, i8 = numba.float64, numba.int64
