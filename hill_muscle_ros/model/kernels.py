@@ -1,4 +1,5 @@
-"""The batch step of one muscle as plain scalar functions, for Python and numba.
+"""The model's step as plain scalar functions, for Python and numba: the batch
+and the single muscle's offline run.
 
 :class:`~hill_muscle_ros.model.batch.MuscleBatch`'s compiled engine runs
 :func:`step_all` compiled by numba; the same functions run unchanged as plain
@@ -8,19 +9,26 @@ and the integrator is the RK4 step of :meth:`Muscle.step
 <hill_muscle_ros.model.muscle.Muscle.step>` (recruitment held, MTU length
 ramping linearly, the free CE when Eff.f_iso = 0; doc/model.md section 4).
 
-:func:`compiled` builds the numba versions: numba is imported there and only
-there, so importing this module (or the package) never loads it. Each
-function is compiled from its own code object with the names it calls bound
-to their compiled versions, and cached on disk (``cache=True``), so only the
-first process compiles. numba's cache notices a change of this file but not
-of :mod:`.curves` or :mod:`.memory`, which the kernels inline: so the kernels'
-cache entries carry a digest of ``curves.py`` and ``memory.py`` in their
-names, and an edited curve or stack compiles anew.
+:func:`run_muscle` is :meth:`Muscle.run
+<hill_muscle_ros.model.muscle.Muscle.run>`'s loop over a whole protocol for
+one muscle of the paper's model, built from the same :func:`step_one` and
+:func:`recruit_one`; :func:`run_compiled` runs it compiled on a ``Muscle``
+(``simulate`` does where that pays: :func:`.engine.use_compiled`).
+
+:func:`compiled` (the batch's kernels) and :func:`compiled_run` (the run)
+build the numba versions through :func:`.engine.compile_functions`: numba is
+imported there and only there, so importing this module (or the package)
+never loads it. Each function is compiled from its own code object with the
+names it calls bound to their compiled versions, and cached on disk, so only
+the first process compiles. numba's cache notices a change of this file but
+not of :mod:`.curves` or :mod:`.memory`, which the kernels inline: so the
+kernels' cache entries carry a digest of ``curves.py`` and ``memory.py`` in
+their names, and an edited curve or stack compiles anew.
 
 :func:`recruit_all` is the recruitment bookkeeping (M, gains, the run stacks
 of ``multi``/``initial`` muscles through :func:`.memory.stack_update`, the
-code :class:`~hill_muscle_ros.model.memory.UnitMemory` runs), one serial
-loop touching only the muscles whose R changed.
+code :class:`~hill_muscle_ros.model.memory.UnitMemory` runs): :func:`recruit_one`
+in one serial loop touching only the muscles whose R changed.
 
 Threads: :func:`step_all` runs its loop over muscles on numba's threads
 (``numba.set_num_threads``, ``NUMBA_NUM_THREADS``; all cores by default) when
