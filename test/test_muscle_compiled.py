@@ -118,6 +118,28 @@ def test_an_instantaneous_ce_leaving_and_reentering_the_fl_range_as_in_muscle_ru
     assert_same_state(compiled, reference)
 
 
+def test_eff_f_iso_is_carried_between_steps_as_muscle_run_carries_it():
+    # A fast CE, a soft tendon and 10 ms steps through a large length swing:
+    # at some steps the RK4 length leaves the FL range (Eff.f_iso = 0, the CE
+    # set free) while the free length is inside it. Muscle.run carries
+    # Eff.f_iso = 0 into the next step, a free step; a fresh Muscle.step call
+    # recomputes it at the free length and integrates, and ends elsewhere.
+    params = MuscleParams(units='single', length='instantaneous', f_iso_max_n=88.0,
+                          k_se_n_per_m=2600.0, l_opt_m=0.14, fv_a_n=2.3, fv_b_m_per_s=0.93,
+                          fv_a_ecc_n=29.0, fv_b_ecc_m_per_s=1.8)
+    dl = np.interp(np.linspace(0.0, 1.0, 60), np.linspace(0.0, 1.0, 4),
+                   [-0.05, -0.075, 0.074, 0.13])
+    r = np.ones(len(dl))
+    reference, compiled, stepped = Muscle(params), Muscle(params), Muscle(params)
+    expected = python_run(reference, r, dl, 1e-2, None)
+    one_call_a_step = [stepped.step(1.0, d, 1e-2).l_ce_m for d in dl]
+    # The case is reached: carrying and recomputing give different lengths.
+    assert np.abs(np.array(one_call_a_step) - expected[FIELDS.index('l_ce_m')]).max() > 1e-3
+    got = kernels.run_compiled(compiled, r, dl, 1e-2)
+    np.testing.assert_allclose(got, expected, rtol=0, atol=ATOL)
+    assert_same_state(compiled, reference)
+
+
 def simulate_counting(monkeypatch, protocol) -> tuple:
     """simulate(protocol) and the number of compiled runs it made."""
     calls = []
