@@ -376,6 +376,8 @@ def pool_eff_f_iso(F, I, i, x_ce, t):
     fp, js = hdr(I, i, H_FP), hdr(I, i, H_JS)
     ip, fs = hdr(I, i, H_IP), hdr(I, i, H_FS)
     top = I[js + J_RTOP]
+    if top == 0:
+        return 0.0   # nothing recruited: every sum below is exactly zero
     k_types, fatigue = I[ip + I_K], I[ip + I_FATIGUE]
     elapsed = t - F[fs + S_EPOCH]
     if I[ip + I_INITIAL]:
