@@ -29,7 +29,9 @@ def muscle_params():
         l_rest_m=st.floats(0.08, 0.16),
         l_opt_m=st.floats(0.101, 0.14),   # l_rest / l_opt < 1.597: FL at rest > 1 %
         fv_a_n=st.floats(2.0, 40.0),
-        fv_b_m_per_s=st.floats(0.01, 0.1),
+        # Fast CEs too: at a 10 ms step their RK4 carries the instantaneous CE
+        # out of the FL range, and its free length may be back inside it.
+        fv_b_m_per_s=st.floats(0.01, 0.1) | st.floats(0.5, 2.0),
         fv_a_ecc_n=st.floats(2.0, 40.0),
         fv_b_ecc_m_per_s=st.floats(0.01, 0.1),
         n_units=st.sampled_from([1, 7, 1000, 1_000_000]),
@@ -87,7 +89,7 @@ def assert_outputs_equal(fast, ref):
 
 
 @settings(max_examples=200, deadline=None)
-@given(muscle_params(), input_sequences(), st.sampled_from([1e-4, 1e-3, 2e-3]))
+@given(muscle_params(), input_sequences(), st.sampled_from([1e-4, 1e-3, 2e-3, 1e-2]))
 def test_step_equals_the_readable_reference_in_every_variant(params, sequence, dt):
     fast, ref = Muscle(params), Muscle(params)
     for r, dl in sequence:
@@ -95,24 +97,24 @@ def test_step_equals_the_readable_reference_in_every_variant(params, sequence, d
 
 
 @settings(max_examples=100, deadline=None)
-@given(muscle_params(), input_sequences())
-def test_step_outputs_equal_outputs_derived_from_the_state(params, sequence):
+@given(muscle_params(), input_sequences(), st.sampled_from([1e-3, 1e-2]))
+def test_step_outputs_equal_outputs_derived_from_the_state(params, sequence, dt):
     """What the hot loop returns is what the curve-based `outputs()` reads off the state."""
     m = Muscle(params)
     for r, dl in sequence:
-        assert_outputs_equal(m.step(r, dl, 1e-3), m.outputs())
+        assert_outputs_equal(m.step(r, dl, dt), m.outputs())
 
 
 @settings(max_examples=60, deadline=None)
-@given(muscle_params(), input_sequences(max_size=60))
-def test_run_over_a_sequence_equals_stepping_one_at_a_time(params, sequence):
+@given(muscle_params(), input_sequences(max_size=60), st.sampled_from([1e-3, 1e-2]))
+def test_run_over_a_sequence_equals_stepping_one_at_a_time(params, sequence, dt):
     batch, single = Muscle(params), Muscle(params)
     r = [x for x, _ in sequence]
     dl = [x for _, x in sequence]
     columns = [[None] * len(sequence) for _ in range(len(MuscleOutputs._fields))]
-    last = batch.run(r, dl, 1e-3, columns=columns)
+    last = batch.run(r, dl, dt, columns=columns)
     for k, (rk, dlk) in enumerate(sequence):
-        out = single.step(rk, dlk, 1e-3)
+        out = single.step(rk, dlk, dt)
         assert tuple(col[k] for col in columns) == out
     assert last == out
 

@@ -412,6 +412,8 @@ class MuscleBatch:
         # Nothing recruited, or the instantaneous CE left the FL range within
         # the step: the free CE takes up the SE slack (doc/model.md section 4).
         l1 = np.where(f0 == 0.0, l_free, l1)
+        # Eff.f_iso read off the state: at the free length, maybe back in range.
+        f0 = self._eff_f_iso(l1)
         v_free = (dl1 - dl0) / dt
         v_ce = np.where(f0 > 0.0, self._velocity(l1, dl1, f0), v_free)
 

@@ -152,8 +152,10 @@ def step_one(l0: float, dl0: float, dl1: float, dt: float, gain: float, k1_prev:
     l1 = l0 + dt * (k1 + 2.0 * k2 + 2.0 * k3 + k4) / 6.0
     l1 = l1 if f0 > 0.0 else l_free
     f0 = eff_f_iso(l1, gain, l_opt, initial)
-    # The instantaneous CE left the FL range within the step: the free CE.
+    # The instantaneous CE left the FL range within the step: the free CE,
+    # whose Eff.f_iso is read at its new length (back inside the range, maybe).
     l1 = l_free if f0 == 0.0 else l1
+    f0 = eff_f_iso(l1, gain, l_opt, initial)
     v_free = (dl1 - dl0) / dt
     v1 = ce_velocity(l1, dl1, f0, k_se, l_rest, a, b, a_ecc, b_ecc)
     v1 = v1 if f0 > 0.0 else v_free
@@ -317,9 +319,9 @@ def run_muscle(r_start, dl_end, r_end, dt: float, state, top: int, multi: bool,
     Step k: apply ``r_start[k]`` (:func:`recruit_one` at the CE length of that
     instant), integrate (:func:`step_one`), apply ``r_end[k]`` (a release
     frees the CE at once), write the outputs. Sequenced as ``Muscle.run``:
-    Eff.f_iso is carried from the end of one step to the start of the next,
-    so a CE that left the FL range (instantaneous variants) moves freely for
-    the next step even if its free length is back inside the range.
+    Eff.f_iso is read off the state after every change of the CE length, so
+    a CE freed after leaving the FL range (instantaneous variants) resists
+    again if its free length is back inside the range.
 
     :param r_start: [-] (n,) R held over each step, validated
     :param dl_end: [m] (n,) dl_MT at the end of each step, validated
@@ -389,6 +391,7 @@ def run_muscle(r_start, dl_end, r_end, dt: float, state, top: int, multi: bool,
                 # Released at this instant: the free CE takes up the slack at
                 # once, so the sample shows f_SE = 0 (as Muscle.run).
                 l = l_rest + dl1
+                f0 = eff_f_iso(l, gain, l_opt, initial)   # read off the state
             v = ce_velocity(l, dl1, f0, k_se, l_rest, a, b, a_ecc, b_ecc) if f0 > 0.0 else v_free
         dl0 = dl1
         t += dt

@@ -427,6 +427,10 @@ def _hot_loop(muscle: Muscle) -> Callable[..., MuscleOutputs]:
                 # Nothing recruited, or the instantaneous CE left the FL range
                 # within the step: the free CE takes up the SE slack (doc/model.md 4).
                 l = l_rest + dl1
+                if not initial:
+                    # The outputs and the next step read the state: Eff.f_iso at
+                    # the free length, which may be back inside the FL range.
+                    f0 = f0_at(l, gain)
             v_free = (dl1 - dl0) / dt
             dl0 = dl1
             t += dt
@@ -440,6 +444,7 @@ def _hot_loop(muscle: Muscle) -> Callable[..., MuscleOutputs]:
                     # Released at this instant: the free CE takes up the slack
                     # at once, so the sample shows f_SE = 0 (doc/model.md 4).
                     l = l_rest + dl1
+                    f0 = f0_at(l, gain)   # as above: read off the state
             v = velocity(l, dl1, gain) if f0 > 0.0 else v_free
             if columns is not None:
                 stretch = dl1 - (l - l_rest)
