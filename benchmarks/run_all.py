@@ -14,6 +14,7 @@ Usage::
 ``--only batch`` runs only section 3, the batch engines (``bench_batch.py``).
 ``--only sweep`` runs only section 9, ``hill-muscle sweep``'s throughput (``bench_sweep.py``).
 ``--only single`` runs only one muscle's compiled offline run (``bench_compiled.py``).
+``--only limb`` runs only the compiled limb and FES muscle (``bench_limb_compiled.py``).
 ``--only fes`` runs only section 7, the FES features (``bench_fes.py``, a few
 minutes), and prints its Markdown instead of writing BENCHMARKS.md (or writes
 it to ``--out`` if given)::
@@ -44,6 +45,7 @@ import bench_compiled  # noqa: E402
 import bench_fes  # noqa: E402
 import bench_fit  # noqa: E402
 import bench_gym  # noqa: E402
+import bench_limb_compiled  # noqa: E402
 import bench_node  # noqa: E402
 import bench_sweep  # noqa: E402
 # bench_rtf.py (item 6, live); run_all.bench_rtf is the offline item 2.
@@ -544,12 +546,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--out', type=Path, default=None,
                         help='Markdown file to write (default: BENCHMARKS.md; with --only, '
                              'print the section instead)')
-    parser.add_argument('--only', choices=('batch', 'fes', 'fit', 'gym', 'single', 'sweep'),
+    parser.add_argument('--only', choices=('batch', 'fes', 'fit', 'gym', 'limb', 'single',
+                                           'sweep'),
                         default=None,
                         help='run one section only: batch = section 3, the batch '
                              'engines; fes = section 7, the FES features; '
                              'fit = section 8, hill-muscle fit; gym = the Gymnasium '
-                             'vector environments; single = one muscle\'s offline run '
+                             'vector environments; limb = the limb and the FES muscle '
+                             'compiled; single = one muscle\'s offline run '
                              'compiled; sweep = section 9, hill-muscle sweep')
     parser.add_argument('--runs', type=int, default=7,
                         help=f'runs per measurement, at least {MIN_RUNS} (default: 7)')
@@ -565,7 +569,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.only is not None:
         lines = []
         section = {'batch': bench_batch_module, 'fes': bench_fes, 'fit': bench_fit,
-                   'gym': bench_gym, 'single': bench_compiled,
+                   'gym': bench_gym, 'limb': bench_limb_compiled, 'single': bench_compiled,
                    'sweep': bench_sweep}[args.only]
         measured = section.run(args.runs)
         lines.append(f'<!-- run_all.py --only {args.only} --runs {args.runs}, {started["date"]}, '
