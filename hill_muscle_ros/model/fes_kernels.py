@@ -37,10 +37,11 @@ from typing import Sequence
 import numpy as np
 
 from . import curves, fes_muscle, memory, stimulus, unit_pool, units
-from .curves import ECC_PLATEAU, FL_A, FL_B, FL_C, force_length, force_velocity_inverse
+from .curves import (ECC_PLATEAU, FL_A, FL_B, FL_C, force_length, force_velocity_inverse,
+                     parallel_force, series_force)
 from .fes_muscle import (MAX_EVENTS_PER_PIECE, MAX_SUBSTEPS, RK4_MAX_H_LAMBDA,
                          fes_velocity, fitness_at, piece_activation, relaxation_rate,
-                         riener_limit, riener_rate, substep_count)
+                         riener_limit, riener_rate, rk4_update, substep_count)
 from .memory import recruited_units
 from .params import MuscleParams
 from .stimulus import DelayLine, activation_at, time_to_reach
@@ -771,7 +772,7 @@ def muscle_rk4(F, I, i, s0, s1, t0, dl0, rate):
             k3 = velocity(F, I, i, l3, dl_m, eff_f_iso(F, I, i, l3, mid))
             l4 = l + h * k3
             k4 = velocity(F, I, i, l4, dl_b, eff_f_iso(F, I, i, l4, s1))
-        l = l + h * (k1 + 2.0 * k2 + 2.0 * k3 + k4) / 6.0
+        l = rk4_update(l, h, k1, k2, k3, k4)
         if not initial and eff_f_iso(F, I, i, l, s1) == 0.0:
             l = F[fp + P_L_REST] + dl_b   # the instantaneous CE left the FL range
         elif initial and f0_end == 0.0:
@@ -831,9 +832,8 @@ def muscle_outputs(F, I, i, out):
     F[fs + S_LAW + 1] = F[fs + S_MU]
     F[fs + S_LAW + 2] = F[fs + S_MU]
     F[fs + S_LAW + 3] = 0.0
-    stretch = dl - (l - F[fp + P_L_REST])
-    f_se = F[fp + P_K_SE] * stretch if stretch > 0.0 else 0.0
-    f_pe = F[fp + P_K_PE] * dl if dl > 0.0 else 0.0
+    f_se = series_force(F[fp + P_K_SE], dl, l, F[fp + P_L_REST])
+    f_pe = parallel_force(F[fp + P_K_PE], dl)
     f0 = eff_f_iso(F, I, i, l, t)
     v = velocity(F, I, i, l, dl, f0) if f0 > 0.0 else F[fs + S_V_FREE]
     out[0] = t
@@ -1029,7 +1029,8 @@ def _plain() -> types.SimpleNamespace:
 
 #: The shared equations of other modules, compiled over this module's scope
 #: (whose imports include the constants they read), small enough to inline.
-_EQUATIONS = ('force_length', 'force_velocity_inverse', 'activation_at', 'time_to_reach',
+_EQUATIONS = ('force_length', 'force_velocity_inverse', 'series_force', 'parallel_force',
+              'rk4_update', 'activation_at', 'time_to_reach',
               'piece_activation', 'fitness_at', 'riener_rate', 'riener_limit',
               'fes_velocity', 'relaxation_rate', 'substep_count', 'recruited_units',
               'fl_clear', 'type_fl_sum', 'moment_force', 'recruited_excess',

@@ -27,7 +27,8 @@ from __future__ import annotations
 import math
 from typing import Sequence
 
-from .curves import ECC_PLATEAU, force_length, force_velocity_inverse
+from .curves import (ECC_PLATEAU, force_length, force_velocity_inverse, parallel_force,
+                     series_force)
 from .memory import recruited_units
 from .muscle import Muscle, MuscleOutputs, check_dl_mt, check_recruitment
 from .params import MuscleParams
@@ -102,8 +103,7 @@ def fes_velocity(l_ce_m: float, dl_mt_m: float, f0_n: float, k_se: float, l_rest
     :param f_iso_max_n: [N] f_iso_max, the F0 at which relative constants are a, a'
     :param relative: True for ``fv_scaling: relative``
     """
-    stretch = dl_mt_m - (l_ce_m - l_rest_m)
-    f_se = k_se * stretch if stretch > 0.0 else 0.0
+    f_se = series_force(k_se, dl_mt_m, l_ce_m, l_rest_m)
     if relative:
         if f0_n <= 0.0:
             # The limits of the fastest speeds as F0 -> 0, which no longer
@@ -134,6 +134,11 @@ def relaxation_rate(l_ce_m: float, dl_mt_m: float, f0_n: float, k_se: float,
         f = f if f < ECC_PLATEAU * f0_n else ECC_PLATEAU * f0_n
         slope = 2.0 * b_ecc * (f0_n + a_ecc) / ((3.0 * f0_n - 2.0 * f + a_ecc) ** 2)
     return k_se * slope
+
+
+def rk4_update(y: float, h_s: float, k1: float, k2: float, k3: float, k4: float) -> float:
+    """y + h (k1 + 2 k2 + 2 k3 + k4) / 6: classical RK4's step from its four stages."""
+    return y + h_s * (k1 + 2.0 * k2 + 2.0 * k3 + k4) / 6.0
 
 
 def substep_count(h_s: float, rate: float) -> int:
@@ -381,7 +386,7 @@ class FesMuscle(Muscle):
                 k3 = velocity(l3, dl_m, self.eff_f_iso(l3, mid))
                 l4 = l + h * k3
                 k4 = velocity(l4, dl_b, self.eff_f_iso(l4, s1))
-            l = l + h * (k1 + 2.0 * k2 + 2.0 * k3 + k4) / 6.0
+            l = rk4_update(l, h, k1, k2, k3, k4)
             if not self._initial and self.eff_f_iso(l, s1) == 0.0:
                 l = p.l_rest_m + dl_b   # the instantaneous CE left the FL range
             elif self._initial and f0_end == 0.0:
@@ -562,9 +567,8 @@ class FesMuscle(Muscle):
         l, dl, t = self.l_ce_m, self.dl_mt_m, self.t_s
         self._piece = (t, self.recruitment, self.recruitment, 0.0)
         self._mu_law = (t, self._mu, self._mu, 0.0)
-        stretch = dl - (l - p.l_rest_m)
-        f_se = p.k_se_n_per_m * stretch if stretch > 0.0 else 0.0
-        f_pe = p.k_pe_n_per_m * dl if dl > 0.0 else 0.0
+        f_se = series_force(p.k_se_n_per_m, dl, l, p.l_rest_m)
+        f_pe = parallel_force(p.k_pe_n_per_m, dl)
         f0 = self.eff_f_iso(l, t)
         v = self._velocity(l, dl, f0) if f0 > 0.0 else self._v_free
         return MuscleOutputs(t, self.recruitment, self.n_recruited, dl, l, v, f_se, f_pe,

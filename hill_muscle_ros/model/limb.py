@@ -32,7 +32,8 @@ from typing import Any, Mapping, NamedTuple, Sequence
 
 import numpy as np
 
-from .fes_muscle import FesMuscle
+from .curves import parallel_force, series_force
+from .fes_muscle import FesMuscle, rk4_update
 from .muscle import DL_MT_LIMIT_M, check_recruitment
 from .params import _FLOAT_MAX, MuscleParams, _float, _spec, finite_float
 from .protocol import (Knots, ProtocolError, _parse_knots, check_protocol_keys,
@@ -46,6 +47,27 @@ ANGLE_LIMIT_RAD = 4.0 * math.pi
 #: [N m] Largest |external torque| accepted: far beyond any limb, it only
 #: turns a unit error into a message.
 TORQUE_LIMIT_N_M = 1.0e4
+
+
+# -- the joint's equations as plain scalar functions ------------------------------------
+# Written once: Limb calls them, and the compiled limb (model/limb_kernels.py) compiles
+# these same functions with numba.
+
+def mtu_length_change(s_r: float, theta_rad: float, reference_angle_rad: float) -> float:
+    """[m] dl_MT = -s r (theta - theta_ref) of a muscle with ``s_r`` = s r [m]."""
+    return -s_r * (theta_rad - reference_angle_rad)
+
+
+def joint_acceleration(muscle_torque_n_m: float, theta_rad: float, omega_rad_per_s: float,
+                       external_torque_n_m: float, inertia_kg_m2: float, mass_kg: float,
+                       gravity_m_per_s2: float, com_distance_m: float,
+                       stiffness_n_m_per_rad: float, equilibrium_rad: float,
+                       damping_n_m_s_per_rad: float) -> float:
+    """[rad/s^2] domega/dt = (sum s r F - m g l_c sin theta - K (theta - theta_eq)
+    - B omega + tau_ext) / J (the joint's parameters as :class:`JointParams`')."""
+    return (muscle_torque_n_m - mass_kg * gravity_m_per_s2 * com_distance_m * math.sin(theta_rad)
+            - stiffness_n_m_per_rad * (theta_rad - equilibrium_rad)
+            - damping_n_m_s_per_rad * omega_rad_per_s + external_torque_n_m) / inertia_kg_m2
 
 
 @dataclass(frozen=True)
@@ -284,7 +306,7 @@ class Limb:
             m.l_ce_m = m.params.l_rest_m + dl
 
     def _dl_mt(self, i: int, theta: float) -> float:
-        return -self._sign[i] * self._arm[i] * (theta - self._ref[i])
+        return mtu_length_change(self._sign[i] * self._arm[i], theta, self._ref[i])
 
     # -- dynamics ---------------------------------------------------------------------
 
@@ -297,20 +319,19 @@ class Limb:
         for i, m in enumerate(self.muscles):
             p = m.params
             s_r = self._sign[i] * self._arm[i]
-            dl = -s_r * (theta - self._ref[i])
+            dl = mtu_length_change(s_r, theta, self._ref[i])
             if free[i]:
                 f_se = 0.0
                 v_ce.append(-s_r * omega)        # the free CE follows its MTU
             else:
                 l = ls[i]
-                stretch = dl - (l - p.l_rest_m)
-                f_se = p.k_se_n_per_m * stretch if stretch > 0.0 else 0.0
+                f_se = series_force(p.k_se_n_per_m, dl, l, p.l_rest_m)
                 v_ce.append(m.ce_velocity(l, dl, t))
-            f_pe = p.k_pe_n_per_m * dl if dl > 0.0 else 0.0
-            torque += s_r * (f_se + f_pe)
-        alpha = (torque - j.mass_kg * j.gravity_m_per_s2 * j.com_distance_m * math.sin(theta)
-                 - j.stiffness_n_m_per_rad * (theta - j.equilibrium_rad)
-                 - j.damping_n_m_s_per_rad * omega + self.external_torque_n_m) / j.inertia_kg_m2
+            torque += s_r * (f_se + parallel_force(p.k_pe_n_per_m, dl))
+        alpha = joint_acceleration(torque, theta, omega, self.external_torque_n_m,
+                                   j.inertia_kg_m2, j.mass_kg, j.gravity_m_per_s2,
+                                   j.com_distance_m, j.stiffness_n_m_per_rad,
+                                   j.equilibrium_rad, j.damping_n_m_s_per_rad)
         return alpha, v_ce
 
     def _integrate(self, s0: float, s1: float) -> None:
@@ -349,11 +370,11 @@ class Limb:
         th4, om4 = th + h * om3, om + h * a3
         ls4 = [l + h * v for l, v in zip(ls, v3)]
         a4, v4 = self._forces(th4, om4, ls4, s1, free)
-        self.theta_rad = th + h * (om + 2.0 * om2 + 2.0 * om3 + om4) / 6.0
-        self.omega_rad_per_s = om + h * (a1 + 2.0 * a2 + 2.0 * a3 + a4) / 6.0
+        self.theta_rad = rk4_update(th, h, om, om2, om3, om4)
+        self.omega_rad_per_s = rk4_update(om, h, a1, a2, a3, a4)
         for i, m in enumerate(muscles):
             dl = self._dl_mt(i, self.theta_rad)
-            l = ls[i] + h * (v1[i] + 2.0 * v2[i] + 2.0 * v3[i] + v4[i]) / 6.0
+            l = rk4_update(ls[i], h, v1[i], v2[i], v3[i], v4[i])
             if free[i] or m.eff_f_iso(l, s1) == 0.0:
                 l = m.params.l_rest_m + dl
             m.l_ce_m, m.dl_mt_m = l, dl
@@ -415,9 +436,8 @@ class Limb:
         for i, m in enumerate(self.muscles):
             p = m.params
             dl, l = m.dl_mt_m, m.l_ce_m
-            stretch = dl - (l - p.l_rest_m)
-            f = (p.k_se_n_per_m * stretch if stretch > 0.0 else 0.0) + (
-                p.k_pe_n_per_m * dl if dl > 0.0 else 0.0)
+            f = series_force(p.k_se_n_per_m, dl, l, p.l_rest_m) + parallel_force(
+                p.k_pe_n_per_m, dl)
             forces.append(f)
             torque += self._sign[i] * self._arm[i] * f
         return LimbOutputs(self.t_s, self.theta_rad, self.omega_rad_per_s, torque,

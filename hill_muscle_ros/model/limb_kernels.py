@@ -24,7 +24,10 @@ import types
 
 import numpy as np
 
-from . import curves, fes_kernels, fes_muscle, memory, stimulus, unit_pool, units
+from . import curves, fes_kernels, fes_muscle, limb, memory, stimulus, unit_pool, units
+from .curves import parallel_force, series_force
+from .fes_muscle import rk4_update
+from .limb import joint_acceleration, mtu_length_change
 from .fes_kernels import (A_END, DELAY_FULL, OK, H_FS, P_K_PE, P_K_SE, P_L_REST, S_CMD,
                           S_DL, S_L, S_R, S_T, FesBundle, apply, begin_interval, eff_f_iso,
                           end_interval, give_command, hdr, plan, settle_now, substeps,
@@ -56,7 +59,7 @@ def muscle_slot(i):
 def dl_mt(L, i, theta):
     """[m] muscle ``i``'s MTU length change at ``theta``: -s r (theta - theta_ref)."""
     j = muscle_slot(i)
-    return -L[j + M_SIGN] * L[j + M_ARM] * (theta - L[j + M_REF])
+    return mtu_length_change(L[j + M_SIGN] * L[j + M_ARM], theta, L[j + M_REF])
 
 
 def forces(F, I, L, W, nm, theta, omega, stage, t, v_row):
@@ -70,20 +73,18 @@ def forces(F, I, L, W, nm, theta, omega, stage, t, v_row):
         j = muscle_slot(i)
         fp = hdr(I, i, H_FP)
         s_r = L[j + M_SIGN] * L[j + M_ARM]
-        dl = -s_r * (theta - L[j + M_REF])
+        dl = mtu_length_change(s_r, theta, L[j + M_REF])
         if W[W_FREE, i] != 0.0:
             f_se = 0.0
             W[v_row, i] = -s_r * omega          # the free CE follows its MTU
         else:
             l = W[stage, i]
-            stretch = dl - (l - F[fp + P_L_REST])
-            f_se = F[fp + P_K_SE] * stretch if stretch > 0.0 else 0.0
+            f_se = series_force(F[fp + P_K_SE], dl, l, F[fp + P_L_REST])
             W[v_row, i] = velocity(F, I, i, l, dl, eff_f_iso(F, I, i, l, t))
-        f_pe = F[fp + P_K_PE] * dl if dl > 0.0 else 0.0
-        torque += s_r * (f_se + f_pe)
-    return (torque - L[L_MASS] * L[L_GRAVITY] * L[L_COM] * math.sin(theta)
-            - L[L_STIFFNESS] * (theta - L[L_EQUILIBRIUM])
-            - L[L_DAMPING] * omega + L[L_TAU]) / L[L_INERTIA]
+        torque += s_r * (f_se + parallel_force(F[fp + P_K_PE], dl))
+    return joint_acceleration(torque, theta, omega, L[L_TAU], L[L_INERTIA], L[L_MASS],
+                              L[L_GRAVITY], L[L_COM], L[L_STIFFNESS], L[L_EQUILIBRIUM],
+                              L[L_DAMPING])
 
 
 def limb_rk4(F, I, L, W, nm, s0, s1):
@@ -110,14 +111,13 @@ def limb_rk4(F, I, L, W, nm, s0, s1):
     for i in range(nm):
         W[W_L4, i] = W[W_L1, i] + h * W[W_V3, i]
     a4 = forces(F, I, L, W, nm, th4, om4, W_L4, s1, W_V4)
-    theta = th + h * (om + 2.0 * om2 + 2.0 * om3 + om4) / 6.0
+    theta = rk4_update(th, h, om, om2, om3, om4)
     L[L_THETA] = theta
-    L[L_OMEGA] = om + h * (a1 + 2.0 * a2 + 2.0 * a3 + a4) / 6.0
+    L[L_OMEGA] = rk4_update(om, h, a1, a2, a3, a4)
     for i in range(nm):
         fs = hdr(I, i, H_FS)
         dl = dl_mt(L, i, theta)
-        l = W[W_L1, i] + h * (W[W_V1, i] + 2.0 * W[W_V2, i] + 2.0 * W[W_V3, i]
-                              + W[W_V4, i]) / 6.0
+        l = rk4_update(W[W_L1, i], h, W[W_V1, i], W[W_V2, i], W[W_V3, i], W[W_V4, i])
         if W[W_FREE, i] != 0.0 or eff_f_iso(F, I, i, l, s1) == 0.0:
             l = F[hdr(I, i, H_FP) + P_L_REST] + dl
         F[fs + S_L] = l
@@ -209,9 +209,8 @@ def limb_record(F, I, L, nm, row):
     for i in range(nm):
         fs, fp = hdr(I, i, H_FS), hdr(I, i, H_FP)
         dl, l = F[fs + S_DL], F[fs + S_L]
-        stretch = dl - (l - F[fp + P_L_REST])
-        f = (F[fp + P_K_SE] * stretch if stretch > 0.0 else 0.0) + (
-            F[fp + P_K_PE] * dl if dl > 0.0 else 0.0)
+        f = series_force(F[fp + P_K_SE], dl, l, F[fp + P_L_REST]) + parallel_force(
+            F[fp + P_K_PE], dl)
         base = 3 + 5 * i
         row[base] = F[fs + S_CMD]
         row[base + 1] = F[fs + S_R]
@@ -300,10 +299,12 @@ class LimbArrays:
 
 # -- compiling ------------------------------------------------------------------------------
 
+#: The joint's equations (model/limb.py), compiled over this module's scope.
+_EQUATIONS = ('mtu_length_change', 'joint_acceleration')
 _KERNELS = ('muscle_slot', 'dl_mt', 'forces', 'limb_rk4', 'limb_integrate', 'limb_step',
             'limb_record', 'limb_run')
 #: The modules whose code the kernels inline: their digest names the cache entries.
-_DIGEST_OF = (curves, stimulus, memory, units, unit_pool, fes_muscle, fes_kernels)
+_DIGEST_OF = (curves, stimulus, memory, units, unit_pool, fes_muscle, fes_kernels, limb)
 _compiled = None
 
 
@@ -319,12 +320,13 @@ def compiled() -> types.SimpleNamespace:
     muscle = fes_kernels.compiled()
     scope = dict(globals())
     for name in ('apply', 'begin_interval', 'eff_f_iso', 'end_interval', 'give_command',
-                 'hdr', 'plan', 'settle_now', 'substeps', 'velocity'):
+                 'hdr', 'plan', 'settle_now', 'substeps', 'velocity', 'series_force',
+                 'parallel_force', 'rk4_update'):
         scope[name] = getattr(muscle, name)
     leaf = {'error_model': 'numpy', 'inline': 'always'}
     body = {'error_model': 'numpy'}
     options = {name: body for name in _KERNELS}
-    options.update({'muscle_slot': leaf, 'dl_mt': leaf})
+    options.update({name: leaf for name in _EQUATIONS + ('muscle_slot', 'dl_mt')})
 
     def run_signature(numba):
         f8, i8 = numba.float64, numba.int64
@@ -332,7 +334,7 @@ def compiled() -> types.SimpleNamespace:
         return i8(c1, i8[::1], c1, c2, c1, i8[:, ::1], i8, c2, c1, f8, f8, c2)
 
     _compiled = engine.compile_functions(
-        scope, _KERNELS, digest_of=_DIGEST_OF + (sys.modules[__name__],),
+        scope, _EQUATIONS + _KERNELS, digest_of=_DIGEST_OF + (sys.modules[__name__],),
         signatures={'limb_run': run_signature}, options=options)
     return _compiled
 
