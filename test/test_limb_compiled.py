@@ -124,3 +124,56 @@ def test_a_muscle_stretched_out_of_range_raises_as_the_reference(kernels, monkey
     with pytest.raises(ValueError) as got:
         limb_kernels.simulate_limb_compiled(plant, protocol, 1000.0, kernels)
     assert str(got.value) == str(ref.value)
+
+
+def _knee_variants():
+    """Three knee plants: the preset, a stronger quadriceps, a stiffer, damped joint."""
+    import dataclasses
+    plant = PLANTS['knee']
+    quad = plant.muscles[0]
+    strong = dataclasses.replace(quad, params=dataclasses.replace(quad.params,
+                                                                  f_iso_max_n=2500.0))
+    return [plant, dataclasses.replace(plant, muscles=(strong,) + plant.muscles[1:]),
+            dataclasses.replace(plant, joint=dataclasses.replace(
+                plant.joint, stiffness_n_m_per_rad=40.0, damping_n_m_s_per_rad=2.0))]
+
+
+@settings(max_examples=4, deadline=None,
+          suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
+@given(protocol=limb_protocols(['quadriceps', 'hamstrings']), data=st.data())
+def test_limb_batch_matches_the_reference(kernels, monkeypatch, protocol, data):
+    """simulate_limb_batch (the sweep's limb path) on both engines: every sampled
+    angle and force of every plant to 1e-9."""
+    from hill_muscle_ros.model.limb_batch import simulate_limb_batch
+    steps = int(round(protocol.duration_s * 1000.0))
+    indices = sorted(set(data.draw(st.lists(st.integers(0, steps), min_size=1, max_size=8))))
+    plants = _knee_variants()
+    monkeypatch.setenv(engine.ENV_VAR, 'python')
+    ref = simulate_limb_batch(plants, protocol, 1000.0, indices)
+    monkeypatch.setenv(engine.ENV_VAR, 'compiled')
+    got = simulate_limb_batch(plants, protocol, 1000.0, indices)
+    for r, g in zip(ref, got):
+        assert r.shape == g.shape
+        assert np.abs(r - g).max() <= TOL
+
+
+def test_limb_batch_out_of_range_raises_as_the_reference(kernels, monkeypatch):
+    """Of two limbs, the second driven out of range: the same LimbOutOfRange
+    (the limb's index and its muscle's message) on both engines."""
+    import dataclasses
+    from hill_muscle_ros.model.limb_batch import LimbOutOfRange, simulate_limb_batch
+    plant = PLANTS['ankle']
+    muscle = dataclasses.replace(plant.muscles[0], moment_arm_m=1.0)
+    weak = dataclasses.replace(plant, muscles=(muscle,))
+    protocol = LimbProtocol.from_mapping({
+        'name': 'push', 'duration_s': 2.0,
+        'muscles': {muscle.name: {'recruitment': [[0, 0]]}},
+        'external_torque_n_m': [[0.0, 500.0]]})
+    errors = {}
+    for value in ('python', 'compiled'):
+        monkeypatch.setenv(engine.ENV_VAR, value)
+        with pytest.raises(LimbOutOfRange) as err:
+            simulate_limb_batch([plant, weak], protocol, 1000.0, [0, 1500])
+        errors[value] = (err.value.limb, err.value.message)
+    assert errors['compiled'] == errors['python']
+    assert errors['python'][0] == 1

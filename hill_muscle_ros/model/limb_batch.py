@@ -289,6 +289,10 @@ def simulate_limb_batch(plants: Sequence[LimbPlant], protocol: LimbProtocol,
         if not abs(torque) <= TORQUE_LIMIT_N_M:
             raise ValueError(f'`external_torque_n_m` must be finite and within '
                              f'±{TORQUE_LIMIT_N_M:g} N m, got {float(torque)!r}')
+    from . import engine
+    if engine.choice() == engine.COMPILED:   # the same numbers (limb_kernels)
+        from .limb_kernels import run_limb_batch
+        return run_limb_batch(batch.plants, u, tau, dt, sample_indices)
     u_rows = u.tolist()
     tau_rows = [[value] * batch.size for value in tau.tolist()]
     batch._give(u_rows[0])

@@ -339,16 +339,9 @@ def compiled() -> types.SimpleNamespace:
     return _compiled
 
 
-def run_limb(arrays: LimbArrays, u: np.ndarray, tau: np.ndarray, dt_s: float,
-             kernels=None) -> np.ndarray:
-    """simulate_limb's loop on ``arrays`` (from its current state): the rows of
-    :func:`~hill_muscle_ros.model.limb.limb_columns`, the time column from the state.
-
-    :param u: [-] (samples, muscles) commands, checked in [0, 1]
-    :param tau: [N m] (samples,) external torque, checked
-    :param kernels: :func:`compiled`, or None for the plain functions
-    :raises ValueError: as Limb.step, when a muscle is stretched out of range
-    """
+def _run(arrays: LimbArrays, u: np.ndarray, tau: np.ndarray, dt_s: float, kernels):
+    """limb_run on ``arrays``: (rows, None), or (rows, (k, message)) when step k
+    stretched a muscle out of range (the message is Limb.step's)."""
     from .muscle import DL_MT_LIMIT_M
     arrays.ensure_delay(dt_s)
     nm = arrays.nm
@@ -360,16 +353,65 @@ def run_limb(arrays: LimbArrays, u: np.ndarray, tau: np.ndarray, dt_s: float,
     done = run(b.F, b.I, arrays.L, arrays.W, arrays.TT, arrays.TI, nm, u, tau, float(dt_s),
                DL_MT_LIMIT_M, rows)
     if done >= 0:
-        return rows
+        return rows, None
     k, status = divmod(-done, STATUS_BASE)
     if status == DELAY_FULL:   # delay_capacity bounds the commands pending
         raise RuntimeError(f'a muscle\'s delay line overflowed at step {k}')
     i = status - DL_OUT_OF_RANGE
     theta = arrays.L[L_THETA]
     dl = dl_mt(arrays.L, i, theta)
-    raise ValueError(f'muscle `{arrays.plant.muscles[i].name}` is stretched '
+    return rows, (k, f'muscle `{arrays.plant.muscles[i].name}` is stretched '
                      f'{dl:.4g} m from rest at {math.degrees(theta):.1f} '
                      f'deg: beyond ±{DL_MT_LIMIT_M} m; check its moment arm')
+
+
+def run_limb(arrays: LimbArrays, u: np.ndarray, tau: np.ndarray, dt_s: float,
+             kernels=None) -> np.ndarray:
+    """simulate_limb's loop on ``arrays`` (from its current state): the rows of
+    :func:`~hill_muscle_ros.model.limb.limb_columns`, the time column from the state.
+
+    :param u: [-] (samples, muscles) commands, checked in [0, 1]
+    :param tau: [N m] (samples,) external torque, checked
+    :param kernels: :func:`compiled`, or None for the plain functions
+    :raises ValueError: as Limb.step, when a muscle is stretched out of range
+    """
+    rows, failure = _run(arrays, u, tau, dt_s, kernels)
+    if failure is not None:
+        raise ValueError(failure[1])
+    return rows
+
+
+def run_limb_batch(plants, u: np.ndarray, tau: np.ndarray, dt_s: float,
+                   sample_indices, kernels=None) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`~hill_muscle_ros.model.limb_batch.simulate_limb_batch`'s loop, compiled:
+    each plant run alone (a limb's result does not depend on the others').
+
+    :param u: [-] (samples, K, muscles) checked commands, the last sample the last wanted
+    :param tau: [N m] (samples,) checked external torque
+    :param sample_indices: step indices to sample, ascending
+    :return: ([rad] theta (K, S), [N] force (K, M, S))
+    :raises LimbOutOfRange: for the first limb out of range, at the earliest step
+        (the batch steps every limb before the next step)
+    """
+    from .limb_batch import LimbOutOfRange
+    kernels = compiled() if kernels is None else kernels
+    idx = np.asarray(sample_indices, dtype=np.int64)
+    nm = len(plants[0].muscles) if plants else 0
+    theta = np.empty((len(plants), len(idx)))
+    force = np.empty((len(plants), nm, len(idx)))
+    failures = []
+    for k, plant in enumerate(plants):
+        rows, failure = _run(LimbArrays(plant, dt_s), u[:, k, :], tau, dt_s, kernels)
+        if failure is not None:
+            failures.append((failure[0], k, failure[1]))
+            continue
+        theta[k] = rows[idx, 1]
+        for m in range(nm):
+            force[k, m] = rows[idx, 3 + 5 * m + 4]
+    if failures:
+        _, k, message = min(failures)
+        raise LimbOutOfRange(k, message)
+    return theta, force
 
 
 def simulate_limb_compiled(plant, protocol, rate_hz: float = 1000.0, kernels=None):
