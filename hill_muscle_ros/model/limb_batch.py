@@ -257,7 +257,8 @@ def simulate_limb_batch(plants: Sequence[LimbPlant], protocol: LimbProtocol,
     ``plants[k]``: the sample of step j shows the state at t_j with the commands
     of t_j given; the step from t_j holds the commands and the external torque
     of t_j. Pulse widths map through each plant's own recruitment curves. The
-    run stops at the last sample.
+    run stops at the last sample. On the compiled engine (:func:`.engine.choice`)
+    each plant runs alone on the compiled limb (:mod:`.limb_kernels`).
 
     :param plants: the plants (K >= 1), with the same muscles
     :param protocol: the limb protocol every plant replays
