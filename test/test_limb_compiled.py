@@ -177,3 +177,32 @@ def test_limb_batch_out_of_range_raises_as_the_reference(kernels, monkeypatch):
         errors[value] = (err.value.limb, err.value.message)
     assert errors['compiled'] == errors['python']
     assert errors['python'][0] == 1
+
+
+def test_auto_takes_the_compiled_limb_where_it_pays(kernels, monkeypatch):
+    """HILL_MUSCLE_ENGINE=auto: a short run stays on the Python loop while the
+    compiled limb is not loaded; a run of RUN_MIN_MUSCLE_STEPS muscle-steps
+    loads it; once loaded, a short run takes it too."""
+    plant = PLANTS['ankle']   # one muscle: muscle-steps = steps
+    name = plant.muscles[0].name
+
+    def protocol(duration_s):
+        return LimbProtocol.from_mapping({'name': 'p', 'duration_s': duration_s,
+                                          'muscles': {name: {'recruitment': [[0.0, 0.3]]}}})
+
+    calls = []
+    original = limb_kernels.simulate_limb_compiled
+
+    def spy(*args, **kwargs):
+        calls.append(args)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(limb_kernels, 'simulate_limb_compiled', spy)
+    monkeypatch.delenv(engine.ENV_VAR, raising=False)
+    monkeypatch.setattr(limb_kernels, '_compiled', None)   # not loaded in this process
+    simulate_limb(plant, protocol(0.2))
+    assert len(calls) == 0
+    simulate_limb(plant, protocol(limb_kernels.RUN_MIN_MUSCLE_STEPS / 1000.0))
+    assert len(calls) == 1 and limb_kernels.loaded()
+    simulate_limb(plant, protocol(0.2))
+    assert len(calls) == 2

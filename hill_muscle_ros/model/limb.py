@@ -574,13 +574,15 @@ def simulate_limb(plant: LimbPlant, protocol: LimbProtocol,
 
     The sample at t_k shows the state at t_k with the commands of t_k given;
     the step from t_k holds the commands and the external torque of t_k.
-    On the compiled engine (:func:`.engine.choice`) the loop runs compiled
-    (:mod:`.limb_kernels`, the same results to 1e-9 rad and 1e-9 N).
+    The loop runs compiled (:mod:`.limb_kernels`, the same results to 1e-9 rad
+    and 1e-9 N) where that pays: once it is loaded in the process, or for runs
+    of at least :data:`.limb_kernels.RUN_MIN_MUSCLE_STEPS` steps times muscles;
+    ``HILL_MUSCLE_ENGINE=compiled`` always, ``python`` never (:mod:`.engine`).
     """
-    from . import engine
-    if engine.choice() == engine.COMPILED:
-        from .limb_kernels import simulate_limb_compiled
-        result = simulate_limb_compiled(plant, protocol, rate_hz)
+    from . import engine, limb_kernels
+    work = (len(sample_times(protocol.duration_s, rate_hz)) - 1) * len(plant.muscles)
+    if engine.use_compiled(work, limb_kernels.RUN_MIN_MUSCLE_STEPS, limb_kernels.loaded()):
+        result = limb_kernels.simulate_limb_compiled(plant, protocol, rate_hz)
         if result is not None:
             return result
     limb = Limb(plant)

@@ -257,8 +257,9 @@ def simulate_limb_batch(plants: Sequence[LimbPlant], protocol: LimbProtocol,
     ``plants[k]``: the sample of step j shows the state at t_j with the commands
     of t_j given; the step from t_j holds the commands and the external torque
     of t_j. Pulse widths map through each plant's own recruitment curves. The
-    run stops at the last sample. On the compiled engine (:func:`.engine.choice`)
-    each plant runs alone on the compiled limb (:mod:`.limb_kernels`).
+    run stops at the last sample. Where the compiled limb pays (as for
+    :func:`~hill_muscle_ros.model.limb.simulate_limb`, counting every plant's
+    muscle-steps) each plant runs alone on it (:mod:`.limb_kernels`).
 
     :param plants: the plants (K >= 1), with the same muscles
     :param protocol: the limb protocol every plant replays
@@ -290,10 +291,11 @@ def simulate_limb_batch(plants: Sequence[LimbPlant], protocol: LimbProtocol,
         if not abs(torque) <= TORQUE_LIMIT_N_M:
             raise ValueError(f'`external_torque_n_m` must be finite and within '
                              f'±{TORQUE_LIMIT_N_M:g} N m, got {float(torque)!r}')
-    from . import engine
-    if engine.choice() == engine.COMPILED:   # the same numbers (limb_kernels)
-        from .limb_kernels import run_limb_batch
-        return run_limb_batch(batch.plants, u, tau, dt, sample_indices)
+    from . import engine, limb_kernels
+    if engine.use_compiled(last * batch.size * len(batch.muscle_names),
+                           limb_kernels.RUN_MIN_MUSCLE_STEPS, limb_kernels.loaded()):
+        # The same numbers (limb_kernels), each plant alone.
+        return limb_kernels.run_limb_batch(batch.plants, u, tau, dt, sample_indices)
     u_rows = u.tolist()
     tau_rows = [[value] * batch.size for value in tau.tolist()]
     batch._give(u_rows[0])

@@ -299,6 +299,15 @@ class LimbArrays:
 
 # -- compiling ------------------------------------------------------------------------------
 
+#: [-] muscle-steps (steps times muscles) of one run from which ``simulate_limb``
+#: loads the compiled limb when it is not loaded yet (``HILL_MUSCLE_ENGINE=auto``,
+#: :func:`.engine.use_compiled`). Measured (bench_limb_compiled.py, BENCHMARKS.md):
+#: loading costs 0.82 s with a warm cache, and the compiled limb saves about 135
+#: us a muscle-step on the knee preset (282 against 11.7 us a step, two muscles)
+#: and 65 us on the ankle's one muscle (66.6 against 2.5 us a step): loading
+#: pays from about 6,000-13,000 muscle-steps.
+RUN_MIN_MUSCLE_STEPS = 10_000
+
 #: The joint's equations (model/limb.py), compiled over this module's scope.
 _EQUATIONS = ('mtu_length_change', 'joint_acceleration')
 _KERNELS = ('muscle_slot', 'dl_mt', 'forces', 'limb_rk4', 'limb_integrate', 'limb_step',
@@ -306,6 +315,11 @@ _KERNELS = ('muscle_slot', 'dl_mt', 'forces', 'limb_rk4', 'limb_integrate', 'lim
 #: The modules whose code the kernels inline: their digest names the cache entries.
 _DIGEST_OF = (curves, stimulus, memory, units, unit_pool, fes_muscle, fes_kernels, limb)
 _compiled = None
+
+
+def loaded() -> bool:
+    """True if the compiled limb is built in this process (:func:`compiled`)."""
+    return _compiled is not None
 
 
 def compiled() -> types.SimpleNamespace:
