@@ -301,11 +301,12 @@ class LimbArrays:
 
 #: [-] muscle-steps (steps times muscles) of one run from which ``simulate_limb``
 #: loads the compiled limb when it is not loaded yet (``HILL_MUSCLE_ENGINE=auto``,
-#: :func:`.engine.use_compiled`). Measured (bench_limb_compiled.py, BENCHMARKS.md):
-#: loading costs 0.82 s with a warm cache, and the compiled limb saves about 135
-#: us a muscle-step on the knee preset (282 against 11.7 us a step, two muscles)
-#: and 65 us on the ankle's one muscle (66.6 against 2.5 us a step): loading
-#: pays from about 6,000-13,000 muscle-steps.
+#: :func:`.engine.use_compiled`). Measured: loading costs 0.82 s with a warm
+#: cache, and the compiled limb saves about 135 us a muscle-step on the knee
+#: preset (282 against 11.7 us a step, two muscles; both BENCHMARKS.md,
+#: bench_limb_compiled.py) and 65 us on the ankle preset's one muscle (66.6
+#: against 2.5 us a step, 6 s at a 0.5 command from 0.5 to 3.5 s, by hand):
+#: loading pays from about 6,000-13,000 muscle-steps.
 RUN_MIN_MUSCLE_STEPS = 10_000
 
 #: The joint's equations (model/limb.py), compiled over this module's scope.
