@@ -84,6 +84,16 @@ def protocol_paths():
     return {'I': PROTOCOLS / 'protocol_I.yaml', 'II': PROTOCOLS / 'protocol_II.yaml'}
 
 
+def pytest_terminal_summary(terminalreporter):
+    """Say how long this pytest process spent in numba's compiler: a clean clone
+    compiles every kernel once (the budget is 60 s), a second run loads them."""
+    engine = sys.modules.get('hill_muscle_ros.model.engine')
+    if engine is not None:
+        terminalreporter.write_line(
+            f'numba compiling in this process: {engine.compile_seconds():.1f} s '
+            '(subprocesses not counted)')
+
+
 # --------------------------------------------------------------------------- two workers
 
 #: The work unit of the tests that run ROS processes or DDS participants.

@@ -264,3 +264,15 @@ def test_importing_the_package_and_the_engine_does_not_import_numba():
             'from hill_muscle_ros.model import engine, kernels, simulate; '
             'print("numba" in sys.modules, "llvmlite" in sys.modules)')
     assert run_python(code).stdout.split() == ['False', 'False']
+
+
+def test_compile_seconds_counts_the_time_numba_spends_compiling():
+    numba = engine.import_numba()
+    before = engine.compile_seconds()
+
+    def add_one(x):
+        return x + 1.0
+
+    compiled_add_one = numba.njit(add_one)   # no cache: it compiles here, at its first call
+    assert compiled_add_one(1.0) == 2.0
+    assert engine.compile_seconds() > before

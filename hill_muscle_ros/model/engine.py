@@ -57,6 +57,10 @@ HELPER_OPTIONS = {'error_model': 'numpy', 'inline': 'always'}
 
 #: True once :class:`CacheUnavailableWarning` was issued in this process.
 _warned_cache = False
+#: numba's event broadcast while a dispatcher compiles (or loads from its cache).
+COMPILE_EVENT = 'numba:compile'
+#: Times numba's compilations once numba is imported (:func:`compile_seconds`).
+_compile_timer = None
 
 
 class CacheUnavailableWarning(RuntimeWarning):
@@ -136,9 +140,26 @@ def import_numba() -> types.ModuleType:
 
     :raises ImportError: if numba cannot be imported
     """
+    global _compile_timer
     os.environ.setdefault(OMP_WAIT_POLICY, 'PASSIVE')
     import numba
+    if _compile_timer is None:
+        from numba.core import event
+        _compile_timer = event.TimingListener()
+        event.register(COMPILE_EVENT, _compile_timer)
     return numba
+
+
+def compile_seconds() -> float:
+    """[s] wall time this process has spent in numba's compiler so far.
+
+    Summed over the outermost compilations (a kernel's callees compile within
+    it); loading from the disk cache is not compiling and is not counted
+    (numba broadcasts no compile event for it). 0 before :func:`import_numba`.
+    The test suite prints it at its end, against the 60 s it may spend.
+    """
+    timer = _compile_timer
+    return timer.duration if timer is not None and timer.done else 0.0
 
 
 def source_digest(modules: Iterable[types.ModuleType]) -> str:
