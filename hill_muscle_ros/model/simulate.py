@@ -6,7 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import engine, kernels
+from . import engine, fes_kernels, kernels
+from .fes_muscle import FesMuscle
 from .muscle import Muscle
 from .params import MuscleParams
 from .protocol import Protocol
@@ -25,6 +26,15 @@ COLUMNS = (
     ('command', 'command'),
     ('mean_fitness', 'mean_fitness'),
 )
+
+#: [-] steps of one run from which ``simulate`` loads the compiled FES muscle
+#: (:mod:`.fes_kernels`) when it is not loaded yet (``HILL_MUSCLE_ENGINE=auto``,
+#: :func:`.engine.use_compiled`). Measured by hand (05:25 UTC, load 0.4-0.9):
+#: loading costs 0.57-0.76 s in a fresh process with a warm cache, and the
+#: compiled run saves 12.4 us a step (single units with a 20 ms delay: 12.9
+#: against 0.47 us) to 30.5 us (config/fes_quadriceps.yaml: 31.5 against 1.0
+#: us) on protocol_I: loading pays from about 19,000-61,000 steps.
+FES_RUN_MIN_STEPS = 40_000
 
 
 @dataclass(frozen=True)
@@ -91,7 +101,11 @@ def simulate(protocol: Protocol, params: MuscleParams | None = None,
     (:func:`.kernels.run_compiled`, the same results) where that pays:
     once it is loaded in the process, or for runs of at least
     :data:`.kernels.RUN_MIN_STEPS` steps; ``HILL_MUSCLE_ENGINE=compiled``
-    always, ``python`` never (:mod:`.engine`).
+    always, ``python`` never (:mod:`.engine`). A muscle with FES features
+    on runs :meth:`FesMuscle.run
+    <hill_muscle_ros.model.fes_muscle.FesMuscle.run>`'s loop on the compiled
+    FES muscle (:func:`.fes_kernels.run_muscle`) by the same rule, from
+    :data:`FES_RUN_MIN_STEPS` steps.
 
     :param protocol: the protocol to replay
     :param params: muscle parameters (paper defaults if omitted)
@@ -110,6 +124,9 @@ def simulate(protocol: Protocol, params: MuscleParams | None = None,
     muscle.set_recruitment(float(r[0]))
     first = muscle.outputs()
     n_steps = len(t) - 1
+    if type(muscle) is FesMuscle and engine.use_compiled(n_steps, FES_RUN_MIN_STEPS,
+                                                         fes_kernels._compiled is not None):
+        return _simulate_fes_compiled(muscle.params, t, r, dl, dt, first)
     if type(muscle) is Muscle and engine.use_compiled(n_steps, kernels.RUN_MIN_STEPS,
                                                       kernels.run_loaded()):
         # The same loop compiled (model/kernels.py), when it is loaded or the
@@ -134,5 +151,27 @@ def simulate(protocol: Protocol, params: MuscleParams | None = None,
             array = np.empty(n_steps + 1, dtype=type(value))
             array[0] = value
             array[1:] = col
+            fields[name] = array
+    return SimulationResult(**fields)
+
+
+def _simulate_fes_compiled(params: MuscleParams, t: np.ndarray, r: np.ndarray, dl: np.ndarray,
+                           dt: float, first) -> SimulationResult:
+    """:meth:`FesMuscle.run <hill_muscle_ros.model.fes_muscle.FesMuscle.run>`'s
+    loop of :func:`simulate` on the compiled FES muscle (:func:`.fes_kernels.run_muscle`).
+
+    :param first: the outputs at t = 0, after the command ``r[0]``
+    """
+    # From rest: the first step gives r[0] at t = 0 itself, which is all that
+    # set_recruitment(r[0]) did to the reference before its first step.
+    bundle = fes_kernels.FesBundle([params], dt_s=dt)
+    rows = fes_kernels.run_muscle(bundle, 0, r[:-1], dl[1:], dt, r[1:],
+                                  kernels=fes_kernels.compiled())
+    fields = {'t_s': t}   # the sample times are the inputs themselves
+    for name, value, column in zip(first._fields, first, rows.T):
+        if name not in fields:
+            array = np.empty(len(t), dtype=type(value))
+            array[0] = value
+            array[1:] = column
             fields[name] = array
     return SimulationResult(**fields)

@@ -1,0 +1,147 @@
+"""simulate() of a muscle with FES features on: the compiled FES muscle against FesMuscle.
+
+``simulate`` takes the compiled FES run (model/fes_kernels.py) under the
+engine's rule (model/engine.py); here ``HILL_MUSCLE_ENGINE`` forces each
+engine in turn, and every column of the result must agree to 1e-9 (N, m,
+m/s) with the Python run of FesMuscle, the reference, and n_recruited exactly.
+"""
+import importlib
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, assume, given, settings, strategies as st
+
+from hill_muscle_ros import resources
+from hill_muscle_ros.model import Protocol, engine, fes_kernels
+from hill_muscle_ros.model.params import MuscleParams
+from hill_muscle_ros.model.simulate import COLUMNS, simulate
+from hill_muscle_ros.params_file import load_muscle_params
+
+#: [N], [m], [m/s] agreement asked of every column (the forces' is the goal's 1e-9 N).
+TOL = 1e-9
+#: [s] longest random protocol: the Python reference stays quick.
+MAX_DURATION_S = 0.4
+#: The module (the package's ``simulate`` attribute is the function).
+simulate_module = importlib.import_module('hill_muscle_ros.model.simulate')
+PRESET = resources.config_dir() / 'fes_quadriceps.yaml'
+PROTOCOLS = resources.config_dir() / 'protocols'
+
+
+@pytest.fixture(scope='module')
+def kernels():
+    return fes_kernels.compiled()
+
+
+def _run(monkeypatch, value, protocol, params, rate_hz):
+    monkeypatch.setenv(engine.ENV_VAR, value)
+    try:
+        return simulate(protocol, params, rate_hz)
+    finally:
+        monkeypatch.delenv(engine.ENV_VAR)
+
+
+def _assert_same(got, ref):
+    for name, _ in COLUMNS + (('n_recruited', None),):
+        a, b = getattr(got, name), getattr(ref, name)
+        assert a.shape == b.shape and a.dtype == b.dtype, name
+        assert np.abs(a - b).max(initial=0.0) <= TOL, (name, np.abs(a - b).max())
+
+
+def _compare(monkeypatch, protocol, params, rate_hz=1000.0):
+    ref = _run(monkeypatch, engine.PYTHON, protocol, params, rate_hz)
+    calls = []
+    original = simulate_module._simulate_fes_compiled
+
+    def spy(*args):
+        calls.append(args)
+        return original(*args)
+
+    monkeypatch.setattr(simulate_module, '_simulate_fes_compiled', spy)
+    got = _run(monkeypatch, engine.COMPILED, protocol, params, rate_hz)
+    assert len(calls) == 1   # the compiled run was taken
+    _assert_same(got, ref)
+
+
+def _params(**fields):
+    try:
+        return MuscleParams(**fields)
+    except ValueError:
+        assume(False)
+
+
+@st.composite
+def fes_params(draw):
+    """Any mix of the FES features: delay, activation, fatigue, fibre types,
+    unit lengths, relative FV scaling, over both unit models and length modes."""
+    units = draw(st.sampled_from(['multi', 'single']))
+    k = draw(st.integers(1, 3)) if units == 'multi' else 1
+    fields = dict(units=units, length=draw(st.sampled_from(['initial', 'instantaneous'])),
+                  n_units=draw(st.integers(1, 150)),
+                  emd_s=draw(st.sampled_from([0.0, 0.0123, 0.031])),
+                  tau_act_s=draw(st.sampled_from([0.0, 0.025])),
+                  tau_deact_s=draw(st.sampled_from([0.0, 0.028])),
+                  fatigue=draw(st.sampled_from(['none', 'riener'])),
+                  fv_scaling=draw(st.sampled_from(['absolute', 'relative'])),
+                  tau_fatigue_s=tuple(draw(st.sampled_from([0.1, 2.0])) for _ in range(k)))
+    if units == 'multi':
+        fields.update(fibre_fractions=tuple(draw(st.floats(0.1, 1.0)) for _ in range(k)),
+                      unit_length_spread=draw(st.sampled_from([0.0, 0.3])),
+                      recruitment_order=draw(st.sampled_from(['size', 'random'])))
+    params = _params(**fields)
+    assume(not params.fes_defaults)   # a FesMuscle, not the paper's Muscle
+    return params
+
+
+@st.composite
+def protocols(draw):
+    """Random recruitment and dl_MT knots (steps and ramps) over up to 0.4 s."""
+    duration = draw(st.sampled_from([0.05, 0.2, MAX_DURATION_S]))
+    times = sorted(draw(st.lists(st.floats(0.0, duration), min_size=1, max_size=6)))
+    r = [[t, draw(st.sampled_from([0.0, 1.0, 0.3, 0.77]))] for t in times]
+    dl = [[t, draw(st.floats(-0.01, 0.01))] for t in times]
+    return Protocol.from_mapping({'name': 'random', 'duration_s': duration,
+                                  'recruitment': r, 'dl_mt_m': dl})
+
+
+@settings(max_examples=40, deadline=None,
+          suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
+@given(params=fes_params(), protocol=protocols(),
+       rate_hz=st.sampled_from([500.0, 1000.0, 5000.0]))
+def test_fes_features_match_the_python_run(kernels, monkeypatch, params, protocol, rate_hz):
+    _compare(monkeypatch, protocol, params, rate_hz)
+
+
+@pytest.mark.parametrize('name', ['protocol_I.yaml', 'protocol_II.yaml'])
+def test_quadriceps_preset_matches_the_python_run(kernels, monkeypatch, name):
+    """config/fes_quadriceps.yaml (every feature, 1000 units) on a whole paper protocol."""
+    params, _ = load_muscle_params(PRESET)
+    _compare(monkeypatch, Protocol.from_yaml(PROTOCOLS / name), params)
+
+
+def test_auto_stays_on_python_for_a_short_run_until_loaded(monkeypatch):
+    """auto: a run shorter than FES_RUN_MIN_STEPS does not load the compiled FES
+    muscle; once it is loaded, the same run takes it."""
+    params, _ = load_muscle_params(PRESET)
+    protocol = Protocol.from_yaml(PROTOCOLS / 'protocol_I.yaml')
+    assert 6000 < simulate_module.FES_RUN_MIN_STEPS
+    monkeypatch.setenv(engine.ENV_VAR, 'auto')
+    monkeypatch.setattr(fes_kernels, '_compiled', None)
+    calls = []
+    monkeypatch.setattr(simulate_module, '_simulate_fes_compiled',
+                        lambda *args: calls.append(args))
+    simulate(protocol, params)
+    assert calls == [] and fes_kernels._compiled is None
+    monkeypatch.setattr(fes_kernels, '_compiled', object())   # loaded
+    simulate(protocol, params)
+    assert len(calls) == 1
+
+
+def test_python_engine_never_takes_the_compiled_run(kernels, monkeypatch):
+    params, _ = load_muscle_params(PRESET)
+    protocol = Protocol.from_yaml(PROTOCOLS / 'protocol_I.yaml')
+    calls = []
+    monkeypatch.setattr(simulate_module, '_simulate_fes_compiled',
+                        lambda *args: calls.append(args))
+    monkeypatch.setenv(engine.ENV_VAR, 'python')
+    simulate(protocol, params)
+    assert calls == []
