@@ -332,17 +332,52 @@ def test_make_vec_with_fatigue_equals_k_single_envs():
                             params=str(FES_QUADRICEPS), episode_duration_s=0.2)
 
 
-def test_knee_make_vec_uses_the_native_vector_env_and_equals_k_single_envs_exactly():
+@pytest.mark.parametrize('engine', ['compiled', 'python'])
+def test_knee_make_vec_uses_the_native_vector_env_and_equals_k_single_envs_exactly(engine):
     # Holds of 40-60 ms: the target changes inside the 0.1 s episodes.
     vec = _vector_against_singles(KNEE_ANGLE_ID, KneeAngleEnv, 3, 5, exact=True,
-                                  episode_duration_s=0.1, hold_min_s=0.04, hold_max_s=0.06)
+                                  episode_duration_s=0.1, hold_min_s=0.04, hold_max_s=0.06,
+                                  engine=engine)
     assert type(vec.unwrapped) is KneeAngleVectorEnv
+    assert vec.unwrapped.batch.engine == engine
 
 
-def test_knee_make_vec_with_options_equals_k_single_envs_exactly():
+@pytest.mark.parametrize('engine', ['compiled', 'python'])
+def test_knee_make_vec_with_options_equals_k_single_envs_exactly(engine):
     _vector_against_singles(KNEE_ANGLE_ID, KneeAngleEnv, 2, 3, exact=True,
                             episode_duration_s=0.06, fes_features=False, units='single',
-                            muscle_overrides={'hamstrings': {'f_iso_max_n': 800.0}})
+                            muscle_overrides={'hamstrings': {'f_iso_max_n': 800.0}},
+                            engine=engine)
+
+
+def test_knee_engine_default_follows_the_environment_variable(monkeypatch):
+    from hill_muscle_ros.model import engine as engines
+    from hill_muscle_ros.model.limb_kernels import CompiledLimb
+    monkeypatch.setenv(engines.ENV_VAR, 'python')
+    env = KneeAngleEnv()
+    assert (env.engine, type(env.limb)) == ('python', Limb)
+    monkeypatch.setenv(engines.ENV_VAR, 'compiled')
+    env = KneeAngleEnv()
+    assert (env.engine, type(env.limb)) == ('compiled', CompiledLimb)
+
+
+def test_knee_engine_option_rejects_an_unknown_engine():
+    with pytest.raises(ValueError, match=r"`engine` must be 'compiled', 'python' or None, "
+                                         r"got 'fast'"):
+        KneeAngleEnv(engine='fast')
+
+
+def test_knee_compiled_and_python_engines_give_the_same_episode():
+    # The compiled limb against Limb (the reference): the angle to 1e-9 rad.
+    envs = [KneeAngleEnv(engine=e, control_period_s=0.02) for e in ('compiled', 'python')]
+    for env in envs:
+        env.reset(seed=3)
+    rng = np.random.default_rng(4)
+    for _ in range(KNEE_STEPS):
+        action = rng.uniform(0.0, envs[0].action_space.high).astype(np.float32)
+        (_, r_c, *_, info_c), (_, r_p, *_, info_p) = (env.step(action) for env in envs)
+        assert info_c['theta_rad'] == pytest.approx(info_p['theta_rad'], abs=1e-9)
+        assert r_c == pytest.approx(r_p, abs=1e-9)
 
 
 def test_knee_vector_env_action_outside_the_box_raises_naming_env_and_muscle():
@@ -454,7 +489,8 @@ def test_force_vector_env_with_observe_fitness_equals_single_envs():
 
 
 def test_knee_variant_and_features_options_reach_every_muscle():
-    env = KneeAngleEnv(units='single', length='instantaneous', fes_features=False)
+    env = KneeAngleEnv(units='single', length='instantaneous', fes_features=False,
+                       engine='python')
     for m in env.plant.muscles:
         p = m.params
         assert (p.units, p.length, p.fes_defaults) == ('single', 'instantaneous', True)
@@ -489,7 +525,7 @@ def test_knee_muscle_overrides_change_the_simulated_limb():
     us = [command_from_pulse_width(float(w), m.params) for w, m in zip(pw, changed.muscles)]
     for _ in range(50):
         out = limb.step(us, 0.0, DT_S)
-    assert info['theta_rad'] == out.theta_rad
+    assert info['theta_rad'] == pytest.approx(out.theta_rad, abs=1e-9)   # either engine
     default = KneeAngleEnv(control_period_s=0.05)
     default.reset(seed=0, options={'target_rad': 0.5})
     assert default.step(pw)[4]['theta_rad'] > info['theta_rad'] > 0.0

@@ -1,7 +1,8 @@
 """``hill_muscle_ros/KneeAngle-v0``: track a knee angle with the stimulated
 quadriceps and hamstrings of the knee preset.
 
-The plant is :class:`~hill_muscle_ros.model.limb.Limb` on ``config/knee.yaml``
+The plant is :class:`~hill_muscle_ros.model.limb.Limb` (or the compiled limb,
+``engine``) on ``config/knee.yaml``
 (or any plant file or :class:`~hill_muscle_ros.model.limb.LimbPlant`); each
 muscle's pulse width goes through its own recruitment curve
 (:func:`~hill_muscle_ros.model.stimulus.command_from_pulse_width`). Nothing
@@ -17,7 +18,9 @@ from typing import Any, Mapping
 import numpy as np
 from gymnasium import spaces
 
-from ..model.limb import Limb, LimbPlant
+from ..model import engine as engines
+from ..model.limb import LimbPlant
+from ..model.limb_kernels import make_limb
 from ..model.stimulus import command_from_pulse_width
 from ._common import (MODEL_DT_S, TrackingEnv, check_pulse_widths, hold_lengths,
                       muscle_variant, piecewise_constant)
@@ -131,6 +134,14 @@ class KneeAngleEnv(TrackingEnv):
     :param hold_min_s: [s] shortest hold of a target
     :param hold_max_s: [s] longest hold of a target
     :param render_mode: only ``None`` (no rendering)
+    :param engine: the limb's engine, ``'compiled'`` (the compiled limb,
+        :class:`~hill_muscle_ros.model.limb_kernels.CompiledLimb`) or
+        ``'python'`` (:class:`~hill_muscle_ros.model.limb.Limb`); the same
+        trajectories to 1e-9 rad. ``None``: :func:`hill_muscle_ros.model.engine.choice`
+        (compiled where numba can be imported, unless ``HILL_MUSCLE_ENGINE=python``).
+        The first compiled environment of a process loads the compiled limb:
+        about 0.8 s from numba's disk cache, about 30 s when it compiles (a
+        clean clone, or after an edit of the model's code)
     """
 
     TARGET_OPTION = 'target_rad'
@@ -143,7 +154,8 @@ class KneeAngleEnv(TrackingEnv):
                  history_length: int = 5, stim_cost: float = 0.01,
                  angle_min_rad: float = DEFAULT_ANGLE_MIN_RAD,
                  angle_max_rad: float = DEFAULT_ANGLE_MAX_RAD, hold_min_s: float = 1.0,
-                 hold_max_s: float = 3.0, render_mode: str | None = None) -> None:
+                 hold_max_s: float = 3.0, render_mode: str | None = None,
+                 engine: str | None = None) -> None:
         self._init_episode(control_period_s=control_period_s,
                            episode_duration_s=episode_duration_s,
                            history_length=history_length, stim_cost=stim_cost,
@@ -160,7 +172,9 @@ class KneeAngleEnv(TrackingEnv):
                              f'{angle_min_rad!r}, {angle_max_rad!r}')
         self.angle_min_rad, self.angle_max_rad = lo, hi
 
-        self.limb = Limb(self.plant)
+        #: ``'compiled'`` or ``'python'``: the limb's engine
+        self.engine = engines.choice() if engine is None else engine
+        self.limb = make_limb(self.plant, self.engine)
         self._muscle_params = [m.params for m in self.plant.muscles]
         #: what each action entry is, for error messages
         self.action_labels = tuple(f'{m.name} pulse width' for m in self.plant.muscles)
@@ -201,7 +215,7 @@ class KneeAngleEnv(TrackingEnv):
         """[-] Each muscle's command u for widths ``pw`` [s], through its own curve."""
         return [command_from_pulse_width(w, p) for w, p in zip(pw.tolist(), self._muscle_params)]
 
-    def run_period(self, limb: Limb, us: list[float], target_rad: float) -> tuple[float, Any]:
+    def run_period(self, limb, us: list[float], target_rad: float) -> tuple[float, Any]:
         """Step ``limb`` through one control period with commands ``us`` held.
 
         :param target_rad: [rad] the period's target theta*

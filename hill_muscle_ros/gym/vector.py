@@ -11,11 +11,13 @@ generator seeded alike.
   batch engine's agreement with the scalar one (1e-9 N,
   ``test/test_model_batch.py``).
 - :class:`KneeAngleVectorEnv` steps the K limbs on
-  :class:`~hill_muscle_ros.model.limb_batch.LimbBatch`, which steps each by
-  its own :class:`~hill_muscle_ros.model.limb.Limb` (the single
-  environment's engine): identical trajectories, bit for bit. The limb batch
-  has no vectorised path yet, so this brings the vector API and the shared
-  autoreset but little speed over K single environments.
+  :class:`~hill_muscle_ros.model.limb_batch.LimbBatch` with the single
+  environment's engine (``engine``: the compiled limb or
+  :class:`~hill_muscle_ros.model.limb.Limb`), each limb by its own call of the
+  same step: identical trajectories, bit for bit. The limb batch has no
+  vectorised path, so this brings the vector API, the shared autoreset and
+  one call per limb and model step instead of SyncVectorEnv's Python around
+  each environment.
 """
 from __future__ import annotations
 
@@ -225,7 +227,8 @@ class KneeAngleVectorEnv(TrackingVectorEnv):
 
     def __init__(self, num_envs: int = 1, **kwargs: Any) -> None:
         super().__init__(num_envs, **kwargs)
-        self.batch = LimbBatch([self.template.plant] * self.num_envs)
+        self.batch = LimbBatch([self.template.plant] * self.num_envs,
+                               engine=self.template.engine)
 
     def _set_episode(self, i: int, episode: np.ndarray) -> None:
         self._targets[i] = episode

@@ -276,6 +276,37 @@ class LimbOutputs(NamedTuple):
     force_n: tuple
 
 
+def stretch_message(muscle: str, dl_mt_m: float, theta_rad: float) -> str:
+    """The error of a limb step that left ``muscle`` stretched beyond ±DL_MT_LIMIT_M.
+
+    :param dl_mt_m: [m] its MTU length change (dl_MT)
+    :param theta_rad: [rad] the joint angle (theta)
+    """
+    return (f'muscle `{muscle}` is stretched {dl_mt_m:.4g} m from rest at '
+            f'{math.degrees(theta_rad):.1f} deg: beyond ±{DL_MT_LIMIT_M} m; '
+            'check its moment arm')
+
+
+def check_step_inputs(plant: LimbPlant, commands: Sequence[float],
+                      external_torque_n_m: float, dt_s: float) -> tuple[list[float], float]:
+    """A limb step's inputs, checked as :meth:`Limb.step` (and the compiled limb) take them.
+
+    :return: ([-] each muscle's command u as a float, [N m] tau_ext as a float)
+    :raises ValueError: naming the input on a bad value
+    """
+    if len(commands) != len(plant.muscles):
+        raise ValueError(f'`commands` must have one value per muscle '
+                         f'({len(plant.muscles)}), got {len(commands)}')
+    us = [check_recruitment(u, f'{m.name}.command') for u, m in zip(commands, plant.muscles)]
+    tau = float(external_torque_n_m)
+    if not abs(tau) <= TORQUE_LIMIT_N_M:
+        raise ValueError(f'`external_torque_n_m` must be finite and within '
+                         f'±{TORQUE_LIMIT_N_M:g} N m, got {external_torque_n_m!r}')
+    if not (math.isfinite(dt_s) and dt_s > 0.0):
+        raise ValueError(f'`dt_s` must be positive and finite, got {dt_s!r}')
+    return us, tau
+
+
 class Limb:
     """The joint and its muscles, integrated together (see the module docstring).
 
@@ -389,17 +420,7 @@ class Limb:
         :return: the outputs at the end of the step
         :raises ValueError: naming the input on a bad value; the state is unchanged
         """
-        if len(commands) != len(self.muscles):
-            raise ValueError(f'`commands` must have one value per muscle '
-                             f'({len(self.muscles)}), got {len(commands)}')
-        us = [check_recruitment(u, f'{m.name}.command')
-              for u, m in zip(commands, self.plant.muscles)]
-        tau = float(external_torque_n_m)
-        if not abs(tau) <= TORQUE_LIMIT_N_M:
-            raise ValueError(f'`external_torque_n_m` must be finite and within '
-                             f'±{TORQUE_LIMIT_N_M:g} N m, got {external_torque_n_m!r}')
-        if not (math.isfinite(dt_s) and dt_s > 0.0):
-            raise ValueError(f'`dt_s` must be positive and finite, got {dt_s!r}')
+        us, tau = check_step_inputs(self.plant, commands, external_torque_n_m, dt_s)
         t0, t1 = self.t_s, self.t_s + dt_s
         self.external_torque_n_m = tau
         timeline = []
@@ -425,9 +446,8 @@ class Limb:
         for i, m in enumerate(self.muscles):
             dl = self._dl_mt(i, self.theta_rad)
             if not abs(dl) <= DL_MT_LIMIT_M:
-                raise ValueError(f'muscle `{self.plant.muscles[i].name}` is stretched '
-                                 f'{dl:.4g} m from rest at {math.degrees(self.theta_rad):.1f} '
-                                 f'deg: beyond ±{DL_MT_LIMIT_M} m; check its moment arm')
+                raise ValueError(stretch_message(self.plant.muscles[i].name, dl,
+                                                 self.theta_rad))
         return self.outputs()
 
     def outputs(self) -> LimbOutputs:

@@ -16,6 +16,10 @@ limb's code, called, not copied, so limb k of the batch does exactly what a
 ``Limb(plants[k])`` does (the tests check it against separate runs and against
 :func:`~hill_muscle_ros.model.limb.simulate_limb` to 1e-9 rad and 1e-9 N).
 
+On the compiled engine (``engine``) each limb is a
+:class:`~hill_muscle_ros.model.limb_kernels.CompiledLimb` instead: the same
+step compiled, the same outputs to 1e-9 rad and 1e-9 N.
+
 Cost: one scalar limb step per limb, plus the arrays' bookkeeping. Unlike
 :class:`~hill_muscle_ros.model.batch.MuscleBatch`, there is no vectorised
 path: every limb has its own instants within a step (each muscle's delayed
@@ -86,11 +90,18 @@ class LimbBatch:
 
     :param plants: one :class:`LimbPlant` per limb (K >= 1), all with the same
         muscle names in the same order
+    :param engine: ``'compiled'``: each limb a
+        :class:`~hill_muscle_ros.model.limb_kernels.CompiledLimb` (the same
+        outputs to 1e-9 rad and 1e-9 N; the first in a process loads the
+        compiled limb, about 0.8 s, about 30 s if it compiles); ``'python'``:
+        each a :class:`~hill_muscle_ros.model.limb.Limb`; ``None``:
+        :func:`~hill_muscle_ros.model.limb_kernels.step_engine`'s rule (compiled
+        once loaded in the process, or with ``HILL_MUSCLE_ENGINE=compiled``)
     :raises ValueError: if ``plants`` is empty, holds something else, or the
         plants' muscles differ
     """
 
-    def __init__(self, plants: Sequence[LimbPlant]) -> None:
+    def __init__(self, plants: Sequence[LimbPlant], engine: str | None = None) -> None:
         plants = check_instances(LimbPlant, plants, 'plants')
         names = tuple(m.name for m in plants[0].muscles)
         for k, plant in enumerate(plants[1:], start=1):
@@ -102,7 +113,20 @@ class LimbBatch:
         self.size = len(plants)
         #: The muscles' names, the columns of every (K, M) array.
         self.muscle_names = names
-        self._limbs = [Limb(plant) for plant in plants]
+        from . import limb_kernels
+        #: ``'compiled'`` or ``'python'``: the engine of every limb
+        self.engine = limb_kernels.step_engine(engine)
+        self._compiled = self.engine == 'compiled'
+        if self._compiled:
+            kernels = limb_kernels.compiled()
+            # Each limb writes its outputs into its row: one array for the batch.
+            self._rows = np.zeros((self.size, 3 + 5 * len(names)))
+            self._s_r = np.array([[m.sign * m.moment_arm_m for m in plant.muscles]
+                                  for plant in plants]).reshape(self.size, len(names))
+            self._limbs = [limb_kernels.CompiledLimb(plant, kernels, row)
+                           for plant, row in zip(plants, self._rows)]
+        else:
+            self._limbs = [Limb(plant) for plant in plants]
 
     # -- state ----------------------------------------------------------------------
 
@@ -170,6 +194,10 @@ class LimbBatch:
 
     def _give(self, u: list[list[float]]) -> None:
         """:meth:`give_commands` of validated commands, one list per limb."""
+        if self._compiled:
+            for limb, row in zip(self._limbs, u):
+                limb.give_commands(row)
+            return
         for limb, row in zip(self._limbs, u):
             for muscle, value in zip(limb.muscles, row):
                 if value != muscle.command:
@@ -213,7 +241,15 @@ class LimbBatch:
 
     def _advance(self, u: list[list[float]], tau: list[float], dt: float) -> list:
         """Step every limb with validated inputs (Python lists: no NumPy scalars
-        in the scalar limbs' arithmetic); returns each limb's outputs."""
+        in the scalar limbs' arithmetic); returns each limb's outputs (compiled:
+        None, the outputs are in the batch's rows)."""
+        if self._compiled:
+            for k, limb in enumerate(self._limbs):
+                try:
+                    limb.advance(u[k], tau[k], dt)
+                except ValueError as err:
+                    raise LimbOutOfRange(k, str(err)) from None
+            return None
         outs = []
         for k, limb in enumerate(self._limbs):
             try:
@@ -235,10 +271,21 @@ class LimbBatch:
 
     def outputs(self) -> LimbBatchOutputs:
         """The outputs of every limb at the current instant."""
+        if self._compiled:
+            return self._gather(None)
         return self._gather([limb.outputs() for limb in self._limbs])
 
     def _gather(self, outs: list) -> LimbBatchOutputs:
-        """The limbs' :class:`~hill_muscle_ros.model.limb.LimbOutputs` as arrays."""
+        """The limbs' :class:`~hill_muscle_ros.model.limb.LimbOutputs` as arrays
+        (compiled: from the batch's rows, ``outs`` None)."""
+        if outs is None:
+            rows = self._rows
+            per_muscle = [rows[:, 3 + j::5].copy() for j in range(5)]
+            torque = np.zeros(self.size)
+            for i in range(len(self.muscle_names)):   # in order, as Limb.outputs sums
+                torque += self._s_r[:, i] * per_muscle[4][:, i]
+            return LimbBatchOutputs(float(rows[0, 0]), rows[:, 1].copy(), rows[:, 2].copy(),
+                                    torque, *per_muscle)
         per_limb = np.array([(o.theta_rad, o.omega_rad_per_s, o.muscle_torque_n_m)
                              for o in outs], dtype=float).reshape(self.size, 3)
         per_muscle = np.array([(o.command, o.recruitment, o.dl_mt_m, o.l_ce_m, o.force_n)

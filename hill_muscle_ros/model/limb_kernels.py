@@ -18,9 +18,10 @@ on the compiled engine; ``simulate_limb`` calls it when
 """
 from __future__ import annotations
 
-import math
+import math  # the joint's equations (limb.py), compiled over this scope, call it
 import sys
 import types
+from typing import Sequence
 
 import numpy as np
 
@@ -28,6 +29,7 @@ from . import curves, fes_kernels, fes_muscle, limb, memory, stimulus, unit_pool
 from .curves import parallel_force, series_force
 from .fes_muscle import rk4_update
 from .limb import joint_acceleration, mtu_length_change
+from .muscle import DL_MT_LIMIT_M
 from .fes_kernels import (A_END, DELAY_FULL, OK, H_FS, P_K_PE, P_K_SE, P_L_REST, S_CMD,
                           S_DL, S_L, S_R, S_T, FesBundle, apply, begin_interval, eff_f_iso,
                           end_interval, give_command, hdr, plan, settle_now, substeps,
@@ -200,6 +202,19 @@ def limb_step(F, I, L, W, TT, TI, nm, us, tau, dt, dl_limit):
     return OK
 
 
+def limb_give(F, I, nm, us):
+    """Each muscle's command ``us[i]`` now where it differs from its last one, as a
+    sample of simulate_limb gives it.
+
+    :return: :data:`OK`, or :data:`DELAY_FULL` (the muscles before have their commands)
+    """
+    for i in range(nm):
+        if us[i] != F[hdr(I, i, H_FS) + S_CMD]:
+            if not give_command(F, I, i, us[i]):
+                return DELAY_FULL
+    return OK
+
+
 def limb_record(F, I, L, nm, row):
     """The limb's outputs now into ``row``: t, theta, omega, then per muscle its
     command, recruitment, dl_MT, l_CE and force (simulate_limb's columns)."""
@@ -289,6 +304,11 @@ class LimbArrays:
             fs[S_DL] = dl = dl_mt(self.L, i, self.L[L_THETA])
             fs[S_L] = m.params.l_rest_m + dl
 
+    def stretch_message(self, i: int) -> str:
+        """Limb.step's error for muscle ``i`` stretched out of range now."""
+        theta = self.L[L_THETA]
+        return limb.stretch_message(self.plant.muscles[i].name, dl_mt(self.L, i, theta), theta)
+
     def ensure_delay(self, dt_s: float) -> None:
         """Room in the delay lines and the timeline for steps of ``dt_s``."""
         cap = self.bundle.cap
@@ -312,7 +332,7 @@ RUN_MIN_MUSCLE_STEPS = 10_000
 #: The joint's equations (model/limb.py), compiled over this module's scope.
 _EQUATIONS = ('mtu_length_change', 'joint_acceleration')
 _KERNELS = ('muscle_slot', 'dl_mt', 'forces', 'limb_rk4', 'limb_integrate', 'limb_step',
-            'limb_record', 'limb_run')
+            'limb_give', 'limb_record', 'limb_run')
 #: The modules whose code the kernels inline: their digest names the cache entries.
 _DIGEST_OF = (curves, stimulus, memory, units, unit_pool, fes_muscle, fes_kernels, limb)
 _compiled = None
@@ -348,16 +368,32 @@ def compiled() -> types.SimpleNamespace:
         c1, c2 = f8[::1], f8[:, ::1]
         return i8(c1, i8[::1], c1, c2, c1, i8[:, ::1], i8, c2, c1, f8, f8, c2)
 
+    # CompiledLimb's entry points, with signatures too: compiled (or loaded) here,
+    # never at a first step.
+    def step_signature(numba):
+        f8, i8 = numba.float64, numba.int64
+        c1, c2 = f8[::1], f8[:, ::1]
+        return i8(c1, i8[::1], c1, c2, c1, i8[:, ::1], i8, c1, f8, f8, f8)
+
+    def give_signature(numba):
+        f8, i8 = numba.float64, numba.int64
+        return i8(f8[::1], i8[::1], i8, f8[::1])
+
+    def record_signature(numba):
+        f8, i8 = numba.float64, numba.int64
+        return numba.void(f8[::1], i8[::1], f8[::1], i8, f8[::1])
+
     _compiled = engine.compile_functions(
         scope, _EQUATIONS + _KERNELS, digest_of=_DIGEST_OF + (sys.modules[__name__],),
-        signatures={'limb_run': run_signature}, options=options)
+        signatures={'limb_run': run_signature, 'limb_step': step_signature,
+                    'limb_give': give_signature, 'limb_record': record_signature},
+        options=options)
     return _compiled
 
 
 def _run(arrays: LimbArrays, u: np.ndarray, tau: np.ndarray, dt_s: float, kernels):
     """limb_run on ``arrays``: (rows, None), or (rows, (k, message)) when step k
     stretched a muscle out of range (the message is Limb.step's)."""
-    from .muscle import DL_MT_LIMIT_M
     arrays.ensure_delay(dt_s)
     nm = arrays.nm
     u = np.ascontiguousarray(u, dtype=float).reshape(len(tau), nm)
@@ -372,12 +408,7 @@ def _run(arrays: LimbArrays, u: np.ndarray, tau: np.ndarray, dt_s: float, kernel
     k, status = divmod(-done, STATUS_BASE)
     if status == DELAY_FULL:   # delay_capacity bounds the commands pending
         raise RuntimeError(f'a muscle\'s delay line overflowed at step {k}')
-    i = status - DL_OUT_OF_RANGE
-    theta = arrays.L[L_THETA]
-    dl = dl_mt(arrays.L, i, theta)
-    return rows, (k, f'muscle `{arrays.plant.muscles[i].name}` is stretched '
-                     f'{dl:.4g} m from rest at {math.degrees(theta):.1f} '
-                     f'deg: beyond ±{DL_MT_LIMIT_M} m; check its moment arm')
+    return rows, (k, arrays.stretch_message(status - DL_OUT_OF_RANGE))
 
 
 def run_limb(arrays: LimbArrays, u: np.ndarray, tau: np.ndarray, dt_s: float,
@@ -449,3 +480,153 @@ def simulate_limb_compiled(plant, protocol, rate_hz: float = 1000.0, kernels=Non
                     compiled() if kernels is None else kernels)
     rows[:, 0] = t
     return LimbResult(t, dict(zip(limb_columns(plant), rows.T)))
+
+
+# -- step by step ---------------------------------------------------------------------------
+
+#: [s] The step the delay lines of a :class:`CompiledLimb` are first sized for
+#: (the 1 kHz of the presets); a step of another length resizes them, keeping the state.
+FIRST_DT_S = 1e-3
+
+
+def step_engine(requested: str | None = None) -> str:
+    """The engine of a limb stepped one call at a time: :data:`.engine.COMPILED`
+    or :data:`.engine.PYTHON`.
+
+    A step-by-step limb cannot know how long it will run, so ``None`` follows
+    :func:`.engine.use_compiled` with no work to repay the loading: compiled once
+    the compiled limb is loaded in this process (or with
+    ``HILL_MUSCLE_ENGINE=compiled``), Python otherwise.
+
+    :param requested: ``'compiled'``, ``'python'`` or ``None``
+    :raises ValueError: on any other value
+    """
+    from . import engine
+    if requested is None:
+        return engine.COMPILED if engine.use_compiled(0, 1, loaded()) else engine.PYTHON
+    if requested not in (engine.COMPILED, engine.PYTHON):
+        raise ValueError(f'`engine` must be {engine.COMPILED!r}, {engine.PYTHON!r} or None, '
+                         f'got {requested!r}')
+    return requested
+
+
+class CompiledLimb:
+    """:class:`~hill_muscle_ros.model.limb.Limb`'s step-by-step interface on the
+    compiled limb (:func:`compiled`): the same outputs to 1e-9 rad and 1e-9 N, the
+    same errors, the same state after a bad input (unchanged) or a muscle
+    stretched out of range (the step taken, as Limb leaves it).
+
+    Building the first one in a process loads the compiled limb: about 0.8 s
+    from numba's disk cache, about 30 s when it compiles (a clean clone, or
+    after an edit of the model's code).
+
+    :param plant: the joint and its muscles
+    :param kernels: :func:`compiled` (the default), or this module for the plain functions
+    :param row: where :meth:`advance` writes the outputs (``limb_record``'s
+        columns: t, theta, omega, then per muscle command, recruitment,
+        dl_MT, l_CE, force), e.g. a row of a batch's array; default its own
+    """
+
+    def __init__(self, plant, kernels=None, row: np.ndarray | None = None) -> None:
+        self.plant = plant
+        self.joint = plant.joint
+        self._kernels = compiled() if kernels is None else kernels
+        self.arrays = LimbArrays(plant, FIRST_DT_S)
+        self._dt = FIRST_DT_S
+        nm = self.arrays.nm
+        self.row = np.zeros(3 + 5 * nm) if row is None else row
+        self._us = np.zeros(nm)
+        self._s_r = [m.sign * m.moment_arm_m for m in plant.muscles]
+        self.reset()
+
+    def reset(self) -> None:
+        """theta = theta_0, omega = 0, each CE at l_rest + dl_MT(theta_0), nothing recruited."""
+        a = self.arrays
+        a.reset()
+        self._kernels.limb_record(a.bundle.F, a.bundle.I, a.L, a.nm, self.row)
+
+    @property
+    def t_s(self) -> float:
+        """[s] time."""
+        return float(self.arrays.L[L_T])
+
+    @property
+    def theta_rad(self) -> float:
+        """[rad] joint angle (theta)."""
+        return float(self.arrays.L[L_THETA])
+
+    @property
+    def omega_rad_per_s(self) -> float:
+        """[rad/s] joint angular velocity (omega)."""
+        return float(self.arrays.L[L_OMEGA])
+
+    @property
+    def external_torque_n_m(self) -> float:
+        """[N m] the external torque of the last step (tau_ext)."""
+        return float(self.arrays.L[L_TAU])
+
+    def _failed(self, status: int) -> None:
+        if status == DELAY_FULL:   # delay_capacity bounds the commands pending
+            raise RuntimeError('a muscle\'s delay line overflowed')
+        raise ValueError(self.arrays.stretch_message(status - DL_OUT_OF_RANGE))
+
+    def give_commands(self, us: Sequence[float]) -> None:
+        """Give each muscle its checked command now where it differs from its last
+        one (a sample of simulate_limb; LimbBatch.give_commands)."""
+        a = self.arrays
+        self._us[:] = us
+        status = self._kernels.limb_give(a.bundle.F, a.bundle.I, a.nm, self._us)
+        self._kernels.limb_record(a.bundle.F, a.bundle.I, a.L, a.nm, self.row)
+        if status != OK:
+            self._failed(status)
+
+    def advance(self, us: Sequence[float], tau: float, dt_s: float) -> None:
+        """:meth:`step` of checked inputs, the outputs into :attr:`row` only.
+
+        :raises ValueError: as Limb.step, on a muscle stretched out of range
+        """
+        a = self.arrays
+        if dt_s != self._dt:
+            a.ensure_delay(dt_s)
+            self._dt = dt_s
+        self._us[:] = us
+        b = a.bundle
+        status = self._kernels.limb_step(b.F, b.I, a.L, a.W, a.TT, a.TI, a.nm, self._us,
+                                         tau, dt_s, DL_MT_LIMIT_M)
+        self._kernels.limb_record(b.F, b.I, a.L, a.nm, self.row)
+        if status != OK:
+            self._failed(status)
+
+    def step(self, commands: Sequence[float], external_torque_n_m: float, dt_s: float):
+        """Advance one step: each muscle's command and the external torque held
+        over it (:meth:`Limb.step <hill_muscle_ros.model.limb.Limb.step>`).
+
+        :param commands: [-] recruitment command u of each muscle, in [0, 1]
+        :param external_torque_n_m: [N m] external torque (tau_ext)
+        :param dt_s: [s] step length, > 0
+        :return: the :class:`~hill_muscle_ros.model.limb.LimbOutputs` at the step's end
+        :raises ValueError: naming the input on a bad value (the state is
+            unchanged), or the muscle stretched out of range
+        """
+        us, tau = limb.check_step_inputs(self.plant, commands, external_torque_n_m, dt_s)
+        self.advance(us, tau, float(dt_s))
+        return self.outputs()
+
+    def outputs(self):
+        """The :class:`~hill_muscle_ros.model.limb.LimbOutputs` at the current instant."""
+        row = self.row.tolist()
+        cols = [row[3 + j::5] for j in range(5)]
+        torque = 0.0
+        for s_r, f in zip(self._s_r, cols[4]):
+            torque += s_r * f
+        return limb.LimbOutputs(row[0], row[1], row[2], torque, *(tuple(c) for c in cols))
+
+
+def make_limb(plant, engine: str | None = None):
+    """A :class:`~hill_muscle_ros.model.limb.Limb`, or a :class:`CompiledLimb` when
+    :func:`step_engine` of ``engine`` is compiled (the first loads the compiled
+    limb: about 0.8 s, about 30 s if it compiles)."""
+    from . import engine as engines
+    if step_engine(engine) == engines.COMPILED:
+        return CompiledLimb(plant)
+    return limb.Limb(plant)
