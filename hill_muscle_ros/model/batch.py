@@ -39,10 +39,13 @@ units (measured: all of it resident once every stack was pushed, since NumPy
 backs large arrays with huge pages where the kernel allows).
 
 Muscles with any FES extension switched on (delay, activation, fatigue, fibre
-types, unit lengths: doc/model.md section 7) are stepped by their own
-:class:`~hill_muscle_ros.model.fes_muscle.FesMuscle`, the scalar engine, so the
-two paths share the equations by construction; their cost is one scalar step
-each. The arrays of state and outputs cover every muscle alike.
+types, unit lengths: doc/model.md section 7) are stepped as their own
+:class:`~hill_muscle_ros.model.fes_muscle.FesMuscle` steps: on the NumPy
+engine by one FesMuscle each, the scalar reference; on the compiled engine all
+at once by :mod:`.fes_batch_kernels` over one
+:class:`~hill_muscle_ros.model.fes_kernels.FesBundle`, the compiled FES muscle
+(same results to 1e-9 N, test/test_batch_fes_compiled.py). The arrays of state
+and outputs cover every muscle alike.
 """
 from __future__ import annotations
 
@@ -51,7 +54,7 @@ from typing import NamedTuple, Sequence
 import numpy as np
 
 from . import engine as engines
-from . import kernels
+from . import fes_batch_kernels, fes_kernels, kernels
 from .curves import ECC_PLATEAU, FL_A, FL_B, FL_C
 from .fes_muscle import FesMuscle
 from .memory import UnitMemory
@@ -63,6 +66,10 @@ _ROUND_HALF = 0.5
 
 #: Values of ``MuscleBatch(engine=...)``.
 ENGINES = ('auto', 'compiled', 'numpy')
+
+#: [s] the step the compiled engine's FES delay lines are first sized for
+#: (FesBundle's default); a shorter step, or a delay line found full, grows them.
+_FES_DELAY_DT_S = 1e-3
 
 
 class BatchOutputs(NamedTuple):
@@ -132,8 +139,7 @@ class MuscleBatch:
         self._initial = np.array([p.length == 'initial' for p in params])
         self._all_initial = bool(self._initial.all())
         self._any_initial = bool(self._initial.any())
-        #: Muscles with an FES extension on: their scalar engines, by index.
-        self._fes = {i: FesMuscle(p) for i, p in enumerate(params) if not p.fes_defaults}
+        fes = [i for i, p in enumerate(params) if not p.fes_defaults]
         #: The compiled kernels (None on the NumPy engine).
         self._kernels = None
         # 'auto' honours HILL_MUSCLE_ENGINE (python: the NumPy engine).
@@ -145,6 +151,21 @@ class MuscleBatch:
                     raise
         #: [-] the engine in use: ``'compiled'`` or ``'numpy'``.
         self.engine = 'numpy' if self._kernels is None else 'compiled'
+        #: Muscles with an FES extension on, NumPy engine: their scalar engines, by index.
+        self._fes = {}
+        #: Compiled engine: those muscles' FesBundle (muscle j is batch muscle
+        #: _fes_index[j]) and its state at rest, for reset (None without any).
+        self._fes_bundle = None
+        if fes and self._kernels is None:
+            self._fes = {i: FesMuscle(params[i]) for i in fes}
+        elif fes:
+            self._fes_index = np.array(fes, dtype=np.int64)
+            self._fes_dt_s = _FES_DELAY_DT_S
+            self._fes_bundle = fes_kernels.FesBundle([params[i] for i in fes],
+                                                     dt_s=self._fes_dt_s)
+            self._fes_rest = (self._fes_bundle.F.copy(), self._fes_bundle.I.copy(),
+                              self._fes_bundle.cap)
+            self._fes_kernels = fes_batch_kernels.compiled()
         stacked = [i for i, p in enumerate(params)
                    if p.units == 'multi' and p.length == 'initial']
         #: NumPy engine: the multi/initial muscles' memories, by index.
@@ -190,6 +211,11 @@ class MuscleBatch:
             self._stack_top[:] = 0   # the sentinels are never written
         for muscle in self._fes.values():
             muscle.reset()
+        if self._fes_bundle is not None:
+            bundle = self._fes_bundle
+            f_rest, i_rest, bundle.cap = self._fes_rest
+            bundle.F, bundle.I = f_rest.copy(), i_rest.copy()
+            bundle.ensure_delay(self._fes_dt_s)   # as long as any step seen so far
         self.command = np.zeros(k)
         self.mean_fitness = np.ones(k)
         self._f_iso_single = np.zeros(k)   # [N] single/initial: f_iso at recruitment
@@ -268,13 +294,43 @@ class MuscleBatch:
             # Released muscles: the free CE takes up the slack at once (as Muscle).
             self.l_ce_m = np.where(self._eff_f_iso(self.l_ce_m) == 0.0,
                                    self._l_rest + self.dl_mt_m, self.l_ce_m)
-        elif self._fes:
+        elif self._fes or self._fes_bundle is not None:
             # _copy_state writes into l_ce_m: not into an array already returned.
             self.l_ce_m = self.l_ce_m.copy()
         self.command = r
         for i, muscle in self._fes.items():
             muscle.set_recruitment(float(r[i]))
             self._copy_state(i, muscle)
+        if self._fes_bundle is not None:
+            rows = np.empty((len(self._fes_index), fes_kernels.N_OUT))
+            self._fes_call(self._fes_kernels.give_all, (r,), rows)
+            self._copy_fes_state(rows)
+
+    def _fes_call(self, kernel, args: tuple, rows: np.ndarray) -> None:
+        """``kernel(F, I, *args, index, done, rows)`` of :mod:`.fes_batch_kernels`
+        until every FES muscle is done, growing the delay lines of those whose
+        line was full (they were left unchanged)."""
+        done = np.zeros(len(self._fes_index), dtype=bool)
+        while True:
+            bundle = self._fes_bundle
+            kernel(bundle.F, bundle.I, *args, self._fes_index, done, rows)
+            if done.all():
+                return
+            # Room for the commands of a step half as long: more than now,
+            # since only a muscle with a delay can fill its line.
+            self._fes_dt_s *= 0.5
+            bundle.ensure_delay(self._fes_dt_s)
+
+    def _copy_fes_state(self, rows: np.ndarray) -> None:
+        """_copy_state of every FES muscle of the compiled engine, from
+        :mod:`.fes_batch_kernels`' rows."""
+        idx = self._fes_index
+        self.l_ce_m[idx] = rows[:, fes_batch_kernels.ROW_L_CE]
+        self.dl_mt_m[idx] = rows[:, fes_batch_kernels.ROW_DL_MT]
+        self.recruitment[idx] = rows[:, fes_batch_kernels.ROW_RECRUITMENT]
+        self.n_recruited[idx] = rows[:, fes_batch_kernels.ROW_N_RECRUITED]
+        self.command[idx] = rows[:, fes_batch_kernels.ROW_COMMAND]
+        self.mean_fitness[idx] = rows[:, fes_batch_kernels.ROW_MEAN_FITNESS]
 
     def _copy_state(self, i: int, muscle: FesMuscle) -> None:
         """Write an FES muscle's state into the batch arrays."""
@@ -461,13 +517,17 @@ class MuscleBatch:
         self._v_free, self._v_ce = out[kernels.OUT_V_FREE], v_ce
         self._v_is_k1 = True
         self.t_s += dt
-        if self._fes:
+        if self._fes_bundle is not None:
+            # As the NumPy engine's FesMuscle.step calls, all in one call.
             self._v_ce = v_ce.copy()
-            for i, muscle in self._fes.items():
-                res = muscle.step(float(self.command[i]), float(dl1[i]), dt)
-                self._copy_state(i, muscle)
-                self._v_ce[i] = res.v_ce_m_per_s
-                f0[i] = res.eff_f_iso_n
+            if dt < self._fes_dt_s:
+                self._fes_dt_s = dt
+                self._fes_bundle.ensure_delay(dt)
+            rows = np.empty((len(self._fes_index), fes_kernels.N_OUT))
+            self._fes_call(self._fes_kernels.step_all, (self.command, dl1, dt), rows)
+            self._copy_fes_state(rows)
+            self._v_ce[self._fes_index] = rows[:, fes_batch_kernels.ROW_V_CE]
+            f0[self._fes_index] = rows[:, fes_batch_kernels.ROW_EFF_F_ISO]
             return self._outputs(f0)
         return BatchOutputs(self.t_s, self.recruitment.copy(), self.n_recruited.copy(),
                             dl1, l1, v_ce, out[kernels.OUT_F_SE], out[kernels.OUT_F_PE],
@@ -487,6 +547,13 @@ class MuscleBatch:
                 out = muscle.outputs()
                 self._v_ce[i] = out.v_ce_m_per_s
                 f0[i] = out.eff_f_iso_n
+        if self._fes_bundle is not None:
+            f0 = f0.copy()
+            rows = np.empty((len(self._fes_index), fes_kernels.N_OUT))
+            bundle = self._fes_bundle
+            self._fes_kernels.outputs_all(bundle.F, bundle.I, rows)
+            self._v_ce[self._fes_index] = rows[:, fes_batch_kernels.ROW_V_CE]
+            f0[self._fes_index] = rows[:, fes_batch_kernels.ROW_EFF_F_ISO]
         return self._outputs(f0)
 
     def _outputs(self, f0: np.ndarray) -> BatchOutputs:

@@ -1,0 +1,122 @@
+"""The FES muscles of a :class:`~hill_muscle_ros.model.batch.MuscleBatch`, stepped compiled.
+
+A batch on the compiled engine keeps its muscles with FES features on in one
+:class:`~hill_muscle_ros.model.fes_kernels.FesBundle` (muscle j of the bundle
+is batch muscle ``index[j]``) and steps them all in one call of
+:func:`step_all`, each exactly as the NumPy engine's
+:class:`~hill_muscle_ros.model.fes_muscle.FesMuscle` does it: the command
+given now (``set_recruitment``), then ``step`` (which gives it again at the
+same instant: no change) and the outputs. :func:`give_all` is
+``set_recruitment`` alone, with the state the batch copies afterwards, and
+:func:`outputs_all` the outputs now.
+
+A muscle whose delay line is full is left unchanged and marked not done;
+the caller grows the delay lines and calls again for those muscles
+(:meth:`FesBundle.ensure_delay
+<hill_muscle_ros.model.fes_kernels.FesBundle.ensure_delay>`).
+"""
+from __future__ import annotations
+
+import sys
+import types
+
+from . import curves, fes_kernels, fes_muscle, memory, stimulus, unit_pool, units
+from .fes_kernels import (H_FS, H_IP, H_JS, I_MULTI, J_NREC, OK, S_CMD, S_DL, S_L,
+                          S_MU, S_R, S_T, give_command, hdr, muscle_advance, muscle_outputs,
+                          pool_mean_fitness)
+
+#: Columns of a muscle's row of :data:`.fes_kernels.N_OUT` entries in
+#: MuscleOutputs' order (as fes_kernels' outputs): those ``MuscleBatch``
+#: copies from the state, which :func:`give_all` fills.
+(ROW_RECRUITMENT, ROW_N_RECRUITED, ROW_DL_MT, ROW_L_CE, ROW_V_CE, ROW_EFF_F_ISO,
+ ROW_COMMAND, ROW_MEAN_FITNESS) = 1, 2, 3, 4, 5, 9, 10, 11
+
+
+def read_state(F, I, j, row):
+    """Muscle ``j``'s state as FesMuscle's attributes give it, into ``row``
+    (the ROW_* columns): what MuscleBatch copies after a command."""
+    fs, js, ip = hdr(I, j, H_FS), hdr(I, j, H_JS), hdr(I, j, H_IP)
+    row[ROW_RECRUITMENT] = F[fs + S_R]
+    row[ROW_N_RECRUITED] = I[js + J_NREC]
+    row[ROW_DL_MT] = F[fs + S_DL]
+    row[ROW_L_CE] = F[fs + S_L]
+    row[ROW_COMMAND] = F[fs + S_CMD]
+    row[ROW_MEAN_FITNESS] = (pool_mean_fitness(F, I, j, F[fs + S_T]) if I[ip + I_MULTI]
+                             else F[fs + S_MU])
+
+
+def give_all(F, I, r, index, done, state):
+    """Give each muscle j not ``done`` the command ``r[index[j]]`` now
+    (FesMuscle.set_recruitment), then its state into ``state[j]``; ``done[j]``
+    becomes True, or stays False if its delay line is full (nothing changed)."""
+    for j in range(index.shape[0]):
+        if done[j]:
+            continue
+        if give_command(F, I, j, r[index[j]]):
+            read_state(F, I, j, state[j])
+            done[j] = True
+
+
+def step_all(F, I, r, dl1, dt, index, done, out):
+    """One step of each muscle j not ``done``, as the NumPy engine takes it:
+    command ``r[index[j]]`` given now, then FesMuscle.step(r, dl1[index[j]], dt)
+    and its outputs into ``out[j]``; ``done[j]`` as in :func:`give_all`."""
+    for j in range(index.shape[0]):
+        if done[j]:
+            continue
+        b = index[j]
+        # A full delay line refuses the first command, changing nothing; the
+        # step gives the same command at the same instant again, which never
+        # queues a second one.
+        if give_command(F, I, j, r[b]) and muscle_advance(F, I, j, r[b], dl1[b], dt) == OK:
+            muscle_outputs(F, I, j, out[j])
+            done[j] = True
+
+
+def outputs_all(F, I, out):
+    """Every muscle's outputs now (FesMuscle.outputs) into ``out[j]``."""
+    for j in range(out.shape[0]):
+        muscle_outputs(F, I, j, out[j])
+
+
+# -- compiling ------------------------------------------------------------------------------
+
+_KERNELS = ('read_state', 'give_all', 'step_all', 'outputs_all')
+#: The modules whose code the kernels inline: their digest names the cache entries.
+_DIGEST_OF = (curves, stimulus, memory, units, unit_pool, fes_muscle, fes_kernels)
+#: The functions of :mod:`.fes_kernels` called here, bound to their compiled versions.
+_CALLED = ('give_command', 'hdr', 'muscle_advance', 'muscle_outputs', 'pool_mean_fitness')
+_compiled = None
+
+
+def compiled() -> types.SimpleNamespace:
+    """The numba-compiled entry points, calling :func:`.fes_kernels.compiled`'s muscle.
+
+    :raises ImportError: if numba cannot be imported
+    """
+    global _compiled
+    if _compiled is not None:
+        return _compiled
+    from . import engine
+    muscle = fes_kernels.compiled()
+    scope = dict(globals())
+    for name in _CALLED:
+        scope[name] = getattr(muscle, name)
+    body = {'error_model': 'numpy'}
+    options = {name: body for name in _KERNELS}
+
+    def signature(*args):
+        def make(numba):
+            f8, i8, b1 = numba.float64, numba.int64, numba.boolean
+            c1, i1, c2 = f8[::1], i8[::1], f8[:, ::1]
+            types_ = {'c1': c1, 'i1': i1, 'c2': c2, 'f8': f8, 'b1': b1[::1]}
+            return numba.void(*(types_[a] for a in args))
+        return make
+
+    _compiled = engine.compile_functions(
+        scope, _KERNELS, digest_of=_DIGEST_OF + (sys.modules[__name__],),
+        signatures={'give_all': signature('c1', 'i1', 'c1', 'i1', 'b1', 'c2'),
+                    'step_all': signature('c1', 'i1', 'c1', 'c1', 'f8', 'i1', 'b1', 'c2'),
+                    'outputs_all': signature('c1', 'i1', 'c2')},
+        options=options)
+    return _compiled
