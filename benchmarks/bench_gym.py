@@ -27,6 +27,7 @@ Run this section alone while developing (prints its Markdown)::
 """
 from __future__ import annotations
 
+import functools
 import time
 from pathlib import Path
 
@@ -37,20 +38,29 @@ from gymnasium.vector import SyncVectorEnv
 from timing import Stats
 
 import hill_muscle_ros.gym as hgym
+from hill_muscle_ros.model import limb_kernels
 
 #: [-] Sub-environments per vector environment.
 NUM_ENVS = 256
 #: [-] Goal: native over SyncVectorEnv, ForceTracking-v0 at K = NUM_ENVS.
 TARGET_RATIO = 20.0
-#: The single environment's class (SyncVectorEnv gets it bare, no wrappers),
-#: the vector steps after the reset that are not timed, and those timed:
-#: ForceTracking, the first second of each episode (20 ms periods); the knee,
-#: one period after the first, whose limb steps cost far more (1000 units
-#: with per-unit fatigue in each of two muscles, and the joint: 20-45 ms per
-#: period and limb, 5-12 s per vector step here). Its first period is not
-#: timed: the preset's 31 ms delay leaves it without recruitment.
-ENVS = {hgym.FORCE_TRACKING_ID: (hgym.ForceTrackingEnv, 0, 50),
-        hgym.KNEE_ANGLE_ID: (hgym.KneeAngleEnv, 1, 1)}
+#: Per row: the environment id, its keyword arguments (both vector forms get
+#: them; SyncVectorEnv gets the bare single class, no wrappers), the vector
+#: steps after the reset that are not timed, and those timed: ForceTracking,
+#: the first second of each episode (20 ms periods); the knee, periods after
+#: the first, whose limb steps cost far more (1000 units with per-unit fatigue
+#: in each of two muscles, and the joint): 5 on the compiled limb (about 1-2 ms
+#: per period and limb), 1 on the Python limb (20-45 ms per period and limb,
+#: 5-12 s per vector step here). The knee's first period is not timed: the
+#: preset's 31 ms delay leaves it without recruitment.
+ENVS = {'ForceTracking-v0': (hgym.FORCE_TRACKING_ID, {}, 0, 50),
+        'KneeAngle-v0, compiled limb': (hgym.KNEE_ANGLE_ID, {'engine': 'compiled'}, 1, 5),
+        'KneeAngle-v0, Python limb': (hgym.KNEE_ANGLE_ID, {'engine': 'python'}, 1, 1)}
+#: The single environment class of each id.
+SINGLE = {hgym.FORCE_TRACKING_ID: hgym.ForceTrackingEnv,
+          hgym.KNEE_ANGLE_ID: hgym.KneeAngleEnv}
+#: Rows of the knee on each engine, for the speed-up line.
+KNEE_COMPILED, KNEE_PYTHON = 'KneeAngle-v0, compiled limb', 'KneeAngle-v0, Python limb'
 #: Seed of the episodes and of the actions.
 SEED = 20240601
 #: The output of one run of examples/train_force_tracking.py, recorded by hand
@@ -77,10 +87,15 @@ def _timed(env, actions: list[np.ndarray], skip: int) -> tuple[float, float]:
     return time.perf_counter() - t0, time.process_time() - c0
 
 
-def _compare(env_id: str, runs: int) -> dict:
-    """Native and SyncVectorEnv rates [env steps/s] of ``env_id``, measured alternately."""
-    single, skip, n_steps = ENVS[env_id]
-    native = gym.make_vec(env_id, num_envs=NUM_ENVS)
+def _compare(label: str, runs: int) -> dict:
+    """Native and SyncVectorEnv rates [env steps/s] of row ``label``, measured alternately."""
+    env_id, kwargs, skip, n_steps = ENVS[label]
+    single = functools.partial(SINGLE[env_id], **kwargs)
+    # The first compiled knee of the process loads the compiled limb here.
+    was_loaded = limb_kernels.loaded()
+    t0 = time.perf_counter()
+    native = gym.make_vec(env_id, num_envs=NUM_ENVS, **kwargs)
+    construct_s = time.perf_counter() - t0
     sync = SyncVectorEnv([single for _ in range(NUM_ENVS)])
     actions = _actions(sync.single_action_space, skip + n_steps, SEED)
     # Warm-up: first calls, caches, the batch engine's compiled kernel.
@@ -99,12 +114,13 @@ def _compare(env_id: str, runs: int) -> dict:
     sync.close()
     return {'native': rates['native'], 'sync': rates['sync'],
             'ratio': rates['native'].median / rates['sync'].median, 'steps': n_steps,
-            'native_class': type(native.unwrapped).__name__}
+            'native_class': type(native.unwrapped).__name__, 'construct_s': construct_s,
+            'loaded_before': was_loaded}
 
 
 def run(runs: int) -> dict:
-    """Both environments' rates, ForceTracking first."""
-    return {env_id: _compare(env_id, runs) for env_id in ENVS}
+    """Every row's rates, ForceTracking first."""
+    return {label: _compare(label, runs) for label in ENVS}
 
 
 def write_section(add, results: dict) -> None:
@@ -120,24 +136,35 @@ def write_section(add, results: dict) -> None:
         'after one untimed period, which the preset\'s 31 ms delay leaves without '
         'recruitment). Rates in environment steps (20 ms control periods of one '
         'sub-environment, 20 model steps each) per second of wall time; in brackets, per '
-        'second of the process\'s CPU time (all its threads).')
+        'second of the process\'s CPU time (all its threads). KneeAngle-v0 on each limb '
+        'engine (its `engine` option): the compiled limb (the default where numba is '
+        'installed) and the Python `Limb`.')
     add('')
     add('| environment | timed vector steps per run | native [env steps/s] | SyncVectorEnv '
         '[env steps/s] | native / Sync |')
     add('| --- | ---: | ---: | ---: | ---: |')
-    for env_id, r in results.items():
-        add(f'| `{env_id}` (`{r["native_class"]}`) | {r["steps"]} | {r["native"].fmt()} '
+    for label, r in results.items():
+        add(f'| {label} (`{r["native_class"]}`) | {r["steps"]} | {r["native"].fmt()} '
             f'[cpu {r["native"].cpu.median:.3g}] | {r["sync"].fmt()} '
             f'[cpu {r["sync"].cpu.median:.3g}] | **{r["ratio"]:.1f}x** |')
     add('')
-    ratio = results[hgym.FORCE_TRACKING_ID]['ratio']
+    ratio = results['ForceTracking-v0']['ratio']
     add(f'- Target: the native ForceTracking-v0 vector environment at least '
         f'{TARGET_RATIO:g}x SyncVectorEnv at K = {NUM_ENVS}: **{ratio:.1f}x** — '
         f'{"met" if ratio >= TARGET_RATIO else "NOT met"}.')
-    knee = results[hgym.KNEE_ANGLE_ID]['ratio']
-    add(f'- KneeAngle-v0 (no target): {knee:.1f}x. Its vector environment steps each limb '
-        'with the scalar limb engine (`LimbBatch`), as the single environment does, so it '
-        'saves only the per-environment overhead of SyncVectorEnv.')
+    fast, slow = results[KNEE_COMPILED], results[KNEE_PYTHON]
+    add(f'- KneeAngle-v0 (no target): native / Sync {fast["ratio"]:.1f}x on the compiled limb, '
+        f'{slow["ratio"]:.1f}x on the Python limb. Its vector environment steps each limb '
+        'alone (`LimbBatch`), as the single environment does, so it saves only the '
+        'per-environment overhead of SyncVectorEnv.')
+    add(f'- The compiled limb against the Python limb: native '
+        f'{fast["native"].median / slow["native"].median:.1f}x, SyncVectorEnv '
+        f'{fast["sync"].median / slow["sync"].median:.1f}x the environment steps per second. '
+        f'Building the compiled native environment (K = {NUM_ENVS}) took '
+        f'{fast["construct_s"]:.2f} s'
+        + (' (the compiled limb was loaded already).' if fast['loaded_before'] else
+           ', loading the compiled limb from numba\'s disk cache (when it compiles, in a '
+           'clean clone, about 30 s: section "The limb and the FES muscle, compiled").'))
     add('')
     if TRAINING_RUN.exists():
         lines = TRAINING_RUN.read_text(encoding='utf-8').splitlines()
