@@ -169,3 +169,43 @@ def test_step_engine_rejects_an_unknown_engine():
     with pytest.raises(ValueError, match=r"`engine` must be 'compiled', 'python' or None, "
                                          r"got 'numba'"):
         limb_kernels.step_engine('numba')
+
+
+@pytest.mark.parametrize('name', sorted(PLANTS))
+def test_hold_commands_is_n_steps_and_their_squared_angle_errors(kernels, name):
+    # The compiled batch's one call per limb against the Python limbs stepped
+    # one by one, the squared errors summed here.
+    plant, n = PLANTS[name], 20
+    rng = np.random.default_rng(7)
+    m = len(plant.muscles)
+    got = LimbBatch([plant] * 3, engine='compiled')
+    refs = [Limb(plant) for _ in range(3)]
+    for period in range(6):
+        u, target = rng.uniform(0, 1, (3, m)), rng.uniform(0.2, 0.8, 3)
+        out, squared = got.hold_commands(u, 0.5, DT_S, n, target)
+        for k, ref in enumerate(refs):
+            thetas = [ref.step(u[k].tolist(), 0.5, DT_S).theta_rad for _ in range(n)]
+            assert squared[k] == pytest.approx(sum((t - target[k]) ** 2 for t in thetas),
+                                               abs=TOL)
+            assert out.theta_rad[k] == pytest.approx(thetas[-1], abs=TOL)
+    assert out.t_s == pytest.approx(6 * n * DT_S, abs=1e-12)
+
+
+def test_hold_commands_agrees_between_engines_and_names_a_limb_out_of_range(kernels):
+    results = []
+    for e in ('python', 'compiled'):
+        batch = LimbBatch([PLANTS['ankle']] * 2, engine=e)
+        out, squared = batch.hold_commands([[0.3], [0.6]], 0.0, DT_S, 30, 0.1)
+        with pytest.raises(LimbOutOfRange, match=r'^limb 1: muscle `tibialis_anterior` is '
+                                                 r'stretched'):
+            batch.hold_commands(0.0, [0.0, 1e4], DT_S, 1000, 0.0)
+        results.append((out, squared))
+    _assert_close(results[0][0], results[1][0])
+    np.testing.assert_allclose(results[0][1], results[1][1], rtol=0, atol=TOL)
+
+
+@pytest.mark.parametrize('engine_name', ['python', 'compiled'])
+def test_hold_commands_refuses_fewer_than_one_step(kernels, engine_name):
+    batch = LimbBatch([PLANTS['ankle']], engine=engine_name)
+    with pytest.raises(ValueError, match=r'`n_steps` must be at least 1, got 0'):
+        batch.hold_commands(0.5, 0.0, DT_S, 0, 0.0)

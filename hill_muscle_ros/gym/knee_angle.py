@@ -20,7 +20,7 @@ from gymnasium import spaces
 
 from ..model import engine as engines
 from ..model.limb import LimbPlant
-from ..model.limb_kernels import make_limb
+from ..model.limb_kernels import CompiledLimb, make_limb
 from ..model.stimulus import command_from_pulse_width
 from ._common import (MODEL_DT_S, TrackingEnv, check_pulse_widths, hold_lengths,
                       muscle_variant, piecewise_constant)
@@ -222,6 +222,9 @@ class KneeAngleEnv(TrackingEnv):
         :return: the tracking term, mean_j (theta_j - theta*)^2 [rad^2], and the
             limb's outputs at the period's end
         """
+        if isinstance(limb, CompiledLimb):   # the whole period in one compiled call
+            sq = limb.hold(us, 0.0, MODEL_DT_S, self.n_steps, target_rad)
+            return sq / self.n_steps, limb.outputs()
         sq = 0.0
         for _ in range(self.n_steps):
             out = limb.step(us, 0.0, MODEL_DT_S)

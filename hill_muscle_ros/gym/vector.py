@@ -242,10 +242,7 @@ class KneeAngleVectorEnv(TrackingVectorEnv):
                  next_target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         n = self.template.n_steps
         u = self.batch.commands_from_pulse_widths(pw)
-        target = self._targets[:, k]
-        squared = np.zeros(self.num_envs)
-        for _ in range(n):   # no external torque, as the single environment
-            out = self.batch.step_commands(u, 0.0, MODEL_DT_S)
-            squared += (out.theta_rad - target) ** 2
+        # No external torque, as the single environment.
+        out, squared = self.batch.hold_commands(u, 0.0, MODEL_DT_S, n, self._targets[:, k])
         sample = np.stack([out.theta_rad, out.omega_rad_per_s, next_target], axis=1)
         return squared / n, sample

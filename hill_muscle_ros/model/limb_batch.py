@@ -222,6 +222,15 @@ class LimbBatch:
             muscles' length range, naming the limb (the limbs before it have
             then stepped: reset the batch)
         """
+        return self._gather(self._advance(*self._checked_step(commands, external_torque_n_m,
+                                                              dt_s)))
+
+    def _checked_step(self, commands, external_torque_n_m,
+                      dt_s: float) -> tuple[list[list[float]], list[float], float]:
+        """A step's inputs checked: commands and torques as lists per limb, dt as a float.
+
+        :raises ValueError: naming the bad input
+        """
         u = self._checked_commands(commands)
         tau = np.asarray(external_torque_n_m, dtype=float)
         if tau.shape == ():
@@ -237,7 +246,7 @@ class LimbBatch:
         dt = float(dt_s)
         if not (math.isfinite(dt) and dt > 0.0):
             raise ValueError(f'`dt_s` must be positive and finite, got {dt_s!r}')
-        return self._gather(self._advance(u, taus, dt))
+        return u, taus, dt
 
     def _advance(self, u: list[list[float]], tau: list[float], dt: float) -> list:
         """Step every limb with validated inputs (Python lists: no NumPy scalars
@@ -257,6 +266,39 @@ class LimbBatch:
             except ValueError as err:
                 raise LimbOutOfRange(k, str(err)) from None
         return outs
+
+    def hold_commands(self, commands, external_torque_n_m, dt_s: float, n_steps: int,
+                      target_rad) -> tuple[LimbBatchOutputs, np.ndarray]:
+        """:meth:`step_commands` ``n_steps`` times with the same inputs, and each
+        limb's squared distance to an angle summed over the steps (a tracking
+        environment's control period); on the compiled engine one call per limb.
+
+        :param n_steps: [-] steps, >= 1
+        :param target_rad: [rad] theta* per limb, (K,) or a scalar
+        :return: the outputs after the last step, and [rad^2] per limb the sum
+            over the steps of (theta - theta*)^2 at each step's end, (K,)
+        :raises ValueError: as :meth:`step_commands`; on a limb out of range
+            the limbs before it have taken every step, it and the rest fewer
+        """
+        n = int(n_steps)
+        if n < 1:
+            raise ValueError(f'`n_steps` must be at least 1, got {n_steps!r}')
+        target = np.broadcast_to(np.asarray(target_rad, dtype=float), (self.size,))
+        if not self._compiled:
+            squared = np.zeros(self.size)
+            for _ in range(n):
+                out = self.step_commands(commands, external_torque_n_m, dt_s)
+                squared += (out.theta_rad - target) ** 2
+            return out, squared
+        u, taus, dt = self._checked_step(commands, external_torque_n_m, dt_s)
+        targets = target.tolist()
+        squared = np.empty(self.size)
+        for k, limb in enumerate(self._limbs):
+            try:
+                squared[k] = limb.hold(u[k], taus[k], dt, n, targets[k])
+            except ValueError as err:
+                raise LimbOutOfRange(k, str(err)) from None
+        return self._gather(None), squared
 
     def step(self, pulse_width_s, external_torque_n_m, dt_s: float) -> LimbBatchOutputs:
         """Advance every limb one step with pulse widths held over it

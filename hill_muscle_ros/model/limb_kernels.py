@@ -234,6 +234,28 @@ def limb_record(F, I, L, nm, row):
         row[base + 4] = f
 
 
+def limb_hold(F, I, L, W, TT, TI, nm, us, tau, dt, dl_limit, n, target, acc, row):
+    """``n`` steps with the commands ``us`` and the torque held, the outputs of the
+    last into ``row``; ``acc[0]`` the sum over the steps of (theta - target)^2
+    at each step's end (a tracking environment's control period).
+
+    :param target: [rad] the angle the squared errors are taken from
+    :return: :data:`OK`, or the first failed step's status (``acc`` and ``row``
+        then as after that step)
+    """
+    sq = 0.0
+    status = OK
+    for k in range(n):
+        status = limb_step(F, I, L, W, TT, TI, nm, us, tau, dt, dl_limit)
+        if status != OK:
+            break
+        d = L[L_THETA] - target
+        sq += d * d
+    acc[0] = sq
+    limb_record(F, I, L, nm, row)
+    return status
+
+
 def limb_run(F, I, L, W, TT, TI, nm, u, tau, dt, dl_limit, rows):
     """simulate_limb's loop: the commands of t_0 given, then per step the step and
     the next sample's commands; the sample of t_k in ``rows[k]``.
@@ -332,7 +354,7 @@ RUN_MIN_MUSCLE_STEPS = 10_000
 #: The joint's equations (model/limb.py), compiled over this module's scope.
 _EQUATIONS = ('mtu_length_change', 'joint_acceleration')
 _KERNELS = ('muscle_slot', 'dl_mt', 'forces', 'limb_rk4', 'limb_integrate', 'limb_step',
-            'limb_give', 'limb_record', 'limb_run')
+            'limb_give', 'limb_record', 'limb_hold', 'limb_run')
 #: The modules whose code the kernels inline: their digest names the cache entries.
 _DIGEST_OF = (curves, stimulus, memory, units, unit_pool, fes_muscle, fes_kernels, limb)
 _compiled = None
@@ -383,10 +405,16 @@ def compiled() -> types.SimpleNamespace:
         f8, i8 = numba.float64, numba.int64
         return numba.void(f8[::1], i8[::1], f8[::1], i8, f8[::1])
 
+    def hold_signature(numba):
+        f8, i8 = numba.float64, numba.int64
+        c1, c2 = f8[::1], f8[:, ::1]
+        return i8(c1, i8[::1], c1, c2, c1, i8[:, ::1], i8, c1, f8, f8, f8, i8, f8, c1, c1)
+
     _compiled = engine.compile_functions(
         scope, _EQUATIONS + _KERNELS, digest_of=_DIGEST_OF + (sys.modules[__name__],),
         signatures={'limb_run': run_signature, 'limb_step': step_signature,
-                    'limb_give': give_signature, 'limb_record': record_signature},
+                    'limb_give': give_signature, 'limb_record': record_signature,
+                    'limb_hold': hold_signature},
         options=options)
     return _compiled
 
@@ -536,6 +564,7 @@ class CompiledLimb:
         nm = self.arrays.nm
         self.row = np.zeros(3 + 5 * nm) if row is None else row
         self._us = np.zeros(nm)
+        self._acc = np.zeros(1)
         self._s_r = [m.sign * m.moment_arm_m for m in plant.muscles]
         self.reset()
 
@@ -596,6 +625,29 @@ class CompiledLimb:
         self._kernels.limb_record(b.F, b.I, a.L, a.nm, self.row)
         if status != OK:
             self._failed(status)
+
+    def hold(self, us: Sequence[float], tau: float, dt_s: float, n_steps: int,
+             target_rad: float) -> float:
+        """``n_steps`` calls of :meth:`advance` with checked inputs held, in one
+        compiled call; the outputs of the last in :attr:`row`.
+
+        :param target_rad: [rad] angle theta* of the squared errors
+        :return: [rad^2] sum over the steps of (theta - theta*)^2 at each step's end
+        :raises ValueError: as Limb.step, on a muscle stretched out of range
+            (the limb is left after that step)
+        """
+        a = self.arrays
+        if dt_s != self._dt:
+            a.ensure_delay(dt_s)
+            self._dt = dt_s
+        self._us[:] = us
+        b = a.bundle
+        status = self._kernels.limb_hold(b.F, b.I, a.L, a.W, a.TT, a.TI, a.nm, self._us, tau,
+                                         dt_s, DL_MT_LIMIT_M, n_steps, target_rad, self._acc,
+                                         self.row)
+        if status != OK:
+            self._failed(status)
+        return float(self._acc[0])
 
     def step(self, commands: Sequence[float], external_torque_n_m: float, dt_s: float):
         """Advance one step: each muscle's command and the external torque held
