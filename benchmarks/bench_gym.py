@@ -49,12 +49,12 @@ TARGET_RATIO = 20.0
 #: steps after the reset that are not timed, and those timed: ForceTracking,
 #: the first second of each episode (20 ms periods); the knee, periods after
 #: the first, whose limb steps cost far more (1000 units with per-unit fatigue
-#: in each of two muscles, and the joint): 5 on the compiled limb (about 1-2 ms
+#: in each of two muscles, and the joint): 20 on the compiled limb (about 0.5 ms
 #: per period and limb), 1 on the Python limb (20-45 ms per period and limb,
 #: 5-12 s per vector step here). The knee's first period is not timed: the
 #: preset's 31 ms delay leaves it without recruitment.
 ENVS = {'ForceTracking-v0': (hgym.FORCE_TRACKING_ID, {}, 0, 50),
-        'KneeAngle-v0, compiled limb': (hgym.KNEE_ANGLE_ID, {'engine': 'compiled'}, 1, 5),
+        'KneeAngle-v0, compiled limb': (hgym.KNEE_ANGLE_ID, {'engine': 'compiled'}, 1, 20),
         'KneeAngle-v0, Python limb': (hgym.KNEE_ANGLE_ID, {'engine': 'python'}, 1, 1)}
 #: The single environment class of each id.
 SINGLE = {hgym.FORCE_TRACKING_ID: hgym.ForceTrackingEnv,
@@ -155,16 +155,18 @@ def write_section(add, results: dict) -> None:
     fast, slow = results[KNEE_COMPILED], results[KNEE_PYTHON]
     add(f'- KneeAngle-v0 (no target): native / Sync {fast["ratio"]:.1f}x on the compiled limb, '
         f'{slow["ratio"]:.1f}x on the Python limb. Its vector environment steps each limb '
-        'alone (`LimbBatch`), as the single environment does, so it saves only the '
-        'per-environment overhead of SyncVectorEnv.')
+        'alone (`LimbBatch`; compiled: one call per limb and period), as the single '
+        'environment does, so it saves only the per-environment overhead of SyncVectorEnv, '
+        'small beside the limb\'s own steps.')
     add(f'- The compiled limb against the Python limb: native '
         f'{fast["native"].median / slow["native"].median:.1f}x, SyncVectorEnv '
         f'{fast["sync"].median / slow["sync"].median:.1f}x the environment steps per second. '
         f'Building the compiled native environment (K = {NUM_ENVS}) took '
         f'{fast["construct_s"]:.2f} s'
         + (' (the compiled limb was loaded already).' if fast['loaded_before'] else
-           ', loading the compiled limb from numba\'s disk cache (when it compiles, in a '
-           'clean clone, about 30 s: section "The limb and the FES muscle, compiled").'))
+           ', loading the compiled limb from numba\'s disk cache, numba itself imported by '
+           'the ForceTracking rows (when it compiles, in a clean clone, about 30 s: section '
+           '"The limb and the FES muscle, compiled").'))
     add('')
     if TRAINING_RUN.exists():
         lines = TRAINING_RUN.read_text(encoding='utf-8').splitlines()
