@@ -22,6 +22,23 @@ to 0 after ``input_timeout_s`` of simulated time without a message on its
 inputs. A ``reset`` service (std_srvs/Trigger) returns the limb to its initial
 state with every held input at 0.
 
+Engine: the node steps the Python :class:`~hill_muscle_ros.model.limb.Limb`,
+not the compiled limb (:class:`~hill_muscle_ros.model.limb_kernels.CompiledLimb`),
+though the compiled step is far cheaper. One step as a tick makes it, knee
+preset (``benchmarks/limb_node_tick.py``, 2026-12-02, two runs, load average
+about 1.5): median 43 against 6.4 us, mean 441-484 against 20 us, 99th
+percentile 14 ms against 0.44-0.47 ms, worst 19-22 ms against 0.5-0.8 ms. The
+release of the quadriceps' 1000 units is the costly part (mean 0.80-0.89 ms a
+step in Python, 31 us compiled), so at 1 kHz the Python limb falls behind real
+time during a release and catches up on later ticks. The compiled limb would
+have to be loaded at start-up, before the node reports ready, never in the
+timer: 0.7 s from numba's disk cache, but about 32 s when it compiles (a clean
+clone, or after an edit of the model's code; BENCHMARKS.md, "The limb and the
+FES muscle, compiled"), beyond the 30 s within which the node tests expect a
+started node to answer (``test/ros_helpers.py``, ``DEFAULT_TIMEOUT_S``). It
+stays on Python until the compiled kernels can be built ahead of the node's
+start (e.g. at install).
+
 Run: ``ros2 run hill_muscle_ros limb_simulator --ros-args --params-file
 config/knee.yaml`` or ``hill-muscle limb --ros-args ...``.
 """
