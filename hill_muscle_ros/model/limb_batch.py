@@ -358,7 +358,8 @@ def simulate_limb_batch(plants: Sequence[LimbPlant], protocol: LimbProtocol,
     :raises ValueError: on a protocol muscle the plants lack;
         :class:`LimbOutOfRange` on a limb driven beyond its muscles' length range
     """
-    batch = LimbBatch(plants)
+    # Python limbs: the compiled path below builds its own arrays per plant.
+    batch = LimbBatch(plants, engine='python')
     last = max(sample_indices)
     t = sample_times(protocol.duration_s, rate_hz)[:last + 1]
     # (steps, K, M): each plant's commands through its own muscles' curves.
