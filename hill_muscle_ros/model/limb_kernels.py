@@ -15,6 +15,10 @@ sums, checked against these to 1e-9 rad and 1e-9 N by test_limb_compiled).
 :func:`simulate_limb_compiled` is :func:`~hill_muscle_ros.model.limb.simulate_limb`
 on the compiled engine; ``simulate_limb`` calls it when
 :func:`~hill_muscle_ros.model.engine.choice` is ``compiled``.
+:class:`CompiledLimb` is :class:`~hill_muscle_ros.model.limb.Limb`'s
+step-by-step interface on the compiled step (for
+:class:`~hill_muscle_ros.model.limb_batch.LimbBatch` and the KneeAngle-v0
+environment; :func:`make_limb` and :func:`step_engine` choose).
 """
 from __future__ import annotations
 
