@@ -7,11 +7,13 @@ One run measures, on the same machine state:
 - the compiled / NumPy ratio at K = 10,000 from back-to-back pairs of runs
   (one NumPy run, then one compiled run), so that load on the shared machine
   hits both sides of each ratio alike;
-- the compiled engine on 1 and on 2 numba threads (``numba.set_num_threads``);
+- the compiled engine on 1 and on 2 numba threads (``numba.set_num_threads``)
+  at K = 10,000 and 100,000;
 - muscles whose recruitment changes on every step (the unit-memory
   bookkeeping: per muscle in Python on the NumPy engine, compiled on the
-  compiled one) and muscles with fatigue and
-  activation on (stepped by their scalar FES engines);
+  compiled one) and muscles with fatigue and activation on (one scalar
+  FesMuscle each on the NumPy engine, all together on the compiled FES muscle
+  on the compiled one);
 - what numba costs before the first step: ``import numba``, and building the
   first compiled batch with an empty cache (compiling) and with the cache
   filled (loading), each in a new interpreter with its own ``NUMBA_CACHE_DIR``.
@@ -45,8 +47,8 @@ K_LARGE = 10_000
 WINDOW_S = (2.5, 3.5)
 #: Steps of the slow case with R changing every step (tens of ms a step).
 SLOW_STEPS = 20
-#: Steps of the case with FES features on (each muscle a scalar FES step,
-#: about a second a step at K = 10,000).
+#: Steps of the case with FES features on (on the NumPy engine each muscle a
+#: scalar FES step, about a second a step at K = 10,000).
 FES_STEPS = 5
 SEED = 20240601
 VARIANTS = (('multi', 'initial'), ('multi', 'instantaneous'), ('single', 'initial'),
@@ -58,6 +60,8 @@ TARGET_RATIO = 3.0
 TARGET_RATE = 1e7
 #: Thread counts of the compiled engine measured.
 THREADS = (1, 2)
+#: K of the thread comparison beyond K_LARGE (the first parameter set only).
+K_HUGE = 100_000
 #: The FES features switched on in the FES case: fatigue and activation dynamics.
 FES_FEATURES = dict(fatigue='riener', tau_fatigue_s=[0.5], tau_act_s=0.03, tau_deact_s=0.05)
 
@@ -170,13 +174,29 @@ def run(runs: int) -> dict:
                     for threads in THREADS:
                         numba.set_num_threads(threads)
                         s = repeat(replay(compiled, r_k, dl_k), runs, setup=compiled.reset)
-                        result['threads'][(name, threads)] = s.inverted(k * n_steps)
+                        result['threads'][(name, k, threads)] = s.inverted(k * n_steps)
                         print(f'  compiled on {threads} thread(s): '
-                              f'{result["threads"][(name, threads)].fmt()}', flush=True)
+                              f'{result["threads"][(name, k, threads)].fmt()}', flush=True)
                 finally:
                     numba.set_num_threads(threads_before)
                     kernels.PARALLEL_MIN_K = min_k
     result['layer'] = numba.threading_layer()
+    # K = 100,000 (above kernels.PARALLEL_MIN_K: every thread by default).
+    k = K_HUGE
+    name, params = next(iter(parameter_sets(k, rng).items()))
+    compiled = MuscleBatch(params, engine='compiled')
+    r_k = [np.full(k, x) for x in r]
+    dl_k = [np.full(k, x) for x in dl]
+    try:
+        for threads in THREADS:
+            numba.set_num_threads(threads)
+            s = repeat(replay(compiled, r_k, dl_k), runs, setup=compiled.reset)
+            result['threads'][(name, k, threads)] = s.inverted(k * n_steps)
+            print(f'  compiled K={k} on {threads} thread(s): '
+                  f'{result["threads"][(name, k, threads)].fmt()}', flush=True)
+    finally:
+        numba.set_num_threads(threads_before)
+    del compiled, r_k, dl_k
 
     # Recruitment changing on every step: every multi/initial memory is touched.
     k = K_LARGE
@@ -190,14 +210,19 @@ def run(runs: int) -> dict:
         print(f'  R changing every step, {engine}: {result["changing"][engine].fmt()}',
               flush=True)
 
-    # FES features on: every muscle goes through its scalar FES engine.
+    # FES features on: one scalar FesMuscle each (NumPy engine), or all on the
+    # compiled FES muscle (compiled engine).
     fes_params = [MuscleParams(f_iso_max_n=float(f), **FES_FEATURES)
                   for f in rng.uniform(30.0, 60.0, k)]
-    batch = MuscleBatch(fes_params)
     r_k = [np.full(k, x) for x in r[:FES_STEPS + 1]]
-    s = repeat(replay(batch, r_k, dl_change[:FES_STEPS + 1]), runs, setup=batch.reset)
-    result['fes'] = (batch.engine, s.inverted(k * FES_STEPS))
-    print(f'  fatigue and activation on ({batch.engine}): {result["fes"][1].fmt()}', flush=True)
+    result['fes'] = {}
+    for engine in ENGINES:
+        batch = MuscleBatch(fes_params, engine=engine)
+        s = repeat(replay(batch, r_k, dl_change[:FES_STEPS + 1]), runs, setup=batch.reset)
+        result['fes'][engine] = s.inverted(k * FES_STEPS)
+        print(f'  fatigue and activation on ({engine}): {result["fes"][engine].fmt()}',
+              flush=True)
+        del batch
 
     result['first_call'] = first_call(runs)
     for case, s in result['first_call'].items():
@@ -238,14 +263,14 @@ def write_section(add, m: dict) -> None:
     for name, s in m['ratio'].items():
         add(f'| {name} | {s.fmt()}x |')
     add('')
-    add(f'The compiled engine at K = {K_LARGE:,} on 1 and on 2 numba threads '
-        '(`numba.set_num_threads`, with `kernels.PARALLEL_MIN_K` lowered so that this K '
-        'runs on every thread):')
+    add(f'The compiled engine at K = {K_LARGE:,} and {K_HUGE:,} on 1 and on 2 numba threads '
+        f'(`numba.set_num_threads`; at K = {K_LARGE:,} with `kernels.PARALLEL_MIN_K` lowered '
+        'so that this K runs on every thread), every FES feature off:')
     add('')
-    add('| parameter sets | threads | muscle-steps/s (wall) | by CPU time |')
-    add('| --- | ---: | ---: | ---: |')
-    for (name, threads), s in m['threads'].items():
-        add(f'| {name} | {threads} | {s.fmt()} | {_cpu(s)} |')
+    add('| parameter sets | K | threads | muscle-steps/s (wall) | by CPU time |')
+    add('| --- | ---: | ---: | ---: | ---: |')
+    for (name, k, threads), s in m['threads'].items():
+        add(f'| {name} | {k:,} | {threads} | {s.fmt()} | {_cpu(s)} |')
     add('')
     add(f'Slower cases at K = {K_LARGE:,} ({SLOW_STEPS} steps with R changing, {FES_STEPS} '
         'with FES features on):')
@@ -255,10 +280,11 @@ def write_section(add, m: dict) -> None:
     for engine, s in m['changing'].items():
         add(f'| multi/initial, R drawn anew for every muscle on every step | {engine} | '
             f'{s.fmt()} | {_cpu(s)} |')
-    engine, s = m['fes']
-    add(f'| multi/initial with fatigue (`riener`) and activation (`tau_act_s` 0.03, '
-        f'`tau_deact_s` 0.05) on | {engine} (each muscle on its scalar FES engine) | '
-        f'{s.fmt()} | {_cpu(s)} |')
+    fes_engines = {'numpy': 'numpy (one scalar `FesMuscle` each)',
+                   'compiled': 'compiled (all on the compiled FES muscle, one thread)'}
+    for engine, s in m['fes'].items():
+        add(f'| multi/initial with fatigue (`riener`) and activation (`tau_act_s` 0.03, '
+            f'`tau_deact_s` 0.05) on | {fes_engines[engine]} | {s.fmt()} | {_cpu(s)} |')
     add('')
     fc = m['first_call']
     add('What numba costs before the first step, each in a new interpreter with its own '
@@ -282,13 +308,21 @@ def write_section(add, m: dict) -> None:
     add(f'- With R changing on every step the unit-memory bookkeeping runs for every muscle: '
         f'per muscle in Python on the NumPy engine (it dominates there), compiled '
         f'(`kernels.recruit_all`) on the compiled one, {per_change_us:.2g} us a muscle-step '
-        f'here in all; with FES features on, each muscle costs a scalar FES step whatever '
-        f'the engine.')
-    two_by_one = [m['threads'][(name, 2)].median / m['threads'][(name, 1)].median
-                  for name in m['ratio']]
-    add(f'- Two threads ran at {min(two_by_one):.2g}-{max(two_by_one):.2g}x the one-thread '
-        f'rate at K = {K_LARGE:,} here: waking the second thread costs about what it saves at '
-        'this K (more on busy cores), which is why the batch uses every thread only from K = '
-        f'{kernels.PARALLEL_MIN_K:,} (`kernels.PARALLEL_MIN_K`).')
+        f'here in all.')
+    fes = m['fes']
+    add(f'- With fatigue and activation on, the compiled engine ran '
+        f'**{fes["compiled"].median / fes["numpy"].median:.3g}x** the NumPy engine\'s rate '
+        '(medians; the same steps, from rest, while the activation rises: the slowest '
+        'part of a run).')
+
+    def scaling(k):
+        ratios = [s.median / m['threads'][(name, kk, 1)].median
+                  for (name, kk, threads), s in m['threads'].items()
+                  if kk == k and threads == 2]
+        return f'{min(ratios):.2g}-{max(ratios):.2g}x' if len(ratios) > 1 else f'{ratios[0]:.2g}x'
+    add(f'- Two threads ran at {scaling(K_LARGE)} the one-thread rate at K = {K_LARGE:,} '
+        f'and {scaling(K_HUGE)} at K = {K_HUGE:,} here: at the smaller K waking the second '
+        'thread costs about what it saves (more on busy cores), which is why the batch uses '
+        f'every thread only from K = {kernels.PARALLEL_MIN_K:,} (`kernels.PARALLEL_MIN_K`).')
     add('- At K = 1 the NumPy engine is dominated by NumPy call overhead; use `Muscle` for '
         'one muscle.')
