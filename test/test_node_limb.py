@@ -18,10 +18,12 @@ from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
 from conftest import REPO
-from hill_muscle_ros.model.limb import LimbProtocol, simulate_limb
+from hill_muscle_ros.model import engine
+from hill_muscle_ros.model.limb import Limb, LimbProtocol, simulate_limb
+from hill_muscle_ros.nodes import limb as limb_node
 from hill_muscle_ros.model.stimulus import command_from_pulse_width
 from hill_muscle_ros.params_file import load_plant, read_ros_parameters
-from ros_helpers import Probe, ProcessGroup, node_command
+from ros_helpers import Probe, ProcessGroup, node_command, ros_env
 
 pytestmark = pytest.mark.ros
 
@@ -53,16 +55,20 @@ def _stamp_step(msg) -> int:
     return round((msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9) * RATE_HZ)
 
 
+def _limb_command(tmp, ns):
+    """The limb node on the knee at RATE_HZ, watchdog off, publish_clock on."""
+    overrides = tmp / 'overrides.yaml'
+    overrides.write_text(yaml.safe_dump({'/**': {'ros__parameters': {
+        'rate_hz': RATE_HZ, 'input_timeout_s': 0.0, 'publish_clock': True}}}))
+    return node_command('limb_simulator', ns=ns, params_files=[KNEE_YAML, overrides])
+
+
 @pytest.fixture(scope='module')
 def shared(tmp_path_factory):
     """The limb node, a probe, and the node's first REST_STEPS joint states."""
     tmp = tmp_path_factory.mktemp('limb')
-    overrides = tmp / 'overrides.yaml'
-    overrides.write_text(yaml.safe_dump({'/**': {'ros__parameters': {
-        'rate_hz': RATE_HZ, 'input_timeout_s': 0.0, 'publish_clock': True}}}))
     with ProcessGroup(tmp) as procs, Probe() as probe:
-        node = procs.start('limb', node_command('limb_simulator', ns=NS,
-                                                params_files=[KNEE_YAML, overrides]))
+        node = procs.start('limb', _limb_command(tmp, NS))
         recs = {'joint': probe.record(f'{NS}/joint_states', JointState),
                 'force': probe.record(f'{NS}/quadriceps/force', Float64),
                 'wrench': probe.record(f'{NS}/quadriceps/wrench', WrenchStamped),
@@ -113,8 +119,8 @@ def test_joint_states_name_the_joint_one_value_each_every_step(shared):
     assert steps == list(range(steps[0], steps[0] + len(steps)))   # no step skipped
 
 
-def test_at_rest_the_knee_hangs_as_the_offline_model_says(shared):
-    msgs = shared['rest']
+def _assert_rest_as_offline(msgs):
+    """The joint states of a node at rest are the offline run's, step by step."""
     last = _stamp_step(msgs[-1])
     protocol = LimbProtocol.from_mapping({'name': 'rest', 'duration_s': (last + 1) / RATE_HZ,
                                           'muscles': {'quadriceps': {'recruitment': [[0.0, 0.0]]}}})
@@ -125,6 +131,69 @@ def test_at_rest_the_knee_hangs_as_the_offline_model_says(shared):
         assert m.velocity[0] == pytest.approx(offline['omega_rad_per_s'][k],
                                               abs=SAME_MODEL_TOL_RAD * RATE_HZ)
         assert abs(m.position[0]) < HANGING_TOL_RAD
+
+
+def test_at_rest_the_knee_hangs_as_the_offline_model_says(shared):
+    _assert_rest_as_offline(shared['rest'])
+
+
+@pytest.mark.skipif(not engine.numba_available() or engine.requested() == engine.PYTHON,
+                    reason='the compiled limb needs numba and HILL_MUSCLE_ENGINE not python')
+def test_by_default_the_node_steps_the_compiled_limb_loaded_before_it_starts(shared):
+    out = shared['node'].output()
+    assert 'limb engine: compiled, loaded in' in out
+    # Loaded in __init__, before the start-up line (logged once the node's
+    # publishers, subscriptions, service and timer exist).
+    assert out.index('limb engine: compiled') < out.index(f'{PLANT.joint.name} with quadriceps')
+
+
+class _Logger:
+    """Records what a node would log, by level."""
+
+    def __init__(self):
+        self.lines = []
+
+    def info(self, text):
+        self.lines.append(('info', text))
+
+    def warning(self, text):
+        self.lines.append(('warning', text))
+
+
+def test_a_compiled_limb_that_fails_to_load_falls_back_to_python_with_a_warning(monkeypatch):
+    def broken(plant):
+        raise ImportError('no module named numba')
+    monkeypatch.setenv(engine.ENV_VAR, engine.COMPILED)
+    monkeypatch.setattr(engine, 'numba_available', lambda: True)
+    monkeypatch.setattr(limb_node.limb_kernels, 'CompiledLimb', broken)
+    logger = _Logger()
+    limb = limb_node.load_limb(PLANT, logger)
+    assert type(limb) is Limb
+    assert ('warning', 'the compiled limb failed to load (ImportError: no module named numba): '
+            'the limb runs on the Python engine') in logger.lines
+
+
+def test_an_unknown_engine_falls_back_to_python_naming_the_value(monkeypatch):
+    monkeypatch.setenv(engine.ENV_VAR, 'fast')
+    logger = _Logger()
+    limb = limb_node.load_limb(PLANT, logger)
+    assert type(limb) is Limb
+    assert [level for level, _ in logger.lines] == ['warning']
+    assert "`HILL_MUSCLE_ENGINE` must be one of auto, compiled, python, got 'fast'" in \
+        logger.lines[0][1]
+
+
+def test_with_the_python_engine_the_node_steps_the_python_limb_alike(shared, tmp_path):
+    ns = f'{NS}_python'
+    probe = shared['probe']
+    rec = probe.record(f'{ns}/joint_states', JointState)
+    with ProcessGroup(tmp_path) as procs:
+        node = procs.start('limb', _limb_command(tmp_path, ns),
+                           env=ros_env(**{engine.ENV_VAR: engine.PYTHON}))
+        probe.wait_for_messages(rec, REST_STEPS, procs=[node])
+        out = node.output()
+    assert f'limb engine: python ({engine.ENV_VAR}=python)' in out
+    _assert_rest_as_offline(list(rec.messages)[:REST_STEPS])
 
 
 def test_quadriceps_pulse_width_extends_the_knee(leg):

@@ -11,7 +11,7 @@ the offline CLI's. A bad plant stops start-up with a message naming the key
 For each muscle ``<m>`` of the plant it subscribes ``<m>/pulse_width`` [s]
 (through that muscle's recruitment curve) and ``<m>/recruitment`` [-], and it
 subscribes ``external_torque`` [N m] (all std_msgs/Float64, zero-order hold).
-It steps :class:`~hill_muscle_ros.model.limb.Limb` at dt = 1 / ``rate_hz``
+It steps the limb (see Engine below) at dt = 1 / ``rate_hz``
 against the steady clock and, for every step, publishes ``joint_states``
 (sensor_msgs/JointState: the joint's name, theta [rad], omega [rad/s], and
 the net muscle torque [N m] as the effort), and each muscle's ``<m>/force``
@@ -22,22 +22,25 @@ to 0 after ``input_timeout_s`` of simulated time without a message on its
 inputs. A ``reset`` service (std_srvs/Trigger) returns the limb to its initial
 state with every held input at 0.
 
-Engine: the node steps the Python :class:`~hill_muscle_ros.model.limb.Limb`,
-not the compiled limb (:class:`~hill_muscle_ros.model.limb_kernels.CompiledLimb`),
-though the compiled step is far cheaper. One step as a tick makes it, knee
-preset (``benchmarks/limb_node_tick.py``, 2026-12-02, two runs, load average
-about 1.5): median 43 against 6.4 us, mean 441-484 against 20 us, 99th
-percentile 14 ms against 0.44-0.47 ms, worst 19-22 ms against 0.5-0.8 ms. The
-release of the quadriceps' 1000 units is the costly part (mean 0.80-0.89 ms a
-step in Python, 31 us compiled), so at 1 kHz the Python limb falls behind real
-time during a release and catches up on later ticks. The compiled limb would
-have to be loaded at start-up, before the node reports ready, never in the
-timer: 0.7 s from numba's disk cache, but about 32 s when it compiles (a clean
-clone, or after an edit of the model's code; BENCHMARKS.md, "The limb and the
-FES muscle, compiled"), beyond the 30 s within which the node tests expect a
-started node to answer (``test/ros_helpers.py``, ``DEFAULT_TIMEOUT_S``). It
-stays on Python until the compiled kernels can be built ahead of the node's
-start (e.g. at install).
+Engine: the node steps the compiled limb
+(:class:`~hill_muscle_ros.model.limb_kernels.CompiledLimb`) when
+:func:`~hill_muscle_ros.model.engine.choice` is compiled (numba installed,
+``HILL_MUSCLE_ENGINE`` not ``python``), else the Python
+:class:`~hill_muscle_ros.model.limb.Limb`; both give the same steps to 1e-9
+rad. The compiled step is far cheaper where it matters: one step as a tick
+makes it, knee preset (``benchmarks/limb_node_tick.py``, 2026-12-02, two runs,
+load average about 1.5): median 6.4 against 43 us, 99th percentile 0.44-0.47
+against 14 ms, worst 0.5-0.8 against 19-22 ms; in Python the release of the
+quadriceps' 1000 units (0.80-0.89 ms a step) puts a 1 kHz node behind real
+time for the whole release. The compiled limb is loaded in ``__init__``,
+before any publisher, subscription, service or timer exists (so before the
+node can be seen as started), never in a tick: 0.8 s from numba's disk
+cache, about 30 s when it compiles (a clean clone, or after an edit of the
+model's code; BENCHMARKS.md, "The limb and the FES muscle, compiled"). The
+node logs which engine runs and how long loading took, and that it may
+compile first. If the compiled limb fails to load, it warns and steps the
+Python limb. The test suite compiles the kernels once at its start
+(``test/conftest.py``), ``make demo-knee`` before it starts its nodes.
 
 Run: ``ros2 run hill_muscle_ros limb_simulator --ros-args --params-file
 config/knee.yaml`` or ``hill-muscle limb --ros-args ...``.
@@ -46,6 +49,7 @@ from __future__ import annotations
 
 import math
 import sys
+import time
 
 import rclpy
 from geometry_msgs.msg import WrenchStamped
@@ -58,6 +62,8 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
+from ..model import engine as engines
+from ..model import limb_kernels
 from ..model.limb import TORQUE_LIMIT_N_M, Limb, LimbPlant
 from ..model.muscle import check_recruitment
 from ..timebase import NS_PER_S
@@ -77,10 +83,55 @@ NODE_NAME = 'limb'
 LIMB_NODE_PARAMETERS = ('rate_hz', 'real_time_factor', 'input_timeout_s', 'publish_clock')
 #: Slack, in steps, for the rounding of ``tick period x rate x real_time_factor``.
 _STEPS_PER_TICK_ROUNDING = 1e-9
+#: [s] about how long the compiled limb takes to compile when numba's cache has
+#: no copy (BENCHMARKS.md, "The limb and the FES muscle, compiled"), for the log.
+COLD_COMPILE_S = 30.0
+
+
+def load_limb(plant: LimbPlant, logger) -> Limb | limb_kernels.CompiledLimb:
+    """The limb the node steps: compiled when :func:`~hill_muscle_ros.model.engine.choice`
+    says so, else Python; logs which, and how long loading took.
+
+    A compiled limb that cannot be loaded (numba missing, a compile error, a
+    bad ``HILL_MUSCLE_ENGINE``) is not a reason to stop: the Python limb
+    computes the same steps (to 1e-9 rad), so the node warns and runs it.
+
+    :param plant: the joint and its muscles
+    :param logger: the node's logger
+    """
+    try:
+        wanted = engines.choice()
+    except (ValueError, ImportError) as err:
+        logger.warning(f'{err}: the limb runs on the Python engine')
+        return Limb(plant)
+    if wanted != engines.COMPILED:
+        why = (f'{engines.ENV_VAR}={engines.PYTHON}' if engines.requested() == engines.PYTHON
+               else 'numba cannot be imported')
+        logger.info(f'limb engine: python ({why})')
+        return Limb(plant)
+    if not limb_kernels.loaded():
+        logger.info('loading the compiled limb; if numba has no cached copy (the first '
+                    'start after an install or an edit of the model) it compiles it once, '
+                    f'about {COLD_COMPILE_S:g} s, and caches it for later starts')
+    started_s = time.monotonic()
+    compiled_before_s = engines.compile_seconds()
+    try:
+        limb = limb_kernels.CompiledLimb(plant)
+    except Exception as err:   # noqa: BLE001 -- any failure of numba: the Python limb works
+        logger.warning(f'the compiled limb failed to load ({type(err).__name__}: {err}): '
+                       'the limb runs on the Python engine')
+        return Limb(plant)
+    took_s = time.monotonic() - started_s
+    compiled_s = engines.compile_seconds() - compiled_before_s
+    how = (f'compiled in {compiled_s:.1f} s (cached for later starts)' if compiled_s > 0.0
+           else 'from numba\'s cache')
+    logger.info(f'limb engine: compiled, loaded in {took_s:.2f} s, {how}')
+    return limb
 
 
 class LimbNode(Node):
-    """ROS 2 shell around :class:`~hill_muscle_ros.model.limb.Limb`.
+    """ROS 2 shell around :class:`~hill_muscle_ros.model.limb.Limb` or its compiled
+    twin (:func:`load_limb`).
 
     :raises StartupError: on an invalid parameter or plant at start-up
     """
@@ -121,7 +172,9 @@ class LimbNode(Node):
         check_qos_overrides(self, [n for n in overrides if n.startswith(QOS_OVERRIDES_PREFIX)],
                             {self.resolve_topic_name(t) for t in topics})
 
-        self._limb = Limb(self._plant)
+        # Built before any publisher, subscription, service or timer: a compile
+        # (about 30 s) happens before the node can be seen as started, never in a tick.
+        self._limb = load_limb(self._plant, self.get_logger())
         self._rate_hz = rate_hz
         self._dt_s = 1.0 / rate_hz
         self._names = names
