@@ -121,11 +121,14 @@ def test_long_intermittent_fatigue_run_stays_within_0_05_newton(variant):
     assert _max_error('intermittent', variant, 1e-4) <= ACCURACY_N
 
 
-def test_holding_r_over_each_step_would_miss_the_target():
+def test_holding_r_over_each_step_would_miss_the_target(monkeypatch):
     """The target is not loose: the same muscle with the recruitment held
     over each whole step (every step's events moved to its end) is off by far
     more, so the splitting is what the test measures."""
-    from hill_muscle_ros.model import fes_muscle
+    from hill_muscle_ros.model import engine, fes_muscle
+    # The patch changes the Python FesMuscle: simulate() must not take the
+    # compiled FES muscle, which the fine-step reference may have loaded.
+    monkeypatch.setenv(engine.ENV_VAR, engine.PYTHON)
     original = fes_muscle.FesMuscle._events
 
     def at_step_end(self, s0, s1, *args):
