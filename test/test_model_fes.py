@@ -13,6 +13,8 @@ from hill_muscle_ros.resources import protocol_path
 
 #: [N] agreement of two paths that compute the same model (rounding only).
 SAME_MODEL_TOL_N = 1e-9
+#: [-] the same for dimensionless outputs (activation, fitness).
+SAME_MODEL_TOL = 1e-12
 VARIANTS = [(u, l) for u in ('multi', 'single') for l in ('initial', 'instantaneous')]
 
 
@@ -152,8 +154,10 @@ def test_batch_equals_separate_muscles_on_every_feature_to_1e_9_newton():
             ref = muscle.step(command, dl, 1e-3)
             assert abs(out.force_n[i] - ref.force_n) <= SAME_MODEL_TOL_N, \
                 (list(FEATURES)[i], k)
-            assert out.recruitment[i] == ref.recruitment
-            assert out.mean_fitness[i] == ref.mean_fitness
+            # The batch's compiled engine runs the compiled FES muscle, which
+            # agrees with FesMuscle to rounding, not bit for bit.
+            assert abs(out.recruitment[i] - ref.recruitment) <= SAME_MODEL_TOL
+            assert abs(out.mean_fitness[i] - ref.mean_fitness) <= SAME_MODEL_TOL
 
 
 # -- fatigue --------------------------------------------------------------------------------
