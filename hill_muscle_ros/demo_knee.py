@@ -2,7 +2,9 @@
 
 Starts the limb node, the joint controller and the recorder as three ROS 2
 processes in their own namespace, all on the knee plant file
-(``config/knee.yaml``: 1 kHz, real time). Once every subscription is in
+(``config/knee.yaml``: 1 kHz, real time); first it loads the compiled limb
+the limb node will run (:func:`load_compiled_limb`: numba compiles it once,
+about 30 s, so the node's start does not). Once every subscription is in
 place both ways, this process plays an angle profile on ``angle_target``
 (std_msgs/Float64, rad) at the controller's rate, against the limb's
 simulated time read from the ``joint_states`` stamps: steps to 20, 45 and
@@ -153,6 +155,28 @@ def _never_called(_msg: Any) -> None:
 
 
 # -- the run ------------------------------------------------------------------------
+
+
+def load_compiled_limb() -> None:
+    """Load the limb node's compiled limb here, before any node starts, when the
+    node will run it: numba compiles it once (about 30 s) when its disk cache has
+    no copy, and the node then loads that copy in about a second instead of
+    compiling within its start-up deadline. A failure is the node's to report
+    (it falls back to the Python limb)."""
+    from .model import engine, limb_kernels
+    try:
+        if engine.choice() != engine.COMPILED:
+            return
+        print('loading the compiled limb (the first run compiles it once, about 30 s; '
+              'cached afterwards)', flush=True)
+        started_s = time.monotonic()
+        limb_kernels.compiled()
+    except Exception as err:   # noqa: BLE001 -- the limb node falls back to Python, and says so
+        print(f'demo-knee: warning: the compiled limb failed to load ({type(err).__name__}: '
+              f'{err}); the limb node will run the Python limb', file=sys.stderr, flush=True)
+        return
+    print(f'compiled limb loaded in {time.monotonic() - started_s:.1f} s '
+          f'({engine.compile_seconds():.1f} s of it compiling)', flush=True)
 
 
 def run(profile: KneeProfile, plant: LimbPlant, out: Path, namespace: str) -> tuple[Path, int]:
@@ -455,6 +479,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if out.exists() and any(out.iterdir()):
             raise ValueError(f'{out}: exists and is not empty; choose another --out')
         out.mkdir(parents=True, exist_ok=True)
+        load_compiled_limb()
         bag, t0_ns = run(profile, plant, out, args.namespace)
         recorded = read_run(bag, t0_ns, args.namespace, [m.name for m in plant.muscles])
         summary = summarize(recorded, profile)
