@@ -99,6 +99,22 @@ def test_activation_step_response_is_its_closed_form_after_the_delay(emd_s):
     np.testing.assert_allclose(result.recruitment, expected, rtol=0, atol=1e-12)
 
 
+def test_single_muscle_released_below_one_unit_jumps_back_with_instantaneous_activation():
+    """Deactivating towards a command below half a unit (N a < 0.5) releases a
+    single muscle at that crossing; with tau_act = 0 it is back at the command
+    at once, with its force, where it would rise from 0 with tau_act > 0."""
+    p = MuscleParams(units='single', n_units=1, tau_act_s=0.0, tau_deact_s=0.006)
+    m = Muscle(p)
+    for _ in range(20):
+        m.step(0.9, 0.0, 1e-3)
+    low = 0.3   # below the release level 0.5 / N
+    for _ in range(20):
+        out = m.step(low, 0.0, 1e-3)
+    # 0.9 decays to 0.5 in 6 ms ln(0.6 / 0.2) = 6.6 ms: released, then at the command.
+    assert out.recruitment == low and out.n_recruited == 1
+    assert math.isfinite(out.force_n) and out.eff_f_iso_n > 0.0
+
+
 def test_deactivation_follows_its_own_time_constant():
     protocol = Protocol.from_mapping({'name': 'off', 'duration_s': 1.0,
                                       'recruitment': [[0.0, 1.0], [0.5, 1.0], [0.5, 0.0]],

@@ -41,7 +41,7 @@ from .curves import (ECC_PLATEAU, FL_A, FL_B, FL_C, force_length, force_velocity
                      parallel_force, series_force)
 from .fes_muscle import (MAX_EVENTS_PER_PIECE, MAX_SUBSTEPS, RK4_MAX_H_LAMBDA,
                          fes_velocity, fitness_at, piece_activation, relaxation_rate,
-                         riener_limit, riener_rate, rk4_update, substep_count)
+                         riener_limit, riener_rate, rise_start, rk4_update, substep_count)
 from .memory import recruited_units
 from .params import MuscleParams
 from .stimulus import DelayLine, activation_at, time_to_reach
@@ -709,9 +709,11 @@ def plan_piece(F, I, i, s0, s1, u_d, a, m):
         s_rel = s0 + time_to_reach(a, u_d, tau, level)
         add_event(F, I, i, s_rel, A_RELEASE, 0.0, 0.0, 0.0, 0.0)
         if u_d > 0.0:   # rising again towards a command below one unit
-            add_event(F, I, i, s_rel, A_PIECE, s_rel, 0.0, u_d, F[fp + P_TAU_ACT])
+            tau_act = F[fp + P_TAU_ACT]
+            a_rise = rise_start(u_d, tau_act)
+            add_event(F, I, i, s_rel, A_PIECE, s_rel, a_rise, u_d, tau_act)
             add_event(F, I, i, s_rel, A_RISE, 0.0, 0.0, 0.0, 0.0)
-            a1 = activation_at(0.0, u_d, F[fp + P_TAU_ACT], s1 - s_rel)
+            a1 = piece_activation(a_rise, u_d, tau_act, s1 - s_rel)
         else:
             add_event(F, I, i, s_rel, A_PIECE, s_rel, 0.0, 0.0, 0.0)
             a1 = 0.0
@@ -1031,7 +1033,7 @@ def _plain() -> types.SimpleNamespace:
 #: (whose imports include the constants they read), small enough to inline.
 _EQUATIONS = ('force_length', 'force_velocity_inverse', 'series_force', 'parallel_force',
               'rk4_update', 'activation_at', 'time_to_reach',
-              'piece_activation', 'fitness_at', 'riener_rate', 'riener_limit',
+              'piece_activation', 'rise_start', 'fitness_at', 'riener_rate', 'riener_limit',
               'fes_velocity', 'relaxation_rate', 'substep_count', 'recruited_units',
               'fl_clear', 'type_fl_sum', 'moment_force', 'recruited_excess',
               'resting_deficit')

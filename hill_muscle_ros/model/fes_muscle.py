@@ -69,6 +69,17 @@ def piece_activation(a0: float, u_d: float, tau_s: float, elapsed_s: float) -> f
     return activation_at(a0, u_d, tau_s, elapsed_s) if (tau_s > 0.0 and a0 != u_d) else a0
 
 
+def rise_start(u_d: float, tau_act_s: float) -> float:
+    """[-] the activation of a single muscle rising again at the instant it was
+    released (doc/model.md section 7.2): 0, from where it follows the closed form
+    towards ``u_d``; with instantaneous activation (tau_act = 0) the command itself.
+
+    :param u_d: [-] delayed command it rises towards, > 0
+    :param tau_act_s: [s] activation time constant (0: instantaneous)
+    """
+    return 0.0 if tau_act_s > 0.0 else u_d
+
+
 def riener_rate(a: float, rate_fat: float, rate_rec: float) -> float:
     """[1/s] lambda of Riener's fitness law with the activation ``a`` held:
     mu' = (mu_min - mu) a / T_fat + (1 - mu)(1 - a) / T_rec = lambda (mu_inf - mu).
@@ -504,9 +515,10 @@ class FesMuscle(Muscle):
                 s_rel = s0 + time_to_reach(a, u_d, tau, level)
                 actions.append((s_rel, 'release', None))
                 if u_d > 0.0:   # rising again towards a command below one unit
-                    actions.append((s_rel, 'piece', (s_rel, 0.0, u_d, p.tau_act_s)))
+                    a_rise = rise_start(u_d, p.tau_act_s)
+                    actions.append((s_rel, 'piece', (s_rel, a_rise, u_d, p.tau_act_s)))
                     actions.append((s_rel, 'rise', None))
-                    a1 = activation_at(0.0, u_d, p.tau_act_s, s1 - s_rel)
+                    a1 = piece_activation(a_rise, u_d, p.tau_act_s, s1 - s_rel)
                 else:
                     actions.append((s_rel, 'piece', (s_rel, 0.0, 0.0, 0.0)))
                     a1 = 0.0
