@@ -86,16 +86,16 @@ def protocol_paths():
 
 
 def pytest_sessionstart(session):
-    """Load the compiled limb (and the muscle kernels it calls) once, before any
-    test, when the limb node would run it (numba importable, ``HILL_MUSCLE_ENGINE``
-    not ``python``): a node started by a test then loads it from numba's disk
-    cache (about 1 s) instead of compiling it (about 30 s, the tests' whole
-    start-up deadline). The offline tests compile these kernels anyway, so the
-    run compiles nothing more. Under xdist the controller does it before it
-    starts its workers, which then load from the cache."""
+    """Load the compiled limb and the compiled FES muscle once, before any test,
+    when the limb and simulator nodes would run them (numba importable,
+    ``HILL_MUSCLE_ENGINE`` not ``python``): a node started by a test then loads
+    them from numba's disk cache (about 1 s) instead of compiling them (about
+    30 s, the tests' whole start-up deadline). The offline tests compile these
+    kernels anyway, so the run compiles nothing more. Under xdist the controller
+    does it before it starts its workers, which then load from the cache."""
     if 'PYTEST_XDIST_WORKER' in os.environ:
         return
-    from hill_muscle_ros.model import engine, limb_kernels
+    from hill_muscle_ros.model import engine, fes_kernels, limb_kernels
     try:
         if engine.choice() != engine.COMPILED:
             return
@@ -103,11 +103,13 @@ def pytest_sessionstart(session):
         return   # the node falls back to Python then; test_node_limb says whether it should
     reporter = session.config.pluginmanager.get_plugin('terminalreporter')
     started = time.monotonic()
+    fes_kernels.compiled()   # the simulator node's FES muscle (compiled_muscle)
     limb_kernels.compiled()
     if reporter is not None:
         reporter.write_line(
-            f'compiled limb loaded for the limb node tests in {time.monotonic() - started:.1f} s '
-            f'({engine.compile_seconds():.1f} s of it compiling)')
+            f'compiled limb and FES muscle loaded for the node tests in '
+            f'{time.monotonic() - started:.1f} s ({engine.compile_seconds():.1f} s of it '
+            'compiling)')
 
 
 def pytest_terminal_summary(terminalreporter):

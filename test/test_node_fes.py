@@ -8,9 +8,9 @@ import yaml
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
-from hill_muscle_ros.model import MuscleParams
+from hill_muscle_ros.model import MuscleParams, engine
 from hill_muscle_ros.model.stimulus import command_from_pulse_width
-from ros_helpers import Probe, ProcessGroup, node_command
+from ros_helpers import Probe, ProcessGroup, node_command, ros_env
 
 pytestmark = pytest.mark.ros
 
@@ -31,14 +31,19 @@ PULSE_WIDTH_S = 400e-6
 SETTLED_TOL = 1e-6
 
 
-@pytest.fixture(scope='module')
-def fes_sim(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp('fes')
+def _fes_command(tmp, ns):
+    """The simulator node on FES at RATE_HZ, watchdog off."""
     params = tmp / 'fes.yaml'
     params.write_text(yaml.safe_dump({'/**': {'ros__parameters': dict(
         FES, rate_hz=RATE_HZ, input_timeout_s=0.0)}}))
+    return node_command('simulator', ns=ns, params_files=[params])
+
+
+@pytest.fixture(scope='module')
+def fes_sim(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp('fes')
     with ProcessGroup(tmp) as procs, Probe() as probe:
-        proc = procs.start('fes', node_command('simulator', ns='/fes', params_files=[params]))
+        proc = procs.start('fes', _fes_command(tmp, '/fes'))
         recs = {t: probe.record(f'/fes/{t}', Float64)
                 for t in ('force', 'recruitment_state', 'fitness')}
         for rec in recs.values():
@@ -99,3 +104,47 @@ def test_bad_array_parameter_is_rejected_live_naming_it(fes_sim):
                                               procs=[fes_sim['proc']])
     assert not results[0].successful
     assert '`tau_fatigue_s[1]`' in results[0].reason
+
+
+COMPILED_ENGINE = pytest.mark.skipif(
+    not engine.numba_available() or engine.requested() == engine.PYTHON,
+    reason='the compiled FES muscle needs numba and HILL_MUSCLE_ENGINE not python')
+
+
+@COMPILED_ENGINE
+def test_by_default_the_node_steps_the_compiled_muscle_loaded_before_it_starts(fes_sim):
+    out = fes_sim['proc'].output()
+    assert 'muscle engine: compiled, loaded in' in out
+    # Loaded in __init__, before the start-up line (logged once the node's
+    # publishers, subscriptions, service and timer exist).
+    assert out.index('muscle engine: compiled') < out.index(f' muscle, {RATE_HZ:g} Hz, ')
+
+
+def test_with_the_python_engine_the_node_steps_the_python_muscle(fes_sim, tmp_path):
+    ns = '/fes_python'
+    probe = fes_sim['probe']
+    rec = probe.record(f'{ns}/recruitment_state', Float64)
+    u = command_from_pulse_width(PULSE_WIDTH_S, MuscleParams(**FES))
+    with ProcessGroup(tmp_path) as procs:
+        node = procs.start('fes_python', _fes_command(tmp_path, ns),
+                           env=ros_env(**{engine.ENV_VAR: engine.PYTHON}))
+        probe.wait_for_messages(rec, procs=[node])
+        probe.publish_when_matched(f'{ns}/pulse_width', Float64(data=PULSE_WIDTH_S),
+                                   procs=[node])
+        probe.wait_for_value(rec, lambda r: abs(r - u) < SETTLED_TOL,
+                             f'recruitment_state settled at u = {u:.6f}', procs=[node])
+        out = node.output()
+    assert f'muscle engine: python ({engine.ENV_VAR}=python)' in out
+
+
+@COMPILED_ENGINE
+def test_a_live_change_rebuilds_the_compiled_muscle_without_compiling(fes_sim):
+    probe, proc = fes_sim['probe'], fes_sim['proc']
+    for emd_s in (FES['emd_s'] * 2.0, FES['emd_s']):   # and back, for any later test
+        results = probe.set_parameters('/fes/simulator', {'emd_s': emd_s}, procs=[proc])
+        assert results[0].successful
+    line = 'emd_s changed: muscle rebuilt at rest (engine: compiled)'
+    probe.spin_until(lambda: proc.output().count(line) == 2, 'two compiled rebuilds logged',
+                     procs=[proc])
+    out = proc.output()   # loaded at start-up, never again
+    assert 'loading the compiled muscle' not in out[out.index(line):]

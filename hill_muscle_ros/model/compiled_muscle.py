@@ -33,6 +33,12 @@ def _as_outputs(row: np.ndarray) -> MuscleOutputs:
     return MuscleOutputs(*values)
 
 
+def loaded() -> bool:
+    """True if the compiled FES muscle's kernels are loaded in this process, so
+    that building a :class:`CompiledFesMuscle` compiles nothing (well under a second)."""
+    return fes_kernels._compiled is not None
+
+
 class CompiledFesMuscle:
     """An FES muscle (any variant and feature) on the compiled kernels.
 

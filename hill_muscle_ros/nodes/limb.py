@@ -49,7 +49,6 @@ from __future__ import annotations
 
 import math
 import sys
-import time
 
 import rclpy
 from geometry_msgs.msg import WrenchStamped
@@ -62,16 +61,15 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
-from ..model import engine as engines
 from ..model import limb_kernels
 from ..model.limb import TORQUE_LIMIT_N_M, Limb, LimbPlant
 from ..model.muscle import check_recruitment
 from ..timebase import NS_PER_S
 from ._common import (OUTPUT_QOS, QOS_OVERRIDES_PREFIX, RELIABLE_QOS, BadInputWarner,
                       DiagnosticReport, NodeDiagnostics, StartupError, StepSchedule,
-                      check_qos_overrides, declare_checked, declare_plant, number_descriptor,
-                      overridable_publisher, overridable_subscription, parameter_overrides,
-                      plant_values, run_node)
+                      check_qos_overrides, declare_checked, declare_plant, load_engine,
+                      number_descriptor, overridable_publisher, overridable_subscription,
+                      parameter_overrides, plant_values, run_node)
 from .simulator import (DEFAULT_INPUT_TIMEOUT_S, DEFAULT_RATE_HZ, DEFAULT_REAL_TIME_FACTOR,
                         ERROR_BEHIND_S, INPUT_TIMEOUT_RANGE_S, MAX_CATCH_UP_S,
                         MIN_TICK_PERIOD_S, RATE_HZ_RANGE,
@@ -83,50 +81,17 @@ NODE_NAME = 'limb'
 LIMB_NODE_PARAMETERS = ('rate_hz', 'real_time_factor', 'input_timeout_s', 'publish_clock')
 #: Slack, in steps, for the rounding of ``tick period x rate x real_time_factor``.
 _STEPS_PER_TICK_ROUNDING = 1e-9
-#: [s] about how long the compiled limb takes to compile when numba's cache has
-#: no copy (BENCHMARKS.md, "The limb and the FES muscle, compiled"), for the log.
-COLD_COMPILE_S = 30.0
 
 
 def load_limb(plant: LimbPlant, logger) -> Limb | limb_kernels.CompiledLimb:
     """The limb the node steps: compiled when :func:`~hill_muscle_ros.model.engine.choice`
-    says so, else Python; logs which, and how long loading took.
-
-    A compiled limb that cannot be loaded (numba missing, a compile error, a
-    bad ``HILL_MUSCLE_ENGINE``) is not a reason to stop: the Python limb
-    computes the same steps (to 1e-9 rad), so the node warns and runs it.
+    says so, else Python; logs which, and how long loading took (:func:`._common.load_engine`).
 
     :param plant: the joint and its muscles
     :param logger: the node's logger
     """
-    try:
-        wanted = engines.choice()
-    except (ValueError, ImportError) as err:
-        logger.warning(f'{err}: the limb runs on the Python engine')
-        return Limb(plant)
-    if wanted != engines.COMPILED:
-        why = (f'{engines.ENV_VAR}={engines.PYTHON}' if engines.requested() == engines.PYTHON
-               else 'numba cannot be imported')
-        logger.info(f'limb engine: python ({why})')
-        return Limb(plant)
-    if not limb_kernels.loaded():
-        logger.info('loading the compiled limb; if numba has no cached copy (the first '
-                    'start after an install or an edit of the model) it compiles it once, '
-                    f'about {COLD_COMPILE_S:g} s, and caches it for later starts')
-    started_s = time.monotonic()
-    compiled_before_s = engines.compile_seconds()
-    try:
-        limb = limb_kernels.CompiledLimb(plant)
-    except Exception as err:   # noqa: BLE001 -- any failure of numba: the Python limb works
-        logger.warning(f'the compiled limb failed to load ({type(err).__name__}: {err}): '
-                       'the limb runs on the Python engine')
-        return Limb(plant)
-    took_s = time.monotonic() - started_s
-    compiled_s = engines.compile_seconds() - compiled_before_s
-    how = (f'compiled in {compiled_s:.1f} s (cached for later starts)' if compiled_s > 0.0
-           else 'from numba\'s cache')
-    logger.info(f'limb engine: compiled, loaded in {took_s:.2f} s, {how}')
-    return limb
+    return load_engine('limb', lambda: limb_kernels.CompiledLimb(plant), lambda: Limb(plant),
+                       limb_kernels.loaded, logger)
 
 
 class LimbNode(Node):

@@ -50,6 +50,7 @@ from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
 from ..model import CommandTrack, Muscle, MuscleParams
+from ..model import compiled_muscle
 from ..model.muscle import check_dl_mt, check_recruitment
 from ..model.stimulus import command_from_pulse_width
 from ..timebase import NS_PER_S
@@ -57,7 +58,7 @@ from ._common import (LIVE_RESETS, OUTPUT_HISTORY_DEPTH, OUTPUT_QOS, RELIABLE_QO
                       BadInputWarner, DiagnosticReport, NodeDiagnostics,
                       overridable_publisher, overridable_subscription,
                       StartupError, StepSchedule, declare_checked,
-                      declare_muscle_parameters, number_descriptor,
+                      declare_muscle_parameters, load_engine, number_descriptor,
                       reject_unknown_overrides, run_node)
 
 NODE_NAME = 'simulator'
@@ -176,6 +177,47 @@ def check_frame_id(frame_id: str) -> str:
     return frame_id
 
 
+def load_muscle(params: MuscleParams, logger) -> Muscle | compiled_muscle.CompiledFesMuscle:
+    """The muscle the node steps, made at start-up; logs which engine runs it.
+
+    A muscle with every FES feature off is the paper's :class:`Muscle`, whose
+    Python step is already cheap. Any other is the compiled FES muscle when
+    :func:`~hill_muscle_ros.model.engine.choice` says so, else the Python
+    :class:`~hill_muscle_ros.model.fes_muscle.FesMuscle` (both agree to 1e-9;
+    :func:`._common.load_engine`).
+
+    :param params: the muscle's parameters
+    :param logger: the node's logger
+    """
+    if params.fes_defaults:
+        logger.info('muscle engine: python (every FES feature off: the paper\'s model)')
+        return Muscle(params)
+    return load_engine('muscle', lambda: compiled_muscle.CompiledFesMuscle(params),
+                       lambda: Muscle(params), compiled_muscle.loaded, logger)
+
+
+def rebuild_muscle(params: MuscleParams, compiled: bool, logger
+                   ) -> Muscle | compiled_muscle.CompiledFesMuscle:
+    """The muscle remade after a live parameter change, inside a callback.
+
+    Compiled only if the node runs the compiled FES muscle already (``compiled``:
+    its kernels are loaded, so this compiles nothing), and the new parameters
+    switch an FES feature on; else the Python model, as :class:`Muscle` makes it.
+    A compiled muscle that fails to build falls back to Python, with a warning.
+
+    :param params: the new parameters
+    :param compiled: whether the node's muscle was compiled until now
+    :param logger: the node's logger
+    """
+    if compiled and not params.fes_defaults and compiled_muscle.loaded():
+        try:
+            return compiled_muscle.CompiledFesMuscle(params)
+        except Exception as err:   # noqa: BLE001 -- the Python muscle computes the same steps
+            logger.warning(f'the compiled muscle failed to build ({type(err).__name__}: '
+                           f'{err}): the muscle runs on the Python engine')
+    return Muscle(params)
+
+
 class Simulator(Node):
     """ROS 2 shell around :class:`~hill_muscle_ros.model.Muscle`.
 
@@ -227,7 +269,11 @@ class Simulator(Node):
         reject_unknown_overrides(self)
 
         self._params = params        # current MuscleParams (pw_max_s may differ from the muscle's)
-        self._muscle = Muscle(params)
+        # Made before any publisher, subscription, service or timer: a compile
+        # (about 30 s) happens before the node can be seen as started, never in a tick.
+        self._muscle = load_muscle(params, self.get_logger())
+        #: Whether the node steps the compiled FES muscle (a rebuild keeps to it).
+        self._compiled = isinstance(self._muscle, compiled_muscle.CompiledFesMuscle)
         self._rate_hz = rate_hz
         self._dt_s = 1.0 / rate_hz
         # [-] held recruitment command u (zero-order hold): a `recruitment`
@@ -597,9 +643,13 @@ class Simulator(Node):
         self._params = new
         changed = [n for n in MuscleParams.field_names() if getattr(new, n) != getattr(old, n)]
         if any(n in LIVE_RESETS for n in changed):
-            self._muscle = Muscle(new)
+            # Never compiles here (rebuild_muscle): at most the arrays of the
+            # loaded compiled muscle are built anew.
+            self._muscle = rebuild_muscle(new, self._compiled, self.get_logger())
+            self._compiled = isinstance(self._muscle, compiled_muscle.CompiledFesMuscle)
             self._reset_to_rest()
-            self.get_logger().info(f'{", ".join(changed)} changed: muscle rebuilt at rest')
+            self.get_logger().info(f'{", ".join(changed)} changed: muscle rebuilt at rest '
+                                   f'(engine: {"compiled" if self._compiled else "python"})')
         else:
             self.get_logger().info(f'{", ".join(changed)} changed, state kept')
 
