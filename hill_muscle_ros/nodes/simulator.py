@@ -29,6 +29,29 @@ of simulated time). A knot that arrives after its time is applied at the next
 step, counted and reported. A plain ``length_command`` means "now": it drops
 the track and holds its value, as before.
 
+Engine: a muscle with every FES feature off is the paper's :class:`Muscle`,
+whose Python step is already cheap (a compiled single step costs about as
+much: doc/model.md, the engines). Any other muscle runs on the compiled FES muscle
+(:class:`~hill_muscle_ros.model.compiled_muscle.CompiledFesMuscle`) when
+:func:`~hill_muscle_ros.model.engine.choice` is compiled (numba installed,
+``HILL_MUSCLE_ENGINE`` not ``python``), else on the Python
+:class:`~hill_muscle_ros.model.fes_muscle.FesMuscle`; both give the same steps
+to 1e-9. One step as a tick makes it, knee quadriceps preset
+(``config/fes_quadriceps.yaml``, 1000 steps of pulse widths then 1000
+released; ``benchmarks/muscle_node_tick.py``, 2026-12-02, two runs, load
+average 0.4-0.8): median 2.5-4.8 against 11.7-17.2 us, 99th percentile 64-99
+us against 1.3-2.3 ms, worst 0.2-1.1 against 6.9-7.3 ms; released, 6.4-11.4
+against 133-146 us on average. It is loaded in ``__init__``
+(:func:`load_muscle`, the limb node's :func:`._common.load_engine`), before
+any publisher, subscription, service or timer exists, never in a tick: under
+a second from numba's disk cache, about 30 s when it compiles (a clean clone,
+or after an edit of the model's code). The node logs which engine runs and
+how long loading took; a compiled muscle that fails to load falls back to
+Python with a warning. A live parameter change rebuilds the muscle from the
+kernels already loaded (:func:`rebuild_muscle`, nothing compiles in the
+callback: 0.7-3 ms for the preset, 0.4-0.8 ms for FesMuscle, three builds in
+one process); a node that started on Python stays on Python.
+
 Run: ``ros2 run hill_muscle_ros simulator --ros-args --params-file muscle.yaml``
 or ``hill-muscle simulator --ros-args ...``.
 """
@@ -219,7 +242,8 @@ def rebuild_muscle(params: MuscleParams, compiled: bool, logger
 
 
 class Simulator(Node):
-    """ROS 2 shell around :class:`~hill_muscle_ros.model.Muscle`.
+    """ROS 2 shell around :class:`~hill_muscle_ros.model.Muscle` or, for an FES
+    muscle, its compiled twin (:func:`load_muscle`).
 
     :raises StartupError: on an invalid parameter at start-up
     """
