@@ -59,7 +59,7 @@ from .curves import ECC_PLATEAU, FL_A, FL_B, FL_C
 from .fes_muscle import FesMuscle
 from .memory import UnitMemory
 from .muscle import DL_MT_LIMIT_M
-from .params import MuscleParams
+from .params import MuscleParams, check_instances
 
 #: Rounding offset of M = floor(N R + 0.5) (doc/model.md section 2).
 _ROUND_HALF = 0.5
@@ -113,13 +113,8 @@ class MuscleBatch:
     def __init__(self, params: Sequence[MuscleParams], engine: str = 'auto') -> None:
         if engine not in ENGINES:
             raise ValueError(f'`engine` must be one of {", ".join(ENGINES)}, got {engine!r}')
-        params = list(params)
-        if not params:
-            raise ValueError('`params` must hold at least one MuscleParams, got none')
-        for i, p in enumerate(params):
-            if not isinstance(p, MuscleParams):
-                raise ValueError(f'`params[{i}]` must be a MuscleParams, got {p!r}')
-        self.params = tuple(params)
+        params = check_instances(MuscleParams, params, 'params')
+        self.params = params
         self.size = len(params)
 
         def column(name: str) -> np.ndarray:
