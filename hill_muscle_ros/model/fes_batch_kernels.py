@@ -98,10 +98,7 @@ def compiled() -> types.SimpleNamespace:
     if _compiled is not None:
         return _compiled
     from . import engine
-    muscle = fes_kernels.compiled()
-    scope = dict(globals())
-    for name in _CALLED:
-        scope[name] = getattr(muscle, name)
+    scope = fes_kernels.scope_calling(globals(), _CALLED)
     body = {'error_model': 'numpy'}
     options = {name: body for name in _KERNELS}
 

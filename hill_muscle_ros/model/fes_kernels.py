@@ -1087,6 +1087,20 @@ def compiled() -> types.SimpleNamespace:
     return _compiled
 
 
+def scope_calling(scope: dict, names: Sequence[str]) -> dict:
+    """A copy of a module's globals ``scope`` in which ``names`` are bound to
+    this module's compiled functions: the scope in which kernels built on the
+    compiled FES muscle (the batch's, the limb's) are compiled.
+
+    :raises ImportError: if numba cannot be imported
+    """
+    muscle = compiled()
+    bound = dict(scope)
+    for name in names:
+        bound[name] = getattr(muscle, name)
+    return bound
+
+
 def run_muscle(bundle: FesBundle, i: int, r_start, dl_end_m, dt_s: float, r_end=None,
                kernels=None) -> np.ndarray:
     """Run muscle ``i`` of ``bundle`` for ``len(dl_end_m)`` steps (FesMuscle.run).

@@ -378,12 +378,10 @@ def compiled() -> types.SimpleNamespace:
     if _compiled is not None:
         return _compiled
     from . import engine
-    muscle = fes_kernels.compiled()
-    scope = dict(globals())
-    for name in ('apply', 'begin_interval', 'eff_f_iso', 'end_interval', 'give_command',
-                 'hdr', 'plan', 'settle_now', 'substeps', 'velocity', 'series_force',
-                 'parallel_force', 'rk4_update'):
-        scope[name] = getattr(muscle, name)
+    scope = fes_kernels.scope_calling(
+        globals(), ('apply', 'begin_interval', 'eff_f_iso', 'end_interval', 'give_command',
+                    'hdr', 'plan', 'settle_now', 'substeps', 'velocity', 'series_force',
+                    'parallel_force', 'rk4_update'))
     leaf = {'error_model': 'numpy', 'inline': 'always'}
     body = {'error_model': 'numpy'}
     options = {name: body for name in _KERNELS}
