@@ -58,6 +58,20 @@ def ros_env(**extra: str) -> dict[str, str]:
     return supervisor.ros_environment(**extra)
 
 
+class RecordingLogger:
+    """Stands in for a node's logger: records what it would log, by level
+    (``('info', text)``, ``('warning', text)``)."""
+
+    def __init__(self) -> None:
+        self.lines: list[tuple[str, str]] = []
+
+    def info(self, text: str) -> None:
+        self.lines.append(('info', text))
+
+    def warning(self, text: str) -> None:
+        self.lines.append(('warning', text))
+
+
 class NodeProcess(supervisor.Process):
     """One node process with its output in a log file (:class:`hill_muscle_ros.supervisor.Process`).
 

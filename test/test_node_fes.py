@@ -13,7 +13,7 @@ from hill_muscle_ros.model.compiled_muscle import CompiledFesMuscle
 from hill_muscle_ros.model.fes_muscle import FesMuscle
 from hill_muscle_ros.nodes import simulator
 from hill_muscle_ros.model.stimulus import command_from_pulse_width
-from ros_helpers import Probe, ProcessGroup, node_command, ros_env
+from ros_helpers import Probe, ProcessGroup, RecordingLogger, node_command, ros_env
 
 pytestmark = pytest.mark.ros
 
@@ -153,21 +153,8 @@ def test_a_live_change_rebuilds_the_compiled_muscle_without_compiling(fes_sim):
     assert 'loading the compiled muscle' not in out[out.index(line):]
 
 
-class _Logger:
-    """Records what a node would log, by level."""
-
-    def __init__(self):
-        self.lines = []
-
-    def info(self, text):
-        self.lines.append(('info', text))
-
-    def warning(self, text):
-        self.lines.append(('warning', text))
-
-
 def test_a_muscle_with_every_fes_feature_off_keeps_the_papers_python_muscle():
-    logger = _Logger()
+    logger = RecordingLogger()
     muscle = simulator.load_muscle(MuscleParams(), logger)
     assert type(muscle) is Muscle
     assert logger.lines == [('info', "muscle engine: python (every FES feature off: the "
@@ -180,7 +167,7 @@ def test_a_compiled_muscle_that_fails_to_load_falls_back_to_python_with_a_warnin
     monkeypatch.setenv(engine.ENV_VAR, engine.COMPILED)
     monkeypatch.setattr(engine, 'numba_available', lambda: True)
     monkeypatch.setattr(simulator.compiled_muscle, 'CompiledFesMuscle', broken)
-    logger = _Logger()
+    logger = RecordingLogger()
     muscle = simulator.load_muscle(MuscleParams(**FES), logger)
     assert type(muscle) is FesMuscle
     assert ('warning', 'the compiled muscle failed to load (ImportError: no module named '
@@ -189,8 +176,8 @@ def test_a_compiled_muscle_that_fails_to_load_falls_back_to_python_with_a_warnin
 
 @COMPILED_ENGINE
 def test_a_rebuild_keeps_the_engine_the_node_started_with():
-    simulator.load_muscle(MuscleParams(**FES), _Logger())   # loads the kernels, as __init__
+    simulator.load_muscle(MuscleParams(**FES), RecordingLogger())   # loads the kernels, as __init__
     params = MuscleParams(**dict(FES, emd_s=0.03))
-    assert type(simulator.rebuild_muscle(params, True, _Logger())) is CompiledFesMuscle
-    assert type(simulator.rebuild_muscle(params, False, _Logger())) is FesMuscle
-    assert type(simulator.rebuild_muscle(MuscleParams(), True, _Logger())) is Muscle
+    assert type(simulator.rebuild_muscle(params, True, RecordingLogger())) is CompiledFesMuscle
+    assert type(simulator.rebuild_muscle(params, False, RecordingLogger())) is FesMuscle
+    assert type(simulator.rebuild_muscle(MuscleParams(), True, RecordingLogger())) is Muscle

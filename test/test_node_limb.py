@@ -23,7 +23,7 @@ from hill_muscle_ros.model.limb import Limb, LimbProtocol, simulate_limb
 from hill_muscle_ros.nodes import limb as limb_node
 from hill_muscle_ros.model.stimulus import command_from_pulse_width
 from hill_muscle_ros.params_file import load_plant, read_ros_parameters
-from ros_helpers import Probe, ProcessGroup, node_command, ros_env
+from ros_helpers import Probe, ProcessGroup, RecordingLogger, node_command, ros_env
 
 pytestmark = pytest.mark.ros
 
@@ -147,26 +147,13 @@ def test_by_default_the_node_steps_the_compiled_limb_loaded_before_it_starts(sha
     assert out.index('limb engine: compiled') < out.index(f'{PLANT.joint.name} with quadriceps')
 
 
-class _Logger:
-    """Records what a node would log, by level."""
-
-    def __init__(self):
-        self.lines = []
-
-    def info(self, text):
-        self.lines.append(('info', text))
-
-    def warning(self, text):
-        self.lines.append(('warning', text))
-
-
 def test_a_compiled_limb_that_fails_to_load_falls_back_to_python_with_a_warning(monkeypatch):
     def broken(plant):
         raise ImportError('no module named numba')
     monkeypatch.setenv(engine.ENV_VAR, engine.COMPILED)
     monkeypatch.setattr(engine, 'numba_available', lambda: True)
     monkeypatch.setattr(limb_node.limb_kernels, 'CompiledLimb', broken)
-    logger = _Logger()
+    logger = RecordingLogger()
     limb = limb_node.load_limb(PLANT, logger)
     assert type(limb) is Limb
     assert ('warning', 'the compiled limb failed to load (ImportError: no module named numba): '
@@ -175,7 +162,7 @@ def test_a_compiled_limb_that_fails_to_load_falls_back_to_python_with_a_warning(
 
 def test_an_unknown_engine_falls_back_to_python_naming_the_value(monkeypatch):
     monkeypatch.setenv(engine.ENV_VAR, 'fast')
-    logger = _Logger()
+    logger = RecordingLogger()
     limb = limb_node.load_limb(PLANT, logger)
     assert type(limb) is Limb
     assert [level for level, _ in logger.lines] == ['warning']

@@ -13,9 +13,9 @@ from hypothesis import HealthCheck, assume, given, settings, strategies as st
 
 from hill_muscle_ros import resources
 from hill_muscle_ros.model import Protocol, engine, fes_kernels
-from hill_muscle_ros.model.params import MuscleParams
 from hill_muscle_ros.model.simulate import COLUMNS, simulate
 from hill_muscle_ros.params_file import load_muscle_params
+from test_fes_compiled import _params
 
 #: [N], [m], [m/s] agreement asked of every column (the forces' is the goal's 1e-9 N).
 TOL = 1e-9
@@ -60,13 +60,6 @@ def _compare(monkeypatch, protocol, params, rate_hz=1000.0):
     got = _run(monkeypatch, engine.COMPILED, protocol, params, rate_hz)
     assert len(calls) == 1   # the compiled run was taken
     _assert_same(got, ref)
-
-
-def _params(**fields):
-    try:
-        return MuscleParams(**fields)
-    except ValueError:
-        assume(False)
 
 
 @st.composite
