@@ -36,7 +36,9 @@ participant with the discovery scope the user asked for:
 
 Nothing changes either if the user configures Fast DDS transports already
 (:data:`USER_FASTDDS_SETTINGS`, or a ``DEFAULT_FASTRTPS_PROFILES.xml`` in the
-working directory), under another RMW, or with
+working directory; a profile this module wrote, inherited from a parent
+process that set itself up this way, is not the user's and is set up again),
+under another RMW, or with
 ``HILL_MUSCLE_DDS_TRANSPORT=rmw``. Other processes (ros2cli, rviz) keep
 their transports and reach the nodes over UDP.
 
@@ -231,6 +233,14 @@ def write_profile(text: str, directory: Path | None = None) -> Path:
     return path
 
 
+def _is_own_profile(value: str) -> bool:
+    """Whether a profiles-file variable names a profile :func:`write_profile`
+    wrote: inherited from a process of the package (a test run or a launcher
+    that set up its own participant this way), not a user's configuration, so
+    it is set up again for this process's discovery range."""
+    return Path(value).name.startswith(PROFILE_FILE_PREFIX)
+
+
 def use_udp_transport(environ: MutableMapping[str, str] | None = None,
                       profile_dir: Path | None = None) -> str | None:
     """Set ``environ`` so that the next Fast DDS participant uses UDPv4 only.
@@ -249,7 +259,8 @@ def use_udp_transport(environ: MutableMapping[str, str] | None = None,
     if choice not in TRANSPORTS:
         raise ValueError(f'environment variable {TRANSPORT_ENV}={choice!r}: expected one of '
                          f'{", ".join(TRANSPORTS)}')
-    user_settings = [name for name in USER_FASTDDS_SETTINGS if environ.get(name)]
+    user_settings = [name for name in USER_FASTDDS_SETTINGS
+                     if environ.get(name) and not _is_own_profile(environ[name])]
     if environ.get(SKIP_CWD_PROFILES_ENV) != '1' and Path(CWD_PROFILES_FILE).is_file():
         user_settings.append(f'./{CWD_PROFILES_FILE}')
     scope = discovery_range(environ)

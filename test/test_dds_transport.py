@@ -126,6 +126,16 @@ def test_environment_is_left_alone(tmp_path, extra):
     assert not list(tmp_path.iterdir())
 
 
+def test_a_profile_inherited_from_a_process_of_the_package_is_set_up_again(tmp_path):
+    # A test run or a launcher sets up its own participant, and its children
+    # inherit the variables: a node among them still sets up its own.
+    parent, _ = _localhost(tmp_path)
+    child = {**parent, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
+    assert use_udp_transport(child, profile_dir=tmp_path) is not None
+    assert child['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'SYSTEM_DEFAULT'
+    assert child['FASTRTPS_DEFAULT_PROFILES_FILE'] == parent['FASTRTPS_DEFAULT_PROFILES_FILE']
+
+
 def test_profile_in_the_working_directory_is_left_alone(tmp_path):
     (tmp_path / 'DEFAULT_FASTRTPS_PROFILES.xml').write_text('<profiles/>')
     env = {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
