@@ -40,8 +40,13 @@ pytestmark = pytest.mark.ros
 
 #: The simulated subject (the defaults are 45 N, 10 kN/m and 10 N): as in test_fit.
 TRUTH = {'f_iso_max_n': 52.0, 'k_se_n_per_m': 8000.0, 'fv_a_n': 13.0}
-#: [s] the window of --edge-search: twice the largest move seen (13 ms).
-EDGE_SEARCH_S = 0.03
+#: [s] the window of --edge-search. Moves of 13 ms were seen on an idle
+#: machine; with a compiler busy on the other core a fresh-clone run saw -16 ms
+#: and two moves at the edge of a 30 ms window (the fit then missed
+#: ``f_iso_max_n`` by 0.8 %). The simulator itself catches up at most 0.1 s of
+#: clock time per tick; a recorder that falls further behind than that is
+#: overloaded, which its diagnostics report.
+EDGE_SEARCH_S = 0.1
 #: Relative tolerance of each estimate: about three times the errors of the
 #: aligned fit of the run with late knots (0.04 %, 0.59 %, 0.83 %).
 TOLERANCE = {'f_iso_max_n': 0.002, 'k_se_n_per_m': 0.02, 'fv_a_n': 0.025}

@@ -44,6 +44,11 @@ PE_FORCE_N = DEFAULTS.k_pe_n_per_m * STRETCH_M
 FORCE_TOL_N = 1e-6
 #: [s] of wall time a value that must not change is watched
 WATCH_S = 0.5
+#: The simulator's wrench history (its ``qos_overrides`` depth): every wrench
+#: of a test kept until the probe has it. The probe is a Python node that can
+#: fall behind 10 kHz of wrenches on a busy machine, and the default keep-last
+#: 1000 then drops the oldest: a fresh-clone run lost about 1000 at 10x.
+WRENCH_HISTORY = 20_000
 _STATS_LATE_RE = re.compile(r'(\d+) late length_command_stamped knots')
 
 
@@ -69,7 +74,8 @@ class _Sim:
         # 10th): the exact test below finds the step the recruitment acted at.
         self.proc = procs.start(ns.strip('/'), node_command('simulator', ns=ns, params={
             'rate_hz': RATE_HZ, 'real_time_factor': rtf, 'input_timeout_s': 0.0,
-            'publish_every_n_steps': 1}))
+            'publish_every_n_steps': 1,
+            f'qos_overrides.{ns}/wrench.publisher.depth': WRENCH_HISTORY}))
         self.knots = probe.node.create_publisher(PointStamped, f'{ns}/length_command_stamped',
                                                  DEEP_QOS)
 
@@ -122,6 +128,9 @@ def test_stamped_ramp_sent_ahead_gives_the_offline_force_exactly(tmp_path, rtf):
 
     stamps = np.array([_stamp_ns(m.header.stamp) for m in sim.wrench.messages])
     force = np.array([m.wrench.force.x for m in sim.wrench.messages])
+    gaps = np.flatnonzero(np.diff(stamps) != STEP_NS)
+    assert not gaps.size, (f'{gaps.size} gaps in the wrench stamps (wrenches lost), the first '
+                           f'after stamp index {gaps[:1]}')
     first = int(np.argmax(force > 0.0))
     rest_ns = int(stamps[first - 1])   # the last step before the recruitment acted
     # The offline core from rest: R from the next step on, dl_MT the knots

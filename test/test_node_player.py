@@ -32,8 +32,13 @@ SAMPLE_WINDOW_S = 0.1
 E2E_TOL_N = 0.5
 #: Reliable with room for 5 s of 1 kHz messages, so a busy probe loses none.
 DEEP_QOS = QoSProfile(depth=5000)
-#: [s] how much shorter than the protocol its sim-time span may look (start latency)
-SIM_SPAN_TOL_S = 0.2
+#: [s] how much shorter than the protocol its sim-time span may look: the
+#: first stimulation reaches the simulator late when the simulator's reader
+#: matched the player's writer after the player started (it comes with the
+#: writer's next heartbeat, every 0.1 s of wall time: 0.3 s of sim time at 3x).
+#: Seen: 0.245 s, with a compiler busy on the other core. Still far from the
+#: wall-clock span (3 s), which the upper bound keeps apart.
+SIM_SPAN_TOL_S = 0.4
 #: [-] real-time factor of the sim-time test
 RTF = 3.0
 #: [N] clearly active force (R = 0.3..0.7 gives tens of newtons)
