@@ -1,0 +1,98 @@
+"""Cold compile cost of each set of compiled kernels (a benchmark, not a test).
+
+A fresh clone compiles every kernel set once (``make test`` prints the sum as
+"numba compiling in this process"). This measures each set's share: every run
+is a new Python process on a new, empty numba cache directory
+(``NUMBA_CACHE_DIR``), which builds the kernel sets in the order given, and
+reports for each the seconds numba spent compiling it
+(:func:`hill_muscle_ros.model.engine.compile_seconds` before and after) and
+its wall time. A set built on another (the limb's and the FES batch's
+kernels call the compiled FES muscle) is charged only what it adds; with
+``--alone`` each set runs in a process of its own instead, so each pays for
+everything it needs.
+
+Usage::
+
+    .venv/bin/python benchmarks/compile_cost.py [--runs 3] [--alone] [--sets fes limb]
+
+Prints one line per set (median, min and max over the runs) and the total.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+
+#: Kernel set -> the call that builds it, in the order of a test run (the FES
+#: muscle first: conftest loads it and the limb before any test).
+SETS = {
+    'fes': 'fes_kernels.compiled()',
+    'limb': 'limb_kernels.compiled()',
+    'fes_batch': 'fes_batch_kernels.compiled()',
+    'paper_run': 'kernels.compiled_run()',
+    'paper_batch': 'kernels.compiled()',
+}
+
+#: What the measuring process runs: builds the sets named in argv, prints JSON.
+_CHILD = """
+import json, sys, time
+from hill_muscle_ros.model import engine, fes_batch_kernels, fes_kernels, kernels, limb_kernels
+engine.import_numba()
+calls = json.loads(sys.argv[1])
+result = {}
+for name, call in calls:
+    c0, w0 = engine.compile_seconds(), time.perf_counter()
+    eval(call)
+    result[name] = (engine.compile_seconds() - c0, time.perf_counter() - w0)
+print(json.dumps(result))
+"""
+
+
+def measure(names: list[str]) -> dict[str, tuple[float, float]]:
+    """Build the kernel sets ``names`` in order in a new process on an empty cache.
+
+    :return: name -> ([s] compiling, [s] wall time)
+    """
+    with tempfile.TemporaryDirectory(prefix='numba-cold-') as cache:
+        env = dict(os.environ, NUMBA_CACHE_DIR=cache, HILL_MUSCLE_ENGINE='compiled')
+        out = subprocess.run([sys.executable, '-c', _CHILD,
+                              json.dumps([(n, SETS[n]) for n in names])],
+                             env=env, check=True, capture_output=True, text=True).stdout
+    return {k: tuple(v) for k, v in json.loads(out.splitlines()[-1]).items()}
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument('--runs', type=int, default=3, help='fresh processes per measurement')
+    parser.add_argument('--alone', action='store_true',
+                        help='each set in a process of its own (pays for what it calls)')
+    parser.add_argument('--sets', nargs='+', choices=tuple(SETS), default=list(SETS))
+    args = parser.parse_args(argv)
+    samples = {n: [] for n in args.sets}
+    for run in range(args.runs):
+        started = time.perf_counter()
+        groups = [[n] for n in args.sets] if args.alone else [args.sets]
+        for group in groups:
+            for name, value in measure(group).items():
+                samples[name].append(value)
+        print(f'run {run + 1}/{args.runs}: {time.perf_counter() - started:.1f} s',
+              file=sys.stderr)
+    print(f'cold compile, {"each set alone" if args.alone else "in order"}, '
+          f'{args.runs} runs: median (min-max) [s]')
+    totals = [sum(samples[n][r][0] for n in args.sets) for r in range(args.runs)]
+    for name in args.sets:
+        comp = [c for c, _ in samples[name]]
+        wall = [w for _, w in samples[name]]
+        print(f'  {name:12s} compiling {statistics.median(comp):6.1f} '
+              f'({min(comp):.1f}-{max(comp):.1f})   wall {statistics.median(wall):6.1f}')
+    print(f'  {"total":12s} compiling {statistics.median(totals):6.1f} '
+          f'({min(totals):.1f}-{max(totals):.1f})')
+
+
+if __name__ == '__main__':
+    main()
