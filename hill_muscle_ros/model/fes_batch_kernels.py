@@ -20,6 +20,8 @@ from __future__ import annotations
 import sys
 import types
 
+import numpy as np
+
 from . import curves, fes_kernels, fes_muscle, memory, stimulus, unit_pool, units
 from .fes_kernels import (H_FS, H_IP, H_JS, I_MULTI, J_NREC, OK, S_CMD, S_DL, S_L,
                           S_MU, S_R, S_T, give_command, hdr, muscle_advance, muscle_outputs,
@@ -79,9 +81,29 @@ def outputs_all(F, I, out):
         muscle_outputs(F, I, j, out[j])
 
 
+#: What :func:`batch_entry` does: :func:`give_all`, :func:`step_all`, :func:`outputs_all`.
+MODE_GIVE, MODE_STEP, MODE_OUTPUTS = range(3)
+
+
+def batch_entry(F, I, mode, r, dl1, dt, index, done, out):
+    """The compiled batch's one entry point: ``mode`` (MODE_*) chooses the function,
+    which takes the arguments it names (``out`` is give_all's ``state``).
+
+    One entry rather than one per function, because numba links the whole FES
+    muscle into every compiled function that calls it and optimises it again
+    there: each entry point more cost seconds of a cold compile.
+    """
+    if mode == MODE_GIVE:
+        give_all(F, I, r, index, done, out)
+    elif mode == MODE_STEP:
+        step_all(F, I, r, dl1, dt, index, done, out)
+    else:
+        outputs_all(F, I, out)
+
+
 # -- compiling ------------------------------------------------------------------------------
 
-_KERNELS = ('read_state', 'give_all', 'step_all', 'outputs_all')
+_KERNELS = ('read_state', 'give_all', 'step_all', 'outputs_all', 'batch_entry')
 #: The modules whose code the kernels inline: their digest names the cache entries.
 _DIGEST_OF = (curves, stimulus, memory, units, unit_pool, fes_muscle, fes_kernels)
 #: The functions of :mod:`.fes_kernels` called here, bound to their compiled versions.
@@ -90,7 +112,9 @@ _compiled = None
 
 
 def compiled() -> types.SimpleNamespace:
-    """The numba-compiled entry points, calling :func:`.fes_kernels.compiled`'s muscle.
+    """The numba-compiled :func:`batch_entry`, calling :func:`.fes_kernels.compiled`'s
+    muscle, and ``give_all``, ``step_all`` and ``outputs_all`` with their own
+    arguments, each one call of it.
 
     :raises ImportError: if numba cannot be imported
     """
@@ -99,21 +123,35 @@ def compiled() -> types.SimpleNamespace:
         return _compiled
     from . import engine
     scope = fes_kernels.scope_calling(globals(), _CALLED)
-    body = {'error_model': 'numpy'}
-    options = {name: body for name in _KERNELS}
+    # Everything but the entry is compiled into it by numba's own inlining: no
+    # compiled function of its own holding the muscle's code again.
+    leaf = {'error_model': 'numpy', 'inline': 'always'}
+    options = {name: leaf for name in _KERNELS}
+    options['batch_entry'] = {'error_model': 'numpy'}
 
-    def signature(*args):
-        def make(numba):
-            f8, i8, b1 = numba.float64, numba.int64, numba.boolean
-            c1, i1, c2 = f8[::1], i8[::1], f8[:, ::1]
-            types_ = {'c1': c1, 'i1': i1, 'c2': c2, 'f8': f8, 'b1': b1[::1]}
-            return numba.void(*(types_[a] for a in args))
-        return make
+    def signature(numba):
+        f8, i8, b1 = numba.float64, numba.int64, numba.boolean
+        c1, i1 = f8[::1], i8[::1]
+        return numba.void(c1, i1, i8, c1, c1, f8, i1, b1[::1], f8[:, ::1])
 
-    _compiled = engine.compile_functions(
+    kernels = engine.compile_functions(
         scope, _KERNELS, digest_of=_DIGEST_OF + (sys.modules[__name__],),
-        signatures={'give_all': signature('c1', 'i1', 'c1', 'i1', 'b1', 'c2'),
-                    'step_all': signature('c1', 'i1', 'c1', 'c1', 'f8', 'i1', 'b1', 'c2'),
-                    'outputs_all': signature('c1', 'i1', 'c2')},
-        options=options)
+        signatures={'batch_entry': signature}, options=options)
+    entry = kernels.batch_entry
+    # outputs_all's stand-ins for the arguments it does not take.
+    no_r, no_index, no_done = np.zeros(0), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=bool)
+
+    # The functions with their own arguments, for MuscleBatch.
+    def give_all_(F, I, r, index, done, state):
+        entry(F, I, MODE_GIVE, r, r, 0.0, index, done, state)
+
+    def step_all_(F, I, r, dl1, dt, index, done, out):
+        entry(F, I, MODE_STEP, r, dl1, dt, index, done, out)
+
+    def outputs_all_(F, I, out):
+        entry(F, I, MODE_OUTPUTS, no_r, no_r, 0.0, no_index, no_done, out)
+
+    _compiled = types.SimpleNamespace(numba=kernels.numba, batch_entry=entry,
+                                      give_all=give_all_, step_all=step_all_,
+                                      outputs_all=outputs_all_)
     return _compiled

@@ -285,6 +285,36 @@ def limb_run(F, I, L, W, TT, TI, nm, u, tau, dt, dl_limit, rows):
     return u.shape[0]
 
 
+#: What :func:`limb_entry` does: :func:`limb_run`; :func:`limb_hold` (one step is
+#: CompiledLimb.advance); :func:`limb_give`, then :func:`limb_record`; :func:`limb_record`.
+MODE_RUN, MODE_HOLD, MODE_GIVE, MODE_RECORD = range(4)
+
+
+def limb_entry(F, I, L, W, TT, TI, nm, mode, u, tau, dt, dl_limit, n, target, acc, rows):
+    """The compiled limb's one entry point: ``mode`` (MODE_*) chooses the work.
+
+    One entry rather than one per kind of call, because numba links the whole
+    FES muscle into every compiled function that calls it and optimises it
+    again there: each entry point more cost seconds of a cold compile.
+
+    :param u: [-] (samples, nm) commands; MODE_HOLD and MODE_GIVE take row 0
+    :param tau: [N m] external torque per sample; MODE_HOLD takes entry 0
+    :param rows: outputs (limb_record's columns); all but MODE_RUN write row 0
+    :param n: MODE_HOLD's steps; ``target``, ``acc`` as :func:`limb_hold`'s
+    :return: as the function the mode runs; MODE_RECORD :data:`OK`
+    """
+    if mode == MODE_RUN:
+        return limb_run(F, I, L, W, TT, TI, nm, u, tau, dt, dl_limit, rows)
+    if mode == MODE_HOLD:
+        return limb_hold(F, I, L, W, TT, TI, nm, u[0], tau[0], dt, dl_limit, n, target, acc,
+                         rows[0])
+    status = OK
+    if mode == MODE_GIVE:
+        status = limb_give(F, I, nm, u[0])
+    limb_record(F, I, L, nm, rows[0])
+    return status
+
+
 # -- the limb's arrays ---------------------------------------------------------------------
 
 class LimbArrays:
@@ -358,7 +388,11 @@ RUN_MIN_MUSCLE_STEPS = 10_000
 #: The joint's equations (model/limb.py), compiled over this module's scope.
 _EQUATIONS = ('mtu_length_change', 'joint_acceleration')
 _KERNELS = ('muscle_slot', 'dl_mt', 'forces', 'limb_rk4', 'limb_integrate', 'limb_step',
-            'limb_give', 'limb_record', 'limb_hold', 'limb_run')
+            'limb_give', 'limb_record', 'limb_hold', 'limb_run', 'limb_entry')
+#: Compiled into :func:`limb_entry` by numba's own inlining (each has one call
+#: site there), so that they are no compiled functions of their own each
+#: holding the muscle's code again.
+_INTO_ENTRY = ('limb_give', 'limb_record', 'limb_hold', 'limb_run')
 #: The modules whose code the kernels inline: their digest names the cache entries.
 _DIGEST_OF = (curves, stimulus, memory, units, unit_pool, fes_muscle, fes_kernels, limb)
 _compiled = None
@@ -385,39 +419,18 @@ def compiled() -> types.SimpleNamespace:
     leaf = {'error_model': 'numpy', 'inline': 'always'}
     body = {'error_model': 'numpy'}
     options = {name: body for name in _KERNELS}
-    options.update({name: leaf for name in _EQUATIONS + ('muscle_slot', 'dl_mt')})
+    options.update({name: leaf for name in _EQUATIONS + ('muscle_slot', 'dl_mt') + _INTO_ENTRY})
 
-    def run_signature(numba):
+    # The one entry point, with its signature: compiled (or loaded) here, never
+    # at a first step.
+    def entry_signature(numba):
         f8, i8 = numba.float64, numba.int64
         c1, c2 = f8[::1], f8[:, ::1]
-        return i8(c1, i8[::1], c1, c2, c1, i8[:, ::1], i8, c2, c1, f8, f8, c2)
-
-    # CompiledLimb's entry points, with signatures too: compiled (or loaded) here,
-    # never at a first step.
-    def step_signature(numba):
-        f8, i8 = numba.float64, numba.int64
-        c1, c2 = f8[::1], f8[:, ::1]
-        return i8(c1, i8[::1], c1, c2, c1, i8[:, ::1], i8, c1, f8, f8, f8)
-
-    def give_signature(numba):
-        f8, i8 = numba.float64, numba.int64
-        return i8(f8[::1], i8[::1], i8, f8[::1])
-
-    def record_signature(numba):
-        f8, i8 = numba.float64, numba.int64
-        return numba.void(f8[::1], i8[::1], f8[::1], i8, f8[::1])
-
-    def hold_signature(numba):
-        f8, i8 = numba.float64, numba.int64
-        c1, c2 = f8[::1], f8[:, ::1]
-        return i8(c1, i8[::1], c1, c2, c1, i8[:, ::1], i8, c1, f8, f8, f8, i8, f8, c1, c1)
+        return i8(c1, i8[::1], c1, c2, c1, i8[:, ::1], i8, i8, c2, c1, f8, f8, i8, f8, c1, c2)
 
     _compiled = engine.compile_functions(
         scope, _EQUATIONS + _KERNELS, digest_of=_DIGEST_OF + (sys.modules[__name__],),
-        signatures={'limb_run': run_signature, 'limb_step': step_signature,
-                    'limb_give': give_signature, 'limb_record': record_signature,
-                    'limb_hold': hold_signature},
-        options=options)
+        signatures={'limb_entry': entry_signature}, options=options)
     return _compiled
 
 
@@ -430,9 +443,9 @@ def _run(arrays: LimbArrays, u: np.ndarray, tau: np.ndarray, dt_s: float, kernel
     tau = np.ascontiguousarray(tau, dtype=float)
     rows = np.zeros((len(tau), 3 + 5 * nm))
     b = arrays.bundle
-    run = (kernels or sys.modules[__name__]).limb_run
-    done = run(b.F, b.I, arrays.L, arrays.W, arrays.TT, arrays.TI, nm, u, tau, float(dt_s),
-               DL_MT_LIMIT_M, rows)
+    entry = (kernels or sys.modules[__name__]).limb_entry
+    done = entry(b.F, b.I, arrays.L, arrays.W, arrays.TT, arrays.TI, nm, MODE_RUN, u, tau,
+                 float(dt_s), DL_MT_LIMIT_M, 0, 0.0, np.zeros(1), rows)
     if done >= 0:
         return rows, None
     k, status = divmod(-done, STATUS_BASE)
@@ -567,6 +580,10 @@ class CompiledLimb:
         self.row = np.zeros(3 + 5 * nm) if row is None else row
         self._us = np.zeros(nm)
         self._acc = np.zeros(1)
+        # limb_entry's 2-D views of the row and the commands, and its torque array.
+        self._rows = self.row[np.newaxis, :]
+        self._u = self._us[np.newaxis, :]
+        self._tau = np.zeros(1)
         self._s_r = [m.sign * m.moment_arm_m for m in plant.muscles]
         self.reset()
 
@@ -574,7 +591,7 @@ class CompiledLimb:
         """theta = theta_0, omega = 0, each CE at l_rest + dl_MT(theta_0), nothing recruited."""
         a = self.arrays
         a.reset()
-        self._kernels.limb_record(a.bundle.F, a.bundle.I, a.L, a.nm, self.row)
+        self._entry(MODE_RECORD, 0.0, 0, 0.0)
 
     @property
     def t_s(self) -> float:
@@ -596,6 +613,14 @@ class CompiledLimb:
         """[N m] the external torque of the last step (tau_ext)."""
         return float(self.arrays.L[L_TAU])
 
+    def _entry(self, mode: int, dt_s: float, n_steps: int, target_rad: float) -> int:
+        """limb_entry on this limb's arrays, commands :attr:`_us`, torque :attr:`_tau`."""
+        a = self.arrays
+        b = a.bundle
+        return self._kernels.limb_entry(b.F, b.I, a.L, a.W, a.TT, a.TI, a.nm, mode, self._u,
+                                        self._tau, dt_s, DL_MT_LIMIT_M, n_steps, target_rad,
+                                        self._acc, self._rows)
+
     def _failed(self, status: int) -> None:
         if status == DELAY_FULL:   # delay_capacity bounds the commands pending
             raise RuntimeError('a muscle\'s delay line overflowed')
@@ -604,10 +629,8 @@ class CompiledLimb:
     def give_commands(self, us: Sequence[float]) -> None:
         """Give each muscle its checked command now where it differs from its last
         one (a sample of simulate_limb; LimbBatch.give_commands)."""
-        a = self.arrays
         self._us[:] = us
-        status = self._kernels.limb_give(a.bundle.F, a.bundle.I, a.nm, self._us)
-        self._kernels.limb_record(a.bundle.F, a.bundle.I, a.L, a.nm, self.row)
+        status = self._entry(MODE_GIVE, 0.0, 0, 0.0)
         if status != OK:
             self._failed(status)
 
@@ -621,10 +644,8 @@ class CompiledLimb:
             a.ensure_delay(dt_s)
             self._dt = dt_s
         self._us[:] = us
-        b = a.bundle
-        status = self._kernels.limb_step(b.F, b.I, a.L, a.W, a.TT, a.TI, a.nm, self._us,
-                                         tau, dt_s, DL_MT_LIMIT_M)
-        self._kernels.limb_record(b.F, b.I, a.L, a.nm, self.row)
+        self._tau[0] = tau
+        status = self._entry(MODE_HOLD, dt_s, 1, 0.0)   # one step: limb_step, limb_record
         if status != OK:
             self._failed(status)
 
@@ -643,10 +664,8 @@ class CompiledLimb:
             a.ensure_delay(dt_s)
             self._dt = dt_s
         self._us[:] = us
-        b = a.bundle
-        status = self._kernels.limb_hold(b.F, b.I, a.L, a.W, a.TT, a.TI, a.nm, self._us, tau,
-                                         dt_s, DL_MT_LIMIT_M, n_steps, target_rad, self._acc,
-                                         self.row)
+        self._tau[0] = tau
+        status = self._entry(MODE_HOLD, dt_s, n_steps, target_rad)
         if status != OK:
             self._failed(status)
         return float(self._acc[0])
