@@ -475,6 +475,14 @@ _KERNELS = ('eff_f_iso', 'ce_velocity', 'step_one', 'step_muscle', 'step_all',
 _compiled = None
 
 
+#: Helpers called from many places (eff_f_iso 12 times, ce_velocity 9, counting
+#: step_one's calls in each of its callers) compiled once each, not inlined by
+#: numba (engine.HELPER_OPTIONS): numba's inlining types and lowers the body
+#: again at every call, which made these kernels' cold compile about 2.5 times
+#: as long (CPU seconds, benchmarks/compile_cost.py). LLVM still inlines them.
+_CALLED_OFTEN = {'eff_f_iso': {'error_model': 'numpy'}, 'ce_velocity': {'error_model': 'numpy'}}
+
+
 def _step_all_signature(numba):
     f8, c1, c2 = numba.float64, numba.float64[::1], numba.float64[:, ::1]
     return numba.void(c1, c1, c1, f8, c1, c1, numba.boolean, numba.boolean[::1],
@@ -522,7 +530,7 @@ def compiled() -> types.SimpleNamespace:
                         'recruit_all': _recruit_all_signature},
             options={'step_all': {'error_model': 'numpy', 'parallel': PRANGE_ONLY},
                      'scan_inputs': {},
-                     'recruit_all': {'error_model': 'numpy'}},
+                     'recruit_all': {'error_model': 'numpy'}, **_CALLED_OFTEN},
             bind={'prange': lambda numba: numba.prange})
     return _compiled
 
@@ -569,7 +577,7 @@ def compiled_run() -> types.SimpleNamespace:
         _compiled_run = engine.compile_functions(
             globals(), _RUN_KERNELS, foreign=_CURVES, digest_of=(curves, memory),
             signatures={'run_muscle': _run_muscle_signature},
-            options={'run_muscle': {'error_model': 'numpy'}})
+            options={'run_muscle': {'error_model': 'numpy'}, **_CALLED_OFTEN})
     return _compiled_run
 
 
