@@ -27,6 +27,10 @@ import subprocess
 import sys
 import tempfile
 import time
+from pathlib import Path
+
+#: The repository whose kernels are measured (the child imports from there).
+REPO = Path(__file__).resolve().parent.parent
 
 #: Kernel set -> the call that builds it, in the order of a test run (the FES
 #: muscle first: conftest loads it and the limb before any test).
@@ -62,7 +66,7 @@ def measure(names: list[str]) -> dict[str, tuple[float, float]]:
         env = dict(os.environ, NUMBA_CACHE_DIR=cache, HILL_MUSCLE_ENGINE='compiled')
         out = subprocess.run([sys.executable, '-c', _CHILD,
                               json.dumps([(n, SETS[n]) for n in names])],
-                             env=env, check=True, capture_output=True, text=True).stdout
+                             env=env, cwd=REPO, check=True, capture_output=True, text=True).stdout
     return {k: tuple(v) for k, v in json.loads(out.splitlines()[-1]).items()}
 
 
