@@ -15,6 +15,7 @@ Usage::
 ``--only sweep`` runs only section 9, ``hill-muscle sweep``'s throughput (``bench_sweep.py``).
 ``--only single`` runs only one muscle's compiled offline run (``bench_compiled.py``).
 ``--only limb`` runs only the compiled limb and FES muscle (``bench_limb_compiled.py``).
+``--only compile`` runs only the cold compile of every kernel set (``compile_cost.py``).
 ``--only fes`` runs only section 7, the FES features (``bench_fes.py``, a few
 minutes), and prints its Markdown instead of writing BENCHMARKS.md (or writes
 it to ``--out`` if given)::
@@ -46,6 +47,7 @@ import bench_fes  # noqa: E402
 import bench_fit  # noqa: E402
 import bench_gym  # noqa: E402
 import bench_limb_compiled  # noqa: E402
+import compile_cost  # noqa: E402
 import bench_node  # noqa: E402
 import bench_sweep  # noqa: E402
 # bench_rtf.py (item 6, live); run_all.bench_rtf is the offline item 2.
@@ -59,6 +61,9 @@ from hill_muscle_ros.model.simulate import sample_times  # noqa: E402
 from hill_muscle_ros.resources import protocol_path  # noqa: E402
 
 MIN_RUNS = 5
+#: Cold compiles in the full report: each takes most of a minute, and they vary
+#: less than the runs of the other sections.
+COMPILE_RUNS = 3
 DT_S = 1e-3
 RATE_HZ = 1000.0
 UNIT_COUNTS = (1, 1_000, 1_000_000)
@@ -532,6 +537,9 @@ def write_report(path: Path, runs: int, started: dict, results: dict) -> None:
     bench_fit.write_section(add, results['fit'])
     bench_gym.write_section(add, results['gym'])
     bench_sweep.write_section(add, results['sweep'])
+    bench_limb_compiled.write_section(add, results['limb'])
+    add('')
+    compile_cost.write_section(add, results['compile'])
     add('## Profiles')
     add('')
     add('`benchmarks/profile_simulate.py` writes cProfile and pyinstrument output of '
@@ -546,15 +554,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--out', type=Path, default=None,
                         help='Markdown file to write (default: BENCHMARKS.md; with --only, '
                              'print the section instead)')
-    parser.add_argument('--only', choices=('batch', 'fes', 'fit', 'gym', 'limb', 'single',
-                                           'sweep'),
+    parser.add_argument('--only', choices=('batch', 'compile', 'fes', 'fit', 'gym', 'limb',
+                                           'single', 'sweep'),
                         default=None,
                         help='run one section only: batch = section 3, the batch '
                              'engines; fes = section 7, the FES features; '
                              'fit = section 8, hill-muscle fit; gym = the Gymnasium '
                              'vector environments; limb = the limb and the FES muscle '
                              'compiled; single = one muscle\'s offline run '
-                             'compiled; sweep = section 9, hill-muscle sweep')
+                             'compiled; sweep = section 9, hill-muscle sweep; '
+                             'compile = the kernels\' cold compile')
     parser.add_argument('--runs', type=int, default=7,
                         help=f'runs per measurement, at least {MIN_RUNS} (default: 7)')
     parser.add_argument('--node-seconds', type=float, default=30.0,
@@ -568,7 +577,8 @@ def main(argv: list[str] | None = None) -> int:
     os.chdir(REPO)
     if args.only is not None:
         lines = []
-        section = {'batch': bench_batch_module, 'fes': bench_fes, 'fit': bench_fit,
+        section = {'batch': bench_batch_module, 'compile': compile_cost, 'fes': bench_fes,
+                   'fit': bench_fit,
                    'gym': bench_gym, 'limb': bench_limb_compiled, 'single': bench_compiled,
                    'sweep': bench_sweep}[args.only]
         measured = section.run(args.runs)
@@ -612,6 +622,10 @@ def main(argv: list[str] | None = None) -> int:
     results['gym'] = bench_gym.run(args.runs)
     print('hill-muscle sweep', flush=True)
     results['sweep'] = bench_sweep.run(args.runs)
+    print('the limb and the FES muscle, compiled', flush=True)
+    results['limb'] = bench_limb_compiled.run(args.runs)
+    print('the kernels\' cold compile', flush=True)
+    results['compile'] = compile_cost.run(min(args.runs, COMPILE_RUNS))
     print('ROS nodes', flush=True)
     results['node_seconds'] = args.node_seconds
     results['nodes'] = bench_nodes(args.node_seconds)

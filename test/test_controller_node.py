@@ -42,6 +42,16 @@ def ctrl(tmp_path):
         force_pub = probe.publisher(f'{ns}/force', Float64)
         probe.spin_until(lambda: force_pub.get_subscription_count() > 0,
                          'controller subscribed to force', procs=[proc])
+        # The one force sample below allows feedback_timeout_s of stimulation,
+        # on two conditions. The controller has the target already: a force
+        # heard first is used up while it waits for the target, and then it
+        # holds zero until a newer sample (a fresh-clone run: "stimulating"
+        # logged, only zeros sent). And its pulse_width writer has matched the
+        # probe, as its zeros arriving show.
+        probe.spin_until(lambda: probe.publisher(f'{ns}/force_target', Float64)
+                         .wait_for_all_acked(Duration(seconds=0)),
+                         'the controller to acknowledge the target', procs=[proc])
+        probe.wait_for_messages(pw, procs=[proc])
         force_pub.publish(Float64(data=0.0))
         probe.wait_for_value(pw, lambda v: v > 0.0, 'stimulation', procs=[proc])
         yield {'ns': ns, 'proc': proc, 'probe': probe, 'pw': pw, 'force_pub': force_pub}
