@@ -505,6 +505,9 @@ def _recruit_all_signature(numba):
 #: loops. Compiling it cold took 13.0 s against 15.5 s with ``parallel=True``
 #: (6.4 s serial), and it runs as fast: a step of 10,000 multi/initial muscles
 #: (MuscleBatch.step, 200 steps, 5 repeats) took 99-105 us against 99-113 us.
+#: (Those were measured with the helpers inlined by numba; with
+#: :data:`_CALLED_OFTEN` the whole batch set compiles in about 4 s,
+#: BENCHMARKS.md "Compiling the kernels".)
 PRANGE_ONLY = {'prange': True, 'fusion': False, 'comprehension': False, 'setitem': False,
                'reduction': False, 'numpy': False, 'stencil': False, 'inplace_binop': False}
 
