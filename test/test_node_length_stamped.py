@@ -44,11 +44,14 @@ PE_FORCE_N = DEFAULTS.k_pe_n_per_m * STRETCH_M
 FORCE_TOL_N = 1e-6
 #: [s] of wall time a value that must not change is watched
 WATCH_S = 0.5
-#: The simulator's wrench history (its ``qos_overrides`` depth): every wrench
-#: of a test kept until the probe has it. The probe is a Python node that can
-#: fall behind 10 kHz of wrenches on a busy machine, and the default keep-last
-#: 1000 then drops the oldest: a fresh-clone run lost about 1000 at 10x.
-WRENCH_HISTORY = 20_000
+#: Steps per published wrench: one a millisecond of wall time at either real
+#: time factor, which the probe (a Python node) keeps up with. Every step at
+#: 10x (10 kHz) lost about 1000 wrenches to the simulator's keep-last 1000
+#: while a compiler ran on the other core; and a history deep enough to keep
+#: them all (20000) slowed the simulator itself to 4,100 steps/s on a fresh
+#: clone, as the probe's unacknowledged samples piled up.
+def _publish_every(rtf: float) -> int:
+    return max(1, round(rtf))
 _STATS_LATE_RE = re.compile(r'(\d+) late length_command_stamped knots')
 
 
@@ -70,12 +73,11 @@ class _Sim:
     def __init__(self, procs, probe, ns, rtf=1.0):
         self.ns, self.probe = ns, probe
         self.wrench = probe.record(f'{ns}/wrench', WrenchStamped, qos=DEEP_QOS)
-        # Every step published, at RTF 10 too (the default there is every
-        # 10th): the exact test below finds the step the recruitment acted at.
+        # A wrench every millisecond of wall time (_publish_every): the exact
+        # test below finds the step the recruitment acted at between two.
         self.proc = procs.start(ns.strip('/'), node_command('simulator', ns=ns, params={
             'rate_hz': RATE_HZ, 'real_time_factor': rtf, 'input_timeout_s': 0.0,
-            'publish_every_n_steps': 1,
-            f'qos_overrides.{ns}/wrench.publisher.depth': WRENCH_HISTORY}))
+            'publish_every_n_steps': _publish_every(rtf)}))
         self.knots = probe.node.create_publisher(PointStamped, f'{ns}/length_command_stamped',
                                                  DEEP_QOS)
 
@@ -128,26 +130,31 @@ def test_stamped_ramp_sent_ahead_gives_the_offline_force_exactly(tmp_path, rtf):
 
     stamps = np.array([_stamp_ns(m.header.stamp) for m in sim.wrench.messages])
     force = np.array([m.wrench.force.x for m in sim.wrench.messages])
-    gaps = np.flatnonzero(np.diff(stamps) != STEP_NS)
+    every_ns = _publish_every(rtf) * STEP_NS
+    gaps = np.flatnonzero(np.diff(stamps) != every_ns)
     assert not gaps.size, (f'{gaps.size} gaps in the wrench stamps (wrenches lost), the first '
                            f'after stamp index {gaps[:1]}')
     first = int(np.argmax(force > 0.0))
-    rest_ns = int(stamps[first - 1])   # the last step before the recruitment acted
-    # The offline core from rest: R from the next step on, dl_MT the knots
-    # (0 before the ramp, held after it) at each step's end time.
+    # The recruitment acted at one of the steps between the last wrench without
+    # force and the first with it (published every n-th step): each candidate
+    # is the offline core from rest, R from the step after it on, dl_MT the
+    # knots (0 before the ramp, held after it) at each step's end time. Only
+    # the step it acted at gives every force to rounding.
     knot_ns = np.array(sorted(ramp), dtype=np.int64)
     knot_m = np.array([ramp[s] for s in knot_ns])
-    steps = (stamps[first:] - rest_ns) // STEP_NS
-    assert np.all((stamps[first:] - rest_ns) % STEP_NS == 0)
-    muscle, offline = Muscle(DEFAULTS), [0.0]
-    for k in range(1, int(steps[-1]) + 1):
-        dl = float(np.interp(rest_ns + k * STEP_NS, knot_ns, knot_m, left=0.0))
-        offline.append(muscle.step(RECRUITMENT, dl, 1.0 / RATE_HZ).force_n)
-    expected = np.array(offline)[steps]
+    errors = {}
+    for rest_ns in range(int(stamps[first - 1]), int(stamps[first]), STEP_NS):
+        steps = (stamps[first:] - rest_ns) // STEP_NS
+        muscle, offline = Muscle(DEFAULTS), [0.0]
+        for k in range(1, int(steps[-1]) + 1):
+            dl = float(np.interp(rest_ns + k * STEP_NS, knot_ns, knot_m, left=0.0))
+            offline.append(muscle.step(RECRUITMENT, dl, 1.0 / RATE_HZ).force_n)
+        errors[rest_ns] = np.abs(force[first:] - np.array(offline)[steps]).max()
     on_ramp = (stamps[first:] >= start_ns)
     assert on_ramp.sum() > 10, 'no wrench during or after the ramp'
-    err = np.abs(force[first:] - expected)
-    assert err.max() <= EXACT_TOL_N, f'largest error {err.max():.3g} N at stamp index {err.argmax()}'
+    best = min(errors, key=errors.get)
+    assert errors[best] <= EXACT_TOL_N, (
+        f'no onset step reproduces the forces: largest errors {sorted(errors.values())[:3]} N')
 
 
 @pytest.fixture(scope='module')
