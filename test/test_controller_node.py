@@ -31,6 +31,13 @@ def unique_namespace() -> str:
     return f'/ctrl_{os.getpid()}_{next(_RUNS)}'
 
 
+def _wait_target_acknowledged(probe, ns, proc) -> None:
+    """Spin until the controller has acknowledged every target the probe sent."""
+    target_pub = probe.publisher(f'{ns}/force_target', Float64)
+    probe.spin_until(lambda: target_pub.wait_for_all_acked(Duration(seconds=0)),
+                     'the controller to acknowledge the target', procs=[proc])
+
+
 @pytest.fixture
 def ctrl(tmp_path):
     """A controller in its own namespace, stimulating against a fake force of 0 N."""
@@ -48,9 +55,7 @@ def ctrl(tmp_path):
         # holds zero until a newer sample (a fresh-clone run: "stimulating"
         # logged, only zeros sent). And its pulse_width writer has matched the
         # probe, as its zeros arriving show.
-        probe.spin_until(lambda: probe.publisher(f'{ns}/force_target', Float64)
-                         .wait_for_all_acked(Duration(seconds=0)),
-                         'the controller to acknowledge the target', procs=[proc])
+        _wait_target_acknowledged(probe, ns, proc)
         probe.wait_for_messages(pw, procs=[proc])
         force_pub.publish(Float64(data=0.0))
         probe.wait_for_value(pw, lambda v: v > 0.0, 'stimulation', procs=[proc])
@@ -122,9 +127,7 @@ def test_target_without_force_feedback_never_stimulates(tmp_path):
         proc = procs.start('controller', node_command('force_controller', ns=ns))
         pw = probe.record(f'{ns}/pulse_width', Float64)
         probe.publish_when_matched(f'{ns}/force_target', Float64(data=TARGET_N), procs=[proc])
-        probe.spin_until(lambda: probe.publisher(f'{ns}/force_target', Float64)
-                         .wait_for_all_acked(Duration(seconds=0)),
-                         'the controller to acknowledge the target', procs=[proc])
+        _wait_target_acknowledged(probe, ns, proc)
         mark = pw.mark()
         probe.wait_for_messages(pw, PERIODS_BEFORE_TARGET, mark=mark, procs=[proc])
         assert set(pw.data_since(0)) == {0.0}
