@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 import math
 import os
 import re
@@ -18,6 +19,7 @@ import signal
 import subprocess
 import sys
 import time
+import types
 from pathlib import Path
 
 import numpy as np
@@ -29,7 +31,9 @@ from hill_muscle_ros.model import MuscleParams, Protocol, simulate
 from hill_muscle_ros.model.limb import LimbProtocol, simulate_limb
 from hill_muscle_ros.params_file import load_plant
 from hill_muscle_ros.resources import config_dir, protocol_path
-from hill_muscle_ros.sweep import (SweepError, load_spec, parse_spec, run_on_client, run_sweep,
+from hill_muscle_ros.sweep import (HEARTBEAT_FAILED, QUIET_HEARTBEAT_PLUGIN,
+                                   HeartbeatOnCloseFilter, SweepError, load_spec, parse_spec,
+                                   quiet_heartbeat_on_close, run_on_client, run_sweep,
                                    simulate_forces)
 
 pq = pytest.importorskip('pyarrow.parquet')
@@ -371,6 +375,42 @@ def test_ctrl_c_stops_the_sweep_and_keeps_the_finished_sets(tmp_path):
         for t in (1.0, 6.0):
             assert math.isclose(got[(i, t)], want[round(t * 1000)], rel_tol=0,
                                 abs_tol=ATOL_N)
+
+
+
+def worker_log(message: str) -> logging.LogRecord:
+    return logging.LogRecord('distributed.worker', logging.ERROR, __file__, 0, message,
+                             None, None)
+
+
+@pytest.mark.parametrize('status, kept', [('running', True), ('closing', False),
+                                          ('closing_gracefully', False), ('closed', False)])
+def test_a_heartbeat_cut_by_the_workers_own_close_is_dropped_and_no_other_record(status, kept):
+    from distributed.core import Status
+    keep = HeartbeatOnCloseFilter(types.SimpleNamespace(status=Status[status])).filter
+    assert keep(worker_log(HEARTBEAT_FAILED + '.')) is kept
+    assert keep(worker_log('Worker stream died during communication')) is True
+
+
+def test_the_dropped_heartbeat_message_is_the_one_the_pinned_distributed_logs():
+    import inspect
+
+    from distributed.worker import Worker
+    assert f'"{HEARTBEAT_FAILED}.' in inspect.getsource(Worker.heartbeat)
+
+
+def test_the_sweep_plugin_puts_the_filter_in_every_worker_process():
+    from distributed import Client, LocalCluster
+
+    def filters():
+        return [type(f).__name__ for f in logging.getLogger('distributed.worker').filters]
+
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                      dashboard_address=None) as cluster, Client(cluster) as client:
+        client.register_plugin(quiet_heartbeat_on_close(), name=QUIET_HEARTBEAT_PLUGIN)
+        found = client.run(filters)
+    assert len(found) == 2
+    assert all(names.count('HeartbeatOnCloseFilter') == 1 for names in found.values()), found
 
 
 # --------------------------------------------------------------------------- README
