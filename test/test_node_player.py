@@ -32,12 +32,14 @@ SAMPLE_WINDOW_S = 0.1
 E2E_TOL_N = 0.5
 #: Reliable with room for 5 s of 1 kHz messages, so a busy probe loses none.
 DEEP_QOS = QoSProfile(depth=5000)
-#: [s] how much shorter than the protocol its sim-time span may look: the
-#: first stimulation reaches the simulator late when the simulator's reader
-#: matched the player's writer after the player started (it comes with the
-#: writer's next heartbeat, every 0.1 s of wall time: 0.3 s of sim time at 3x).
-#: Seen: 0.245 s, with a compiler busy on the other core. Still far from the
-#: wall-clock span (3 s), which the upper bound keeps apart.
+#: [s] how much shorter than the protocol its sim-time span may look (the
+#: span, from the first force to the end of the relaxation after the final
+#: zero, is about 1.445 s for this 1 s protocol: six runs). The player's clock
+#: lags the simulator's by its /clock latency x RTF. Before the player started
+#: the protocol's time at the acknowledgement of its first sample, that sample
+#: could arrive one writer heartbeat (0.1 s wall, 0.3 s sim) late, which
+#: this margin was sized for. Still far from the wall-clock span (3 s), which
+#: the upper bound keeps apart.
 SIM_SPAN_TOL_S = 0.4
 #: [-] real-time factor of the sim-time test
 RTF = 3.0
@@ -99,6 +101,76 @@ def test_player_replays_protocol_then_sends_zero(tmp_path, output, pw_max_s, sca
     allowed = {0.0, *(r * scale for r in protocol.stimulation.values)}
     assert all(any(math.isclose(v, a) for a in allowed) for v in values)
     assert length.messages[-1].data == pytest.approx(protocol.dl_mt(protocol.duration_s))
+
+
+#: Polls of the player (every 50 ms) that must see the first sample
+#: unacknowledged, and so not start the protocol.
+UNACKED_POLLS = 5
+
+
+@pytest.fixture
+def player_in_process(tmp_path):
+    """A ProtocolPlayer in this process (rclpy's default context), spun in a
+    thread, whose outputs report acknowledgement only when the test says so:
+    ``(player, acked, polls)``, ``acked`` an Event, ``polls`` a list holding
+    the count of acknowledgement checks."""
+    import threading
+
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+
+    from hill_muscle_ros.nodes.protocol_player import ProtocolPlayer
+
+    path = _protocol_file(tmp_path, SHORT)
+    rclpy.init(args=['--ros-args', '-r', '__ns:=/handshake', '-p', f'protocol:={path}',
+                     '-p', 'output:=recruitment', '-p', 'rate_hz:=100.0'])
+    player = ProtocolPlayer()
+    acked, polls = threading.Event(), [0]
+
+    def wait_for_all_acked(timeout):
+        polls[0] += 1
+        return acked.is_set()
+
+    for pub in (player._pub_stim, player._pub_dl):
+        pub.wait_for_all_acked = wait_for_all_acked
+    executor = SingleThreadedExecutor()
+    executor.add_node(player)
+    spinner = threading.Thread(target=executor.spin, daemon=True)
+    spinner.start()
+    try:
+        yield player, acked, polls
+    finally:
+        executor.shutdown()
+        player.destroy_node()
+        rclpy.try_shutdown()
+        spinner.join(timeout=5.0)
+
+
+def test_the_protocol_starts_only_once_every_subscriber_has_its_first_sample(
+        player_in_process):
+    # A subscriber matched on the player's side may not yet have matched back:
+    # the first sample then reaches it only with the next heartbeat, and the
+    # protocol's time must not run meanwhile.
+    player, acked, polls = player_in_process
+    protocol = Protocol.from_mapping(SHORT)
+    with Probe() as probe:
+        stim = probe.record('/handshake/recruitment', Float64)
+        probe.record('/handshake/length_command', Float64)
+        probe.wait_for_messages(stim)
+        assert stim.messages[0].data == pytest.approx(protocol.recruitment(0.0, 1.0))
+        seen = polls[0]
+        probe.spin_until(lambda: polls[0] >= seen + UNACKED_POLLS or player._t0 is not None,
+                         f'{UNACKED_POLLS} more polls of the player, or its start')
+        assert player._t0 is None, 'the protocol started without an acknowledgement'
+        assert len(stim.messages) == 1
+        acked_at_s = time.monotonic()
+        acked.set()
+        probe.spin_until(player.done.done, 'the player to finish')
+        probe.spin_for(0.2)  # messages already acknowledged may still be in our queue
+    assert player.done.result() == 0
+    assert len(stim.messages) > 2
+    assert stim.times_s[1] >= acked_at_s
+    assert stim.messages[-1].data == 0.0
 
 
 def test_protocol_ii_through_dds_matches_offline_simulation(tmp_path):

@@ -4,6 +4,9 @@ It waits until each of its outputs has ``min_subscribers`` subscribers (up to
 ``wait_for_subscribers_s``), then publishes ``length_command`` [m] and
 ``pulse_width`` [s] or ``recruitment`` [-] (std_msgs/Float64) at ``rate_hz``
 against its own clock, which follows ``/clock`` when ``use_sim_time`` is set.
+The protocol's time starts when every subscriber has acknowledged its first
+sample, not at the match, which can come before the subscriber has matched
+back (the first sample would then arrive a heartbeat late).
 At the end it publishes zero stimulation and exits with status 0.
 
 With ``lookahead_s`` > 0 the length goes ahead of time instead: the player
@@ -148,6 +151,7 @@ class ProtocolPlayer(Node):
         self._failure = ''       # why the player gave up, if it did
         self._period_s = 1.0 / rate_hz
         self._t0 = None
+        self._first_sample_sent = False   # plain mode: the handshake of _first_sample_acked
         # [s] protocol time of the newest knot sent (stamped mode)
         self._knots_sent_to_s = -math.inf
         self._corners_s = self._protocol.dl_mt_m.breakpoints_s
@@ -171,16 +175,27 @@ class ProtocolPlayer(Node):
         # With use_sim_time the clock reads 0 until the first /clock message.
         clock_running = self.get_clock().now().nanoseconds > 0
         if matched and clock_running:
-            self._poll.cancel()
-            self._start()
-            return
+            if not self._stamped and not self._first_sample_sent:
+                # The protocol's first sample doubles as a handshake: its time
+                # starts once every subscriber has it (see _first_sample_acked).
+                self._publish(0.0)
+                self._first_sample_sent = True
+            if self._stamped or self._first_sample_acked():
+                self._poll.cancel()
+                self._start()
+                return
         if self._steady.now().nanoseconds > self._wait_deadline_ns:
             self._poll.cancel()
             short = [f'{topic} has {n}' for topic, n in counts.items()
                      if n < self._min_subscribers]
-            what = (f'too few subscribers ({", ".join(short)} of min_subscribers '
-                    f'{self._min_subscribers})' if short
-                    else 'no /clock message (use_sim_time is set)')
+            if short:
+                what = (f'too few subscribers ({", ".join(short)} of min_subscribers '
+                        f'{self._min_subscribers})')
+            elif not clock_running:
+                what = 'no /clock message (use_sim_time is set)'
+            else:
+                what = ('the protocol\'s first sample not acknowledged by every subscriber '
+                        f'({", ".join(p.topic_name for p in self._unacked())})')
             self.get_logger().error(f'{what} after {self._wait_s:g} s '
                                     '(wait_for_subscribers_s): is the simulator (and any '
                                     'recorder) running, in the same namespace and '
@@ -188,6 +203,25 @@ class ProtocolPlayer(Node):
             self._failure = f'{what} after {self._wait_s:g} s (wait_for_subscribers_s)'
             self._diagnostics.publish_final()   # the last status: the node exits now
             self.done.set_result(EXIT_FAILURE)
+
+    def _unacked(self) -> list:
+        """The outputs whose sent messages some matched subscriber has not yet
+        acknowledged (a best-effort subscriber never holds one back)."""
+        return [pub for pub in (self._pub_stim, self._pub_dl)
+                if not pub.wait_for_all_acked(Duration())]
+
+    def _first_sample_acked(self) -> bool:
+        """Whether every subscriber has the protocol's first sample.
+
+        A subscriber counts as matched as soon as this side has discovered it,
+        which can be before it has discovered this side; a message sent then
+        reaches it only with the next heartbeat, 0.1 s later with the nodes'
+        transport (3 s with Fast DDS's defaults). Starting the protocol's time
+        at the acknowledgement, rather than at the match, keeps that delay out
+        of the protocol: the subscribers hold the first sample from when it
+        arrived, at most one round trip before time zero.
+        """
+        return not self._unacked()
 
     def _diagnose(self, report: DiagnosticReport) -> None:
         """/diagnostics: waiting for subscribers, playing (protocol time and
@@ -214,6 +248,9 @@ class ProtocolPlayer(Node):
         elif self._finished:
             report.add('state', 'done')
             report.ok(f'{p.name} done: zero stimulation sent')
+        elif self._t0 is None and self._first_sample_sent:
+            report.add('state', 'waiting for acknowledgement')
+            report.ok('waiting for every subscriber to acknowledge the first sample')
         elif self._t0 is None:
             report.add('state', 'waiting for subscribers')
             report.ok(f'waiting for {self._min_subscribers} subscriber(s) on each output '
@@ -230,8 +267,7 @@ class ProtocolPlayer(Node):
         # The node's own clock, so that with use_sim_time it follows /clock.
         self._timer = self.create_timer(self._period_s, self._on_tick)
         if not self._stamped:
-            self._t0 = now
-            self._publish(0.0)
+            self._t0 = now   # the first sample went out in _on_poll
             return
         # Time 0 is one look-ahead from now, so that the first window's knots
         # are all sent before their time.
