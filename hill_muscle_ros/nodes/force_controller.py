@@ -253,8 +253,10 @@ class ForceControllerNode(Node):
         elif state == ControllerInputs.READY and self.input_state in self._BACK:
             log.info(f'{self._BACK[self.input_state]} is back: stimulating again')
         elif state == ControllerInputs.READY:
+            # Not "stimulating": a force sample used up while waiting for the
+            # target is not used again, so the output stays 0 until the next.
             log.info(f'target {self.inputs.target_n:g} N and force feedback received: '
-                     'stimulating')
+                     'controlling (each new force sample updates the pulse width)')
         else:
             log.info(f'not stimulating: {state}')
 
