@@ -177,8 +177,8 @@ def pool(tmp_path_factory):
             c.stop_feed()
 
 
-#: Log lines of the shared controller's transitions into and out of stimulation.
-STARTS = 'joint state received: stimulating'
+#: Log lines of the shared controller's transitions into and out of control.
+STARTS = 'joint state received: controlling'
 STOPS = 'stimulation stopped until it returns'
 
 

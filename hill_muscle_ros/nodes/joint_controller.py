@@ -226,8 +226,10 @@ class JointControllerNode(Node):
                         f'{p.target_timeout_s:g} s (target_timeout_s): stimulation stopped '
                         'until the next target')
         elif state == JointInputs.READY:
+            # Not "stimulating": a joint state used up while waiting for the
+            # target is not used again, so the outputs stay 0 until the next.
             log.info(f'target {self.inputs.target_rad:.4g} rad and joint state received: '
-                     'stimulating')
+                     'controlling (each new joint state updates the pulse widths)')
         else:
             log.info(f'not stimulating: {state}')
 
