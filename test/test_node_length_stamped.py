@@ -44,14 +44,18 @@ PE_FORCE_N = DEFAULTS.k_pe_n_per_m * STRETCH_M
 FORCE_TOL_N = 1e-6
 #: [s] of wall time a value that must not change is watched
 WATCH_S = 0.5
-#: Steps per published wrench: one a millisecond of wall time at either real
-#: time factor, which the probe (a Python node) keeps up with. Every step at
-#: 10x (10 kHz) lost about 1000 wrenches to the simulator's keep-last 1000
-#: while a compiler ran on the other core; and a history deep enough to keep
-#: them all (20000) slowed the simulator itself to 4,100 steps/s on a fresh
-#: clone, as the probe's unacknowledged samples piled up.
+
+
 def _publish_every(rtf: float) -> int:
+    """Steps per published wrench: one a millisecond of wall time at either
+    real-time factor, which the probe (a Python node) keeps up with. Every step
+    at 10x (10 kHz) lost about 1000 wrenches to the simulator's keep-last 1000
+    while a compiler ran on the other core; and a history deep enough to keep
+    them all (20000) slowed the simulator itself to 4,100 steps/s on a fresh
+    clone, as the probe's unacknowledged samples piled up."""
     return max(1, round(rtf))
+
+
 _STATS_LATE_RE = re.compile(r'(\d+) late length_command_stamped knots')
 
 
