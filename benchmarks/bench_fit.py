@@ -25,7 +25,9 @@ Run this section alone while developing (prints its Markdown)::
 from __future__ import annotations
 
 import dataclasses
+import os
 import tempfile
+import time
 from pathlib import Path
 
 import yaml
@@ -34,7 +36,7 @@ from rclpy.time import Time
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
-from timing import repeat
+from timing import Stats, repeat
 
 from hill_muscle_ros import cli, fit, resources
 from hill_muscle_ros.model import MuscleParams
@@ -52,6 +54,11 @@ LIMB_TRUTH = {'tibialis_anterior.f_iso_max_n': 520.0, 'joint.damping_n_m_s_per_r
               'joint.stiffness_n_m_per_rad': 17.0}
 #: Worker processes of the parallel limb fit (``--jobs``): the machine's two cores.
 LIMB_JOBS = 2
+#: [s] the window of the timed ``--edge-search`` (test_fit's).
+EDGE_SEARCH_S = 0.02
+#: The engines the edge search is timed on (``HILL_MUSCLE_ENGINE``).
+EDGE_ENGINES = ('compiled', 'python')
+ENGINE_VAR = 'HILL_MUSCLE_ENGINE'
 #: [Hz] the limb's step rate (the preset's).
 LIMB_RATE_HZ = 1000.0
 #: 6 s: the foot lifted by 370 us pulses for 1.5 s, let fall, lifted again by 300 us.
@@ -145,10 +152,41 @@ def run(runs: int) -> dict:
             last['result'] = fit.fit_parameters(fit.MuscleReplay(recording),
                                                 recording.force_n, start, names)
         solve = repeat(one_fit, runs)
+        edge = run_edge_search(recording, start, names, runs)
     result = last['result']
     return {'load': load, 'fit': solve, 'samples': len(recording.force_n),
             'estimates': list(result.estimates), 'evaluations': result.n_evaluations,
-            'limb': run_limb(runs)}
+            'edge': edge, 'limb': run_limb(runs)}
+
+
+def run_edge_search(recording, start, names, runs: int) -> dict:
+    """Wall and CPU time [s] of the fit with ``--edge-search`` (:data:`EDGE_SEARCH_S`)
+    on each engine, the runs alternating between them (``HILL_MUSCLE_ENGINE``) after
+    one unrecorded round (which loads the compiled muscle)."""
+    max_shift = round(EDGE_SEARCH_S * recording.rate_hz)
+    wall = {engine: [] for engine in EDGE_ENGINES}
+    cpu = {engine: [] for engine in EDGE_ENGINES}
+    moves = {}
+    saved = os.environ.get(ENGINE_VAR)
+    try:
+        for i in range(runs + 1):
+            for engine in EDGE_ENGINES:
+                os.environ[ENGINE_VAR] = engine
+                c0, t0 = time.process_time(), time.perf_counter()
+                moves[engine] = fit.fit_with_aligned_edges(recording, start, names,
+                                                           max_shift)[2]
+                if i:
+                    wall[engine].append(time.perf_counter() - t0)
+                    cpu[engine].append(time.process_time() - c0)
+    finally:
+        if saved is None:
+            os.environ.pop(ENGINE_VAR, None)
+        else:
+            os.environ[ENGINE_VAR] = saved
+    if moves['python'] != moves['compiled']:
+        raise RuntimeError(f'the edge search moved {moves} on the two engines')
+    return {'stats': {e: Stats.of(wall[e], cpu[e]) for e in EDGE_ENGINES},
+            'runs_expected': fit.edge_search_runs(recording, len(names), max_shift)}
 
 
 def write_section(add, results: dict) -> None:
@@ -172,6 +210,23 @@ def write_section(add, results: dict) -> None:
     ok = total <= FIT_TARGET_S
     add(f'- Target: the three-parameter fit of a 6 s protocol within {FIT_TARGET_S:g} s: '
         f'**{total:.2f} s** (medians of both parts) — {"met" if ok else "NOT met"}.')
+    add('')
+    edge = results['edge']['stats']
+    add(f'The same fit with `--edge-search {EDGE_SEARCH_S:g}` (`fit_with_aligned_edges`: '
+        'fit, move each stimulation change to the best of the steps within the window, '
+        'fit again until the moves settle), on each engine (`HILL_MUSCLE_ENGINE`), the '
+        'runs alternating, after one unrecorded round. Its replays are judged together '
+        f'(at most {results["edge"]["runs_expected"]} runs of the recording), so it loads '
+        'the compiled muscle (`kernels.run_compiled`, or the compiled FES muscle) where '
+        'numba is installed.')
+    add('')
+    add('| engine | wall [s] | CPU [s] |')
+    add('| --- | ---: | ---: |')
+    for engine in EDGE_ENGINES:
+        add(f'| {engine} | {edge[engine].fmt()} | {edge[engine].cpu.median:.3f} |')
+    add('')
+    add(f'- Python / compiled: **{edge["python"].median / edge["compiled"].median:.1f}x** '
+        '(wall medians).')
     add('')
     limb = results['limb']
     limb_total = limb['load'].median + min(limb['fit'].median, limb['parallel'].median)

@@ -46,7 +46,10 @@ uses: on Protocol II at 1 kHz one run takes about 12 ms, where
 :class:`~hill_muscle_ros.model.batch.MuscleBatch` takes about 0.5 s for K = 4
 (its per-step NumPy overhead only pays off for hundreds of muscles). Muscles
 with FES extensions on run :class:`~hill_muscle_ros.model.fes_muscle.FesMuscle`,
-which is several times slower per step. A limb run is far dearer (the joint and
+which is several times slower per step. Where the runs a fit expects repay
+loading the compiled loop (:meth:`MuscleReplay.compiled`: an ``--edge-search``
+replays the recording once per candidate move, hundreds of times), every run
+of that fit takes it, with the same forces to about 1e-9 N. A limb run is far dearer (the joint and
 every CE integrated together on sub-steps, in Python): 6 s of the ankle preset
 cost about 0.65 s of CPU, so a three-parameter limb fit takes tens of seconds
 (BENCHMARKS.md, section 8).
@@ -68,7 +71,7 @@ from .cli import bounded_number
 from .model import Muscle, MuscleParams
 from .model.fes_muscle import FesMuscle
 from .model.limb import TORQUE_LIMIT_N_M, JointParams, LimbPlant, LimbProtocol, simulate_limb
-from .model.muscle import DL_MT_LIMIT_M
+from .model.muscle import DL_MT_LIMIT_M, MuscleOutputs
 from .model.plant_fields import (GEOMETRY_FIELDS, JOINT_PART, PARAMS, PlantNameError,
                                  plant_field, plant_value, replaced_plant)
 from .model.protocol import Knots
@@ -400,18 +403,65 @@ class ForceModel(TypingProtocol):
         """The predicted measurements, one row per parameter set."""
 
 
+#: Evaluations a fit is expected to take, to judge its runs before it starts:
+#: the three-parameter fit of Protocol II takes 6 (BENCHMARKS.md, section 8).
+#: Only the choice of engine depends on it, never the result.
+EXPECTED_EVALUATIONS = 6
+
+
+def replay_runs(n_parameters: int) -> int:
+    """[-] runs a fit of ``n_parameters`` is expected to ask a replay for: K = n + 1
+    a evaluation, :data:`EXPECTED_EVALUATIONS` evaluations."""
+    return (n_parameters + 1) * EXPECTED_EVALUATIONS
+
+
+def edge_search_runs(recording: 'MuscleRecording', n_parameters: int,
+                     max_shift_steps: int) -> int:
+    """[-] runs of :func:`fit_with_aligned_edges` at most: per round a fit and one
+    run per candidate move of each stimulation change."""
+    candidates = len(stimulation_edges(recording.stimulation)) * (2 * max_shift_steps + 1)
+    return MAX_ALIGN_ROUNDS * (replay_runs(n_parameters) + candidates)
+
+
 class MuscleReplay:
     """The recorded inputs replayed through the muscle, for any parameters.
 
+    The runs take the compiled muscle (:func:`~hill_muscle_ros.model.kernels.run_compiled`,
+    or the compiled FES muscle) where :func:`~hill_muscle_ros.model.engine.use_compiled`
+    says ``runs`` runs of the recording repay loading it, or where it is
+    loaded already: the same forces to about 1e-9 N (test_muscle_compiled,
+    test_fes_compiled), one engine for every run of a fit.
+
     :param recording: the inputs and the force samples to predict
+    :param runs: [-] runs the caller expects to ask for in all (:func:`replay_runs`);
+        it chooses the engine only
     """
 
-    def __init__(self, recording: MuscleRecording) -> None:
+    def __init__(self, recording: MuscleRecording, runs: int = 1) -> None:
         self.recording = recording
+        self.runs = runs
         self.dt_s = 1.0 / recording.rate_hz
         self._dl_end = recording.dl_mt_m[1:].tolist()
         values, self._inverse = np.unique(recording.stimulation, return_inverse=True)
         self._stim_values = values.tolist()
+
+    def compiled(self, fes: bool) -> bool:
+        """Whether the runs take the compiled engine (loading it here if they repay it).
+
+        :param fes: the FES muscle's engine rather than the paper's loop
+        """
+        from .model import engine, fes_kernels, kernels
+        from .model.simulate import FES_RUN_MIN_STEPS
+        work = (len(self.recording.stimulation) - 1) * self.runs
+        if fes:
+            if not engine.use_compiled(work, FES_RUN_MIN_STEPS, fes_kernels.loaded()):
+                return False
+            fes_kernels.compiled()
+            return True
+        if not engine.use_compiled(work, kernels.RUN_MIN_STEPS, kernels.run_loaded()):
+            return False
+        kernels.compiled_run()
+        return True
 
     def commands(self, params: MuscleParams) -> np.ndarray:
         """[-] the command u at each grid instant: the recruitment itself, or the
@@ -432,14 +482,29 @@ class MuscleReplay:
         muscle.set_recruitment(u[0])
         first = muscle.outputs()
         n_steps = len(u) - 1
-        columns = [[0.0] * n_steps for _ in first]
-        # As the simulator node: a command acts from the step after it, so a
-        # release to zero shows one sample later than in `simulate`'s own table.
-        muscle.run(u[:-1], self._dl_end, self.dt_s, columns=columns)
         force = np.empty(n_steps + 1)
         force[0] = first.force_n
+        # As the simulator node: a command acts from the step after it, so a
+        # release to zero shows one sample later than in `simulate`'s own table.
+        if self.compiled(fes):
+            force[1:] = self._force_compiled(muscle, fes, u)
+            return force
+        columns = [[0.0] * n_steps for _ in first]
+        muscle.run(u[:-1], self._dl_end, self.dt_s, columns=columns)
         force[1:] = columns[first._fields.index('force_n')]
         return force
+
+    def _force_compiled(self, muscle: Muscle, fes: bool, u: list) -> np.ndarray:
+        """[N] the force after each step, :meth:`force`'s loop on the compiled engine."""
+        from .model import fes_kernels, kernels
+        if fes:
+            # From rest: its first step gives u[0] at t = 0, all that
+            # set_recruitment(u[0]) did to the reference before its first step.
+            bundle = fes_kernels.FesBundle([muscle.params], dt_s=self.dt_s)
+            rows = fes_kernels.run_muscle(bundle, 0, u[:-1], self._dl_end, self.dt_s,
+                                          kernels=fes_kernels.compiled())
+            return rows[:, MuscleOutputs._fields.index('force_n')]
+        return kernels.run_compiled(muscle, u[:-1], self._dl_end, self.dt_s)[kernels.RUN_FORCE]
 
     def predict(self, params: Sequence[MuscleParams]) -> np.ndarray:
         """[N] the force at the recorded samples, one row per parameter set."""
@@ -467,7 +532,8 @@ def _moved_edge(stimulation: np.ndarray, edge: int, shift: int) -> np.ndarray:
 
 
 def align_stimulation_edges(recording: MuscleRecording, params: MuscleParams,
-                            max_shift_steps: int) -> tuple[MuscleRecording, list[int]]:
+                            max_shift_steps: int, runs: int | None = None,
+                            ) -> tuple[MuscleRecording, list[int]]:
     """Each stimulation change moved to the step that best explains the force.
 
     A live recording stamps the stimulation with the recorder's receive time,
@@ -479,10 +545,14 @@ def align_stimulation_edges(recording: MuscleRecording, params: MuscleParams,
     within ±``max_shift_steps`` (never past its neighbours) that gives the least
     sum of squared residuals with ``params``; a tie keeps the smallest move.
 
+    :param runs: [-] runs the caller expects in all, for :class:`MuscleReplay`'s
+        choice of engine (default: this search's own, one per candidate move)
     :return: the recording with the changes moved, and each change's move [steps]
     """
     stim = recording.stimulation
     edges = [int(c) for c in stimulation_edges(stim)]
+    if runs is None:
+        runs = len(edges) * (2 * max_shift_steps + 1)
     shifts = []
     for j, edge in enumerate(edges):
         low = (edges[j - 1] + shifts[j - 1] + 1) if j else 1
@@ -492,7 +562,7 @@ def align_stimulation_edges(recording: MuscleRecording, params: MuscleParams,
             if not low <= edge + shift <= high:
                 continue
             moved = dataclasses.replace(recording, stimulation=_moved_edge(stim, edge, shift))
-            residual = MuscleReplay(moved).predict([params])[0] - recording.force_n
+            residual = MuscleReplay(moved, runs).predict([params])[0] - recording.force_n
             sse = float(residual @ residual)
             if best is None or sse < best[0]:
                 best = (sse, shift)
@@ -518,12 +588,14 @@ def fit_with_aligned_edges(recording: MuscleRecording, start: MuscleParams,
     """
     used = recording
     shifts = [0] * len(stimulation_edges(recording.stimulation))
+    # Every run of the search judged together: one engine from the first run on.
+    runs = edge_search_runs(recording, len(parameters), max_shift_steps)
     for _ in range(MAX_ALIGN_ROUNDS):
-        result = fit_parameters(MuscleReplay(used), recording.force_n, start, parameters,
-                                progress=progress)
+        result = fit_parameters(MuscleReplay(used, runs), recording.force_n, start,
+                                parameters, progress=progress)
         fitted_with = (used, shifts)
         aligned, new_shifts = align_stimulation_edges(recording, result.params,
-                                                      max_shift_steps)
+                                                      max_shift_steps, runs)
         if progress is not None:
             progress('stimulation changes moved by ' + (', '.join(
                 f'{s * 1e3 / recording.rate_hz:+g} ms' for s in new_shifts) or 'nothing'))
@@ -1488,10 +1560,14 @@ def cmd_fit(args: argparse.Namespace) -> int:
             args.bag, pulse_width_topic=args.pulse_width_topic,
             recruitment_topic=args.recruitment_topic, length_topic=args.length_topic,
             force_topic=args.force_topic, lead_s=edge_search_s)
+        runs = (edge_search_runs(recording, len(parameters),
+                                 round(edge_search_s * recording.rate_hz))
+                if edge_search_s > 0.0 else replay_runs(len(parameters)))
+        compiled = MuscleReplay(recording, runs).compiled(not start.fes_defaults)
         print(f'fitting {", ".join(p.name for p in parameters)} to '
               f'{recording.topics["force"]} ({len(recording.force_n)} samples at '
               f'{recording.rate_hz:g} Hz); each evaluation runs {len(parameters) + 1} '
-              'simulations', file=sys.stderr)
+              f'simulations, {"compiled" if compiled else "in Python"}', file=sys.stderr)
         progress = lambda line: print(line, file=sys.stderr, flush=True)  # noqa: E731
         shifts = None
         if edge_search_s > 0.0:
@@ -1499,7 +1575,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
                 recording, start, parameters, round(edge_search_s * recording.rate_hz),
                 progress)
         else:
-            result = fit_parameters(MuscleReplay(recording), recording.force_n, start,
+            result = fit_parameters(MuscleReplay(recording, runs), recording.force_n, start,
                                     parameters, progress=progress)
     except ValueError as err:   # FitError, and the params file's own errors
         raise UserError(str(err)) from None

@@ -422,3 +422,68 @@ def test_edge_search_is_refused_with_a_plant(late_change_bag, tmp_path, capsys):
                           '--out', tmp_path / 'fitted.yaml')
     assert status == cli.EXIT_USAGE
     assert '--edge-search applies to the single muscle' in err
+
+
+# --------------------------------------------------------------------------- engines
+
+#: [N] the compiled muscles agree with the Python ones to this (test_muscle_compiled,
+#: test_fes_compiled): a replay on either engine predicts the same force.
+ENGINE_AGREEMENT_N = 1e-9
+#: An FES muscle for the replays: every extension that changes its engine on.
+FES_TRUTH = dict(TRUTH, recruitment_curve='exponential', pw_threshold_s=131.4e-6,
+                 emd_s=0.025, tau_act_s=0.06, tau_deact_s=0.11, fatigue='riener',
+                 fibre_fractions=[0.5, 0.5], tau_fatigue_s=[4.0, 0.8],
+                 recruitment_order='random', recruitment_seed=3)
+
+
+@pytest.mark.parametrize('params', [TRUTH, FES_TRUTH], ids=['paper', 'fes'])
+def test_a_replay_predicts_the_same_force_on_both_engines(late_change_bag, params,
+                                                          monkeypatch):
+    recording = fit.load_muscle_recording(late_change_bag)
+    sets = [MuscleParams(**params), MuscleParams(**dict(params, f_iso_max_n=60.0))]
+    monkeypatch.setenv('HILL_MUSCLE_ENGINE', 'python')
+    replay = fit.MuscleReplay(recording, runs=10**6)
+    assert not replay.compiled(fes=params is FES_TRUTH)
+    python = replay.predict(sets)
+    monkeypatch.setenv('HILL_MUSCLE_ENGINE', 'compiled')
+    replay = fit.MuscleReplay(recording, runs=1)
+    assert replay.compiled(fes=params is FES_TRUTH)
+    compiled = replay.predict(sets)
+    assert np.max(np.abs(compiled - python)) <= ENGINE_AGREEMENT_N
+    assert np.max(np.abs(python[1] - python[0])) > 1.0   # the sets do differ
+
+
+def test_a_replay_loads_the_compiled_muscle_only_for_runs_that_repay_it(
+        late_change_bag, monkeypatch):
+    from hill_muscle_ros.model import kernels
+    recording = fit.load_muscle_recording(late_change_bag)
+    steps = len(recording.stimulation) - 1
+    loads = []
+    monkeypatch.delenv('HILL_MUSCLE_ENGINE', raising=False)
+    monkeypatch.setattr(kernels, 'run_loaded', lambda: False)
+    monkeypatch.setattr(kernels, 'compiled_run', lambda: loads.append(1))
+    few = kernels.RUN_MIN_STEPS // steps - 1
+    assert not fit.MuscleReplay(recording, runs=few).compiled(fes=False)
+    assert loads == []
+    assert fit.MuscleReplay(recording, runs=few + 2).compiled(fes=False)
+    assert loads == [1]
+
+
+def test_an_edge_search_is_judged_as_a_whole_and_moves_the_same_on_both_engines(
+        late_change_bag, monkeypatch):
+    recording = fit.load_muscle_recording(late_change_bag)
+    start = MuscleParams()
+    parameters = fit.parse_fit_names(FITTED, start)
+    max_shift = round(0.02 * RATE_HZ)
+    # Its first run (one fit evaluation) is small; the search is not.
+    runs = fit.edge_search_runs(recording, len(parameters), max_shift)
+    assert (len(recording.stimulation) - 1) * runs >= 10 * (
+        len(recording.stimulation) - 1) * fit.replay_runs(len(parameters))
+    results = {}
+    for name in ('python', 'compiled'):
+        monkeypatch.setenv('HILL_MUSCLE_ENGINE', name)
+        result, _, shifts = fit.fit_with_aligned_edges(recording, start, parameters,
+                                                       max_shift)
+        results[name] = (result.estimates, shifts)
+    assert results['python'][1] == results['compiled'][1] == [-5, 0]
+    np.testing.assert_allclose(results['compiled'][0], results['python'][0], rtol=1e-7)

@@ -36,7 +36,7 @@ def _as_outputs(row: np.ndarray) -> MuscleOutputs:
 def loaded() -> bool:
     """True if the compiled FES muscle's kernels are loaded in this process, so
     that building a :class:`CompiledFesMuscle` compiles nothing (well under a second)."""
-    return fes_kernels._compiled is not None
+    return fes_kernels.loaded()
 
 
 class CompiledFesMuscle:

@@ -1055,6 +1055,11 @@ _compiled = None
 
 
 
+def loaded() -> bool:
+    """True if the compiled kernels are built in this process (:func:`compiled`)."""
+    return _compiled is not None
+
+
 def compiled() -> types.SimpleNamespace:
     """The numba-compiled kernels (imports numba on the first call).
 

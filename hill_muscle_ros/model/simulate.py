@@ -125,7 +125,7 @@ def simulate(protocol: Protocol, params: MuscleParams | None = None,
     first = muscle.outputs()
     n_steps = len(t) - 1
     if type(muscle) is FesMuscle and engine.use_compiled(n_steps, FES_RUN_MIN_STEPS,
-                                                         fes_kernels._compiled is not None):
+                                                         fes_kernels.loaded()):
         return _simulate_fes_compiled(muscle.params, t, r, dl, dt, first)
     if type(muscle) is Muscle and engine.use_compiled(n_steps, kernels.RUN_MIN_STEPS,
                                                       kernels.run_loaded()):
