@@ -74,9 +74,8 @@ from .model.limb import TORQUE_LIMIT_N_M, JointParams, LimbPlant, LimbProtocol, 
 from .model.muscle import DL_MT_LIMIT_M, MuscleOutputs
 from .model.plant_fields import (GEOMETRY_FIELDS, JOINT_PART, PARAMS, PlantNameError,
                                  plant_field, plant_value, replaced_plant)
-from .model.protocol import Knots
+from .model.protocol import Knots, commands_from_pulse_widths
 from .model.simulate import sample_times
-from .model.stimulus import command_from_pulse_width
 from .timebase import NS_PER_S
 
 #: Default topics, each list in order of preference: the first with messages is used.
@@ -442,8 +441,6 @@ class MuscleReplay:
         self.runs = runs
         self.dt_s = 1.0 / recording.rate_hz
         self._dl_end = recording.dl_mt_m[1:].tolist()
-        values, self._inverse = np.unique(recording.stimulation, return_inverse=True)
-        self._stim_values = values.tolist()
 
     def compiled(self, fes: bool) -> bool:
         """Whether the runs take the compiled engine (loading it here if they repay it).
@@ -468,9 +465,7 @@ class MuscleReplay:
         pulse width through the muscle's recruitment curve."""
         if self.recording.stimulation_kind == 'recruitment':
             return self.recording.stimulation
-        # A recording holds few distinct widths: the curve is applied once to each.
-        u = np.array([command_from_pulse_width(pw, params) for pw in self._stim_values])
-        return u[self._inverse]
+        return commands_from_pulse_widths(self.recording.stimulation, params)
 
     def force(self, params: MuscleParams, fes: bool = False) -> np.ndarray:
         """[N] the force at every grid instant, from rest.

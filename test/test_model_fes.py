@@ -8,6 +8,7 @@ import pytest
 
 from hill_muscle_ros.model import Muscle, MuscleParams, Protocol, simulate
 from hill_muscle_ros.model.fes_muscle import FesMuscle
+from hill_muscle_ros.model.protocol import commands_from_pulse_widths
 from hill_muscle_ros.model.stimulus import command_from_pulse_width
 from hill_muscle_ros.resources import protocol_path
 
@@ -78,6 +79,21 @@ def test_exponential_curve_follows_ding_2007():
 def test_bad_pulse_width_is_rejected_by_name(bad):
     with pytest.raises(ValueError, match='`pulse_width_s` must be finite and non-negative'):
         command_from_pulse_width(bad, MuscleParams())
+
+
+def test_an_array_of_pulse_widths_gets_each_widths_own_command():
+    p = MuscleParams(recruitment_curve='exponential', pw_threshold_s=131.4e-6,
+                     pw_scale_s=194.1e-6)
+    widths = np.array([[0.0, 370e-6, 370e-6], [120e-6, 700e-6, 370e-6]])
+    u = commands_from_pulse_widths(widths, p)
+    assert u.shape == widths.shape
+    assert u.tolist() == [[command_from_pulse_width(w, p) for w in row] for row in widths]
+
+
+def test_a_bad_width_in_an_array_is_named_with_its_value():
+    with pytest.raises(ValueError, match='`quadriceps` must be finite and non-negative, '
+                                         'got -1e-06'):
+        commands_from_pulse_widths([300e-6, -1e-6, 300e-6], MuscleParams(), 'quadriceps')
 
 
 # -- delay and activation -------------------------------------------------------------

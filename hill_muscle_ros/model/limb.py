@@ -37,7 +37,7 @@ from .fes_muscle import FesMuscle, rk4_update
 from .muscle import DL_MT_LIMIT_M, check_recruitment
 from .params import _FLOAT_MAX, MuscleParams, _float, _spec, finite_float
 from .protocol import (Knots, ProtocolError, _parse_knots, check_protocol_keys,
-                       safe_load_yaml)
+                       commands_from_pulse_widths, safe_load_yaml)
 from .simulate import sample_times
 
 ACTIONS = {'extensor': 1.0, 'flexor': -1.0}
@@ -547,7 +547,6 @@ class LimbProtocol:
         if missing:
             raise ProtocolError(f'protocol `{self.name}`: muscle `{missing[0]}` is not in '
                                 f'the plant (muscles: {", ".join(names)})')
-        from .stimulus import command_from_pulse_width
         out = np.zeros((len(t_s), len(names)))
         for i, m in enumerate(plant.muscles):
             if m.name not in self.stimulation:
@@ -557,7 +556,7 @@ class LimbProtocol:
             if key == 'recruitment':
                 out[:, i] = values
             else:
-                out[:, i] = [command_from_pulse_width(v, m.params) for v in values]
+                out[:, i] = commands_from_pulse_widths(values, m.params)
         return out
 
 

@@ -31,6 +31,25 @@ STIMULATION_OUTPUTS = ('pulse_width', 'recruitment')
 _YAML_LOADER = getattr(yaml, 'CSafeLoader', yaml.SafeLoader)
 
 
+def commands_from_pulse_widths(pulse_widths_s, params, name: str = 'pulse_width_s'
+                               ) -> np.ndarray:
+    """[-] the recruitment command of every pulse width of an array: each distinct
+    width through :func:`~hill_muscle_ros.model.stimulus.command_from_pulse_width`
+    once (a protocol holds a few widths over thousands of samples).
+
+    :param pulse_widths_s: [s] pulse widths (PW), any shape
+    :param params: the muscle's :class:`~hill_muscle_ros.model.params.MuscleParams`
+    :param name: what to call a width in the error message
+    :return: [-] u, the shape of ``pulse_widths_s``
+    :raises ValueError: naming a negative or non-finite width
+    """
+    from .stimulus import command_from_pulse_width
+    values = np.asarray(pulse_widths_s, dtype=float)
+    distinct, inverse = np.unique(values, return_inverse=True)
+    u = np.array([command_from_pulse_width(v, params, name) for v in distinct.tolist()])
+    return u[inverse].reshape(values.shape)
+
+
 def safe_load_yaml(text: str):
     """Parse YAML text with the safe loader (no arbitrary Python objects).
 
@@ -122,10 +141,8 @@ class Protocol:
         """
         if self.stimulation_key != 'pulse_width_s' or params.recruitment_curve == 'linear':
             return self.recruitment(t_s, params.pw_max_s)
-        from .stimulus import command_from_pulse_width
-        values = np.asarray(self.stimulation(t_s), dtype=float)
-        u = np.array([command_from_pulse_width(v, params) for v in values.ravel()])
-        return float(u[0]) if values.ndim == 0 else u.reshape(values.shape)
+        u = commands_from_pulse_widths(self.stimulation(t_s), params)
+        return float(u) if u.ndim == 0 else u
 
     def stimulation_command(self, t_s: float, output: str, params) -> float:
         """The value a stimulator is sent at ``t_s`` on the topic ``output``.
