@@ -1086,9 +1086,17 @@ def compiled() -> types.SimpleNamespace:
         c1, c2 = f8[::1], f8[:, ::1]
         return i8(c1, i8[::1], i8, c1, c1, f8, c1, numba.boolean, c2)
 
+    # add_event is called with a constant action at each call site, for which
+    # numba would compile it once per action (the literal value is in its
+    # argument type): one signature, one compile.
+    def add_event_signature(numba):
+        f8, i8 = numba.float64, numba.int64
+        return numba.types.none(f8[::1], i8[::1], i8, f8, i8, f8, f8, f8, f8)
+
     _compiled = engine.compile_functions(
         globals(), _EQUATIONS + _KERNELS, digest_of=_DIGEST_OF + (this,),
-        signatures={'muscle_run': run_signature}, options=options)
+        signatures={'muscle_run': run_signature, 'add_event': add_event_signature},
+        options=options)
     return _compiled
 
 

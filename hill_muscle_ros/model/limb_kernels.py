@@ -428,9 +428,17 @@ def compiled() -> types.SimpleNamespace:
         c1, c2 = f8[::1], f8[:, ::1]
         return i8(c1, i8[::1], c1, c2, c1, i8[:, ::1], i8, i8, c2, c1, f8, f8, i8, f8, c1, c2)
 
+    # forces is called with constant row numbers, for which numba would compile
+    # it once per call site (its argument types carry the literal values):
+    # one signature, one compile.
+    def forces_signature(numba):
+        f8, i8 = numba.float64, numba.int64
+        return f8(f8[::1], i8[::1], f8[::1], f8[:, ::1], i8, f8, f8, i8, f8, i8)
+
     _compiled = engine.compile_functions(
         scope, _EQUATIONS + _KERNELS, digest_of=_DIGEST_OF + (sys.modules[__name__],),
-        signatures={'limb_entry': entry_signature}, options=options)
+        signatures={'limb_entry': entry_signature, 'forces': forces_signature},
+        options=options)
     return _compiled
 
 
