@@ -49,9 +49,9 @@ with FES extensions on run :class:`~hill_muscle_ros.model.fes_muscle.FesMuscle`,
 which is several times slower per step. Where the runs a fit expects repay
 loading the compiled loop (:meth:`MuscleReplay.compiled`: an ``--edge-search``
 replays the recording once per candidate move, hundreds of times), every run
-of that fit takes it, with the same forces to about 1e-9 N. A limb run is far dearer (the joint and
-every CE integrated together on sub-steps, in Python): 6 s of the ankle preset
-cost about 0.65 s of CPU, so a three-parameter limb fit takes tens of seconds
+of that fit takes it, with the same forces to about 1e-9 N. A limb run is far
+dearer (the joint and every CE integrated together on sub-steps): a limb fit
+takes the compiled limb once an evaluation's runs repay loading it
 (BENCHMARKS.md, section 8).
 """
 from __future__ import annotations
@@ -410,16 +410,22 @@ EXPECTED_EVALUATIONS = 6
 
 def replay_runs(n_parameters: int) -> int:
     """[-] runs a fit of ``n_parameters`` is expected to ask a replay for: K = n + 1
-    a evaluation, :data:`EXPECTED_EVALUATIONS` evaluations."""
+    per evaluation, :data:`EXPECTED_EVALUATIONS` evaluations."""
     return (n_parameters + 1) * EXPECTED_EVALUATIONS
+
+
+def candidate_moves(recording: 'MuscleRecording', max_shift_steps: int) -> int:
+    """[-] moves :func:`align_stimulation_edges` tries at most: each stimulation
+    change by every whole step within ±``max_shift_steps``."""
+    return len(stimulation_edges(recording.stimulation)) * (2 * max_shift_steps + 1)
 
 
 def edge_search_runs(recording: 'MuscleRecording', n_parameters: int,
                      max_shift_steps: int) -> int:
     """[-] runs of :func:`fit_with_aligned_edges` at most: per round a fit and one
-    run per candidate move of each stimulation change."""
-    candidates = len(stimulation_edges(recording.stimulation)) * (2 * max_shift_steps + 1)
-    return MAX_ALIGN_ROUNDS * (replay_runs(n_parameters) + candidates)
+    run per candidate move."""
+    return MAX_ALIGN_ROUNDS * (replay_runs(n_parameters)
+                               + candidate_moves(recording, max_shift_steps))
 
 
 class MuscleReplay:
@@ -547,7 +553,7 @@ def align_stimulation_edges(recording: MuscleRecording, params: MuscleParams,
     stim = recording.stimulation
     edges = [int(c) for c in stimulation_edges(stim)]
     if runs is None:
-        runs = len(edges) * (2 * max_shift_steps + 1)
+        runs = candidate_moves(recording, max_shift_steps)
     shifts = []
     for j, edge in enumerate(edges):
         low = (edges[j - 1] + shifts[j - 1] + 1) if j else 1
