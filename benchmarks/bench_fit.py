@@ -39,7 +39,7 @@ from std_msgs.msg import Float64
 from timing import Stats, repeat
 
 from hill_muscle_ros import cli, fit, resources
-from hill_muscle_ros.model import MuscleParams
+from hill_muscle_ros.model import MuscleParams, engine
 from hill_muscle_ros.model.limb import LimbProtocol, simulate_limb
 from hill_muscle_ros.params_file import load_plant
 from hill_muscle_ros.recording.bag_writer import BagWriter
@@ -57,8 +57,7 @@ LIMB_JOBS = 2
 #: [s] the window of the timed ``--edge-search`` (test_fit's).
 EDGE_SEARCH_S = 0.02
 #: The engines the edge search is timed on (``HILL_MUSCLE_ENGINE``).
-EDGE_ENGINES = ('compiled', 'python')
-ENGINE_VAR = 'HILL_MUSCLE_ENGINE'
+EDGE_ENGINES = (engine.COMPILED, engine.PYTHON)
 #: [Hz] the limb's step rate (the preset's).
 LIMB_RATE_HZ = 1000.0
 #: 6 s: the foot lifted by 370 us pulses for 1.5 s, let fall, lifted again by 300 us.
@@ -164,26 +163,26 @@ def run_edge_search(recording, start, names, runs: int) -> dict:
     on each engine, the runs alternating between them (``HILL_MUSCLE_ENGINE``) after
     one unrecorded round (which loads the compiled muscle)."""
     max_shift = round(EDGE_SEARCH_S * recording.rate_hz)
-    wall = {engine: [] for engine in EDGE_ENGINES}
-    cpu = {engine: [] for engine in EDGE_ENGINES}
+    wall = {name: [] for name in EDGE_ENGINES}
+    cpu = {name: [] for name in EDGE_ENGINES}
     moves = {}
-    saved = os.environ.get(ENGINE_VAR)
+    saved = os.environ.get(engine.ENV_VAR)
     try:
         for i in range(runs + 1):
-            for engine in EDGE_ENGINES:
-                os.environ[ENGINE_VAR] = engine
+            for name in EDGE_ENGINES:
+                os.environ[engine.ENV_VAR] = name
                 c0, t0 = time.process_time(), time.perf_counter()
-                moves[engine] = fit.fit_with_aligned_edges(recording, start, names,
-                                                           max_shift)[2]
+                moves[name] = fit.fit_with_aligned_edges(recording, start, names,
+                                                         max_shift)[2]
                 if i:
-                    wall[engine].append(time.perf_counter() - t0)
-                    cpu[engine].append(time.process_time() - c0)
+                    wall[name].append(time.perf_counter() - t0)
+                    cpu[name].append(time.process_time() - c0)
     finally:
         if saved is None:
-            os.environ.pop(ENGINE_VAR, None)
+            os.environ.pop(engine.ENV_VAR, None)
         else:
-            os.environ[ENGINE_VAR] = saved
-    if moves['python'] != moves['compiled']:
+            os.environ[engine.ENV_VAR] = saved
+    if moves[engine.PYTHON] != moves[engine.COMPILED]:
         raise RuntimeError(f'the edge search moved {moves} on the two engines')
     return {'stats': {e: Stats.of(wall[e], cpu[e]) for e in EDGE_ENGINES},
             'runs_expected': fit.edge_search_runs(recording, len(names), max_shift)}
@@ -222,11 +221,11 @@ def write_section(add, results: dict) -> None:
     add('')
     add('| engine | wall [s] | CPU [s] |')
     add('| --- | ---: | ---: |')
-    for engine in EDGE_ENGINES:
-        add(f'| {engine} | {edge[engine].fmt()} | {edge[engine].cpu.median:.3f} |')
+    for name in EDGE_ENGINES:
+        add(f'| {name} | {edge[name].fmt()} | {edge[name].cpu.median:.3f} |')
     add('')
-    add(f'- Python / compiled: **{edge["python"].median / edge["compiled"].median:.1f}x** '
-        '(wall medians).')
+    ratio = edge[engine.PYTHON].median / edge[engine.COMPILED].median
+    add(f'- Python / compiled: **{ratio:.1f}x** (wall medians).')
     add('')
     limb = results['limb']
     limb_total = limb['load'].median + min(limb['fit'].median, limb['parallel'].median)
