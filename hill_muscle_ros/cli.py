@@ -426,9 +426,24 @@ def main(argv: Sequence[str] | None = None) -> int:
             if exit_.code is None:
                 return 0
             return exit_.code if isinstance(exit_.code, int) else EXIT_USAGE
+        _check_engine_setting()
         return _COMMANDS[args.command](args)
     except UserError as err:
         return _error(str(err))
+
+
+def _check_engine_setting() -> None:
+    """A user error for an unusable ``HILL_MUSCLE_ENGINE`` (an unknown value, or
+    ``compiled`` without numba), before a command runs: the engine choice is
+    made deep in the model, which would raise it as a traceback.
+
+    :raises UserError: naming the variable and its value
+    """
+    from .model import engine   # cheap: numba is looked for, not imported
+    try:
+        engine.choice()
+    except (ValueError, ImportError) as err:
+        raise UserError(str(err)) from None
 
 
 if __name__ == '__main__':

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from hill_muscle_ros import cli
-from hill_muscle_ros.model import COLUMNS, MuscleParams, Protocol, force_length, simulate
+from hill_muscle_ros.model import COLUMNS, MuscleParams, Protocol, engine, force_length, simulate
 from hill_muscle_ros.params_file import load_muscle_params
 from hill_muscle_ros.resources import default_params_file
 
@@ -354,3 +354,18 @@ def test_fes_params_file_with_arrays_runs_and_writes_command_and_mean_fitness(tm
         fibre_fractions=[0.5, 0.5], recruitment_order='random'), 200.0)
     assert_csv_equals_result(data, expected)
     assert data[-1][-1] < 1.0    # the units tired
+
+
+def test_an_unknown_engine_in_the_environment_exits_2_naming_it(monkeypatch, capsys):
+    monkeypatch.setenv('HILL_MUSCLE_ENGINE', 'gpu')
+    assert cli.main(['simulate', '--protocol', 'II']) == cli.EXIT_USAGE
+    assert "`HILL_MUSCLE_ENGINE` must be one of auto, compiled, python, got 'gpu'" in (
+        capsys.readouterr().err)
+
+
+def test_the_compiled_engine_without_numba_exits_2_naming_it(monkeypatch, capsys):
+    monkeypatch.setenv('HILL_MUSCLE_ENGINE', 'compiled')
+    monkeypatch.setattr(engine, 'numba_available', lambda: False)
+    assert cli.main(['simulate', '--protocol', 'II']) == cli.EXIT_USAGE
+    assert "`HILL_MUSCLE_ENGINE` is 'compiled', but numba cannot be imported" in (
+        capsys.readouterr().err)
