@@ -30,7 +30,7 @@ from gymnasium.vector.utils import batch_space
 
 from ..model.batch import MuscleBatch
 from ..model.limb_batch import LimbBatch
-from ..model.stimulus import command_from_pulse_width
+from ..model.protocol import commands_from_pulse_widths
 from ._common import MODEL_DT_S, History, TrackingEnv, check_pulse_widths
 from .force_tracking import SAMPLE_FIELDS as FORCE_FIELDS
 from .force_tracking import ForceTrackingEnv
@@ -199,7 +199,7 @@ class ForceTrackingVectorEnv(TrackingVectorEnv):
     def _advance(self, pw: np.ndarray, k: int,
                  next_target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         p, n = self.params, self.template.n_steps
-        u = np.array([command_from_pulse_width(w, p) for w in pw[:, 0].tolist()])
+        u = commands_from_pulse_widths(pw[:, 0], p)
         forces = self._forces
         for i, j in enumerate(range(k * n + 1, (k + 1) * n + 1)):
             out = self.batch.step(u, self._dl[j], MODEL_DT_S)
