@@ -30,14 +30,17 @@ def wait_until_recording(probe: Probe, ns: str, procs: list) -> None:
 
 def record_live_run(tmp: Path, ns: str, protocol_file: Path, *,
                     sim_params: dict[str, Any] | None = None,
-                    probe_name: str = 'live_probe') -> dict[str, Any]:
+                    probe_name: str = 'live_probe',
+                    lookahead_s: float = LOOKAHEAD_S) -> dict[str, Any]:
     """Play ``protocol_file`` to the simulator in namespace ``ns`` and record it.
 
     :param tmp: directory for the bag (``tmp/bag``) and the processes' logs
     :param sim_params: the simulator's parameters (default: its defaults)
+    :param lookahead_s: [s] the player's ``lookahead_s``
     :return: ``bag`` (its directory), ``status`` (the recorder's exit status),
-        ``log`` (the recorder's output) and ``probe_wrenches`` (the wrenches a
-        probe in this process received)
+        ``log`` (the recorder's output), ``probe_wrenches`` (the wrenches a
+        probe in this process received) and ``sim_log`` (the simulator's
+        output, its exit statistics included: late knots, longest tick gap)
     """
     bag = tmp / 'bag'
     duration_s = Protocol.from_yaml(protocol_file).duration_s
@@ -53,11 +56,14 @@ def record_live_run(tmp: Path, ns: str, protocol_file: Path, *,
         player = procs.start('player', node_command(
             'protocol_player', ns=ns, params={'protocol': str(protocol_file),
                                               'min_subscribers': 2,
-                                              'lookahead_s': LOOKAHEAD_S}))
+                                              'lookahead_s': lookahead_s}))
         probe.spin_until(lambda: player.returncode is not None, 'the end of the protocol',
                          timeout_s=duration_s + PLAYER_SLACK_S, procs=[sim, rec])
         assert player.returncode == 0, player.describe()
         rec.popen.send_signal(signal.SIGINT)
         status = rec.wait()
         received = list(seen.messages)
-    return {'bag': bag, 'status': status, 'log': rec.output(), 'probe_wrenches': received}
+        rec_log = rec.output()
+    # After the group stopped the simulator: its exit statistics are in its log.
+    return {'bag': bag, 'status': status, 'log': rec_log, 'probe_wrenches': received,
+            'sim_log': sim.output()}
