@@ -17,11 +17,10 @@ $(STAMP): setup.py setup.cfg package.xml requirements-dev.txt requirements-ros.t
 	$(BIN)/python -m pip install --disable-pip-version-check -q --no-deps -e .
 	touch $(STAMP)
 
-# Serial. `pytest -n 2 --dist loadgroup` runs the offline tests beside the ROS
-# tests at idle priority (test/conftest.py); not the default until shown
-# deterministic on this 2-core machine.
+# Two pytest workers: one runs the ROS tests one at a time, in file order, the
+# other the offline tests beside them at idle CPU priority (test/conftest.py).
 test: $(STAMP)
-	$(BIN)/python -m pytest -q --durations=15
+	$(BIN)/python -m pytest -q -n 2 --dist loadgroup --durations=15
 
 # The live demo: simulator, protocol player and recorder as three ROS 2
 # processes on a DDS domain of their own; the bag is read back, plotted

@@ -7,8 +7,8 @@ two concurrent runs on one machine never draw the same one. Subprocesses
 inherit these variables. Under pytest-xdist each worker claims a domain of
 its own.
 
-Two workers, opt-in (``pytest -n 2 --dist loadgroup``; ``make test`` runs
-serially until this is shown deterministic on the 2-core machine). The tests that
+Two workers (``pytest -n 2 --dist loadgroup``, as ``make test`` runs it;
+plain ``pytest`` runs everything in one process, in file order). The tests that
 start ROS processes or DDS participants are timing claims about a 1 kHz loop
 on 2 cores, so they run as before: one at a time, in file order, in one worker
 (work unit :data:`SERIAL_GROUP`), at normal priority. The others (the model,
@@ -121,14 +121,45 @@ def pytest_sessionstart(session):
             'compiling)')
 
 
-def pytest_terminal_summary(terminalreporter):
-    """Say how long this pytest process spent in numba's compiler: a clean clone
-    compiles every kernel once (the budget is 60 s), a second run loads them."""
+#: Key of a worker's compiling seconds in xdist's ``workeroutput``.
+_WORKER_COMPILE_KEY = 'hill_muscle_ros_numba_compile_s'
+#: [s] compiling seconds reported by the xdist workers that have finished.
+_workers_compile_s: list[float] = []
+
+
+def _compile_seconds() -> float:
+    """[s] this process's time in numba's compiler (0 if it never loaded it)."""
     engine = sys.modules.get('hill_muscle_ros.model.engine')
-    if engine is not None:
+    return engine.compile_seconds() if engine is not None else 0.0
+
+
+def pytest_sessionfinish(session):
+    """An xdist worker hands its compiling time to the controller."""
+    workeroutput = getattr(session.config, 'workeroutput', None)
+    if workeroutput is not None:
+        workeroutput[_WORKER_COMPILE_KEY] = _compile_seconds()
+
+
+def pytest_testnodedown(node, error):
+    """The controller collects each finished worker's compiling time."""
+    seconds = getattr(node, 'workeroutput', {}).get(_WORKER_COMPILE_KEY)
+    if seconds is not None:
+        _workers_compile_s.append(seconds)
+
+
+def pytest_terminal_summary(terminalreporter):
+    """Say how long the pytest processes spent in numba's compiler: a clean
+    clone compiles every kernel once (the budget is 60 s), a second run loads
+    them. Under xdist: this process and each worker, and their sum."""
+    own = _compile_seconds()
+    if not _workers_compile_s:
         terminalreporter.write_line(
-            f'numba compiling in this process: {engine.compile_seconds():.1f} s '
-            '(subprocesses not counted)')
+            f'numba compiling in this process: {own:.1f} s (subprocesses not counted)')
+        return
+    workers = ', '.join(f'{s:.1f}' for s in _workers_compile_s)
+    terminalreporter.write_line(
+        f'numba compiling in the pytest processes: {own + sum(_workers_compile_s):.1f} s '
+        f'(this one {own:.1f} s, workers {workers} s; their subprocesses not counted)')
 
 
 # --------------------------------------------------------------------------- two workers
