@@ -16,7 +16,9 @@ the offline CLI and bags, the figures, the clean install: :func:`is_offline_modu
 run in the other worker at the kernel's idle priority (``SCHED_IDLE``, and
 the idle I/O class): they get a CPU only when no ordinary process wants it, a
 ROS process that wakes takes the CPU back at once, so they use the CPU time
-the ROS tests leave idle without delaying them.
+the ROS tests leave idle without delaying them. With the kernel's autogroups
+that holds only across sessions too: the offline worker runs in a session of
+its own at the weakest autogroup nice (:func:`_leave_the_ros_tests_autogroup`).
 """
 import ctypes
 import os
@@ -187,6 +189,8 @@ ROS_NAMES = frozenset({'rclpy', 'ros_helpers', 'Probe', 'ProcessGroup', 'node_co
 _IOPRIO_WHO_PROCESS, _IOPRIO_CLASS_IDLE, _IOPRIO_CLASS_NONE = 1, 3, 0
 _IOPRIO_CLASS_SHIFT = 13
 _SYS_IOPRIO_SET = 251
+#: The weakest nice value: an autogroup at 19 weighs 15 against a default 1024.
+_WEAKEST_NICE = 19
 
 
 def is_offline_module(name: str) -> bool:
@@ -214,12 +218,57 @@ def pytest_xdist_make_scheduler(config, log):
     return TwoGroupScheduling(config, log)
 
 
-def _set_io_class(io_class: int) -> None:
-    """ioprio_set(2) for this process (Linux x86-64; elsewhere nothing)."""
+def _set_io_class(tid: int, io_class: int) -> None:
+    """ioprio_set(2) for thread ``tid`` (Linux x86-64; elsewhere nothing)."""
     if sys.platform != 'linux' or os.uname().machine != 'x86_64':
         return
     libc = ctypes.CDLL(None, use_errno=True)
-    libc.syscall(_SYS_IOPRIO_SET, _IOPRIO_WHO_PROCESS, 0, io_class << _IOPRIO_CLASS_SHIFT)
+    libc.syscall(_SYS_IOPRIO_SET, _IOPRIO_WHO_PROCESS, tid, io_class << _IOPRIO_CLASS_SHIFT)
+
+
+def _leave_the_ros_tests_autogroup() -> None:
+    """Move this process into a session of its own and give its autogroup the
+    weakest nice value (Linux ``sched_autogroup``).
+
+    With autogroups (``/proc/sys/kernel/sched_autogroup_enabled``, on here),
+    the scheduler first shares the CPUs fairly between sessions, and only
+    then between the threads of a session by their policy. Every node a test
+    starts has a session of its own; the xdist workers share ``make``'s. So
+    a worker at SCHED_IDLE still took its session's fair share against each
+    node whenever the ROS worker in the same session slept: two idle-policy
+    busy loops in the test's session made the 15 N stretch test fail all
+    three runs, its processes waiting 114-325 ms for a CPU (stall watcher);
+    in sessions of their own at nice 19, the four closed-loop tests passed
+    first time. Without autogroups this changes nothing.
+    """
+    try:
+        os.setsid()
+    except PermissionError:
+        return   # already a process group leader: stays where it is
+    try:
+        with open('/proc/self/autogroup', 'w') as autogroup:
+            autogroup.write(str(_WEAKEST_NICE))
+    except OSError:
+        pass     # no autogroups (kernel without them): the policy alone then
+
+
+def _set_priority(policy: int, io_class: int) -> None:
+    """The CPU policy and I/O class of every thread of this process.
+
+    Linux keeps both per thread, and a thread inherits them from the thread
+    that creates it. Setting them for the calling thread alone left the
+    threads made before it at normal priority: the BLAS pool that importing
+    NumPy starts, for one. Busy beside the ROS tests, such a thread kept a
+    closed-loop test's force controller from a CPU for 140-234 ms (measured
+    with the stall watcher, two repeated runs of the 15 N stretch test).
+    """
+    for entry in os.listdir('/proc/self/task'):
+        tid = int(entry)
+        try:
+            os.sched_setscheduler(tid, policy, os.sched_param(0))
+            _set_io_class(tid, io_class)
+        except ProcessLookupError:
+            pass   # the thread ended meanwhile
 
 
 @pytest.fixture(autouse=True)
@@ -238,6 +287,8 @@ def _priority_by_group(request):
                     f'off OFFLINE_PREFIXES / OFFLINE_MODULES')
     policy = os.SCHED_IDLE if idle else os.SCHED_OTHER
     if os.sched_getscheduler(0) != policy:
-        os.sched_setscheduler(0, policy, os.sched_param(0))
-        _set_io_class(_IOPRIO_CLASS_IDLE if idle else _IOPRIO_CLASS_NONE)
+        if idle:
+            # Once per worker: a worker runs one group only (TwoGroupScheduling).
+            _leave_the_ros_tests_autogroup()
+        _set_priority(policy, _IOPRIO_CLASS_IDLE if idle else _IOPRIO_CLASS_NONE)
     yield
