@@ -46,10 +46,18 @@ QUOTE_CHARS = 600
 HISTORY_S = 600.0
 
 
+#: Index of the scheduling policy among the fields of /proc/<pid>/stat after
+#: the command (field 41 of proc(5), the fields counted from 1, state being 3).
+_STAT_POLICY_INDEX = 41 - 3
+
+
 def _descendants(root: int) -> dict[int, str]:
-    """Process ids and names of every process below ``root`` (from /proc)."""
+    """Process ids and names of every process below ``root`` (from /proc), but
+    those at the idle CPU policy: they wait for a CPU by design (the test
+    run's kernel builder), which says nothing of the machine."""
     children: dict[int, list[int]] = {}
     names: dict[int, str] = {}
+    idle: set[int] = set()
     for entry in os.scandir('/proc'):
         if not entry.name.isdigit():
             continue
@@ -60,14 +68,18 @@ def _descendants(root: int) -> dict[int, str]:
             continue  # gone meanwhile
         # "pid (comm) state ppid ...": comm may hold spaces and parentheses.
         comm = stat[stat.index('(') + 1:stat.rindex(')')]
-        ppid = int(stat[stat.rindex(')') + 2:].split()[1])
+        fields = stat[stat.rindex(')') + 2:].split()
+        ppid = int(fields[1])
         pid = int(entry.name)
         children.setdefault(ppid, []).append(pid)
         names[pid] = comm
+        if len(fields) > _STAT_POLICY_INDEX and int(fields[_STAT_POLICY_INDEX]) == os.SCHED_IDLE:
+            idle.add(pid)
     found, todo = {}, list(children.get(root, []))
     while todo:
         pid = todo.pop()
-        found[pid] = names[pid]
+        if pid not in idle:
+            found[pid] = names[pid]
         todo += children.get(pid, [])
     return found
 
