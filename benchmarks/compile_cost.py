@@ -1,7 +1,7 @@
 """Cold compile cost of each set of compiled kernels (a benchmark, not a test).
 
 A fresh clone compiles every kernel set once (``make test`` prints the sum over
-its pytest processes and its kernel builder as "numba compiling"). This
+its pytest processes as "numba compiling in the pytest processes"). This
 measures each set's share: every run is a new Python process on a new, empty
 numba cache directory (``NUMBA_CACHE_DIR``), which builds the kernel sets in the order given, and
 reports for each the seconds numba spent compiling it
@@ -128,8 +128,8 @@ def write_section(add, m: dict) -> None:
         f'Every kernel set compiled once, cold, in one process: '
         f'**{statistics.median(totals):.1f} s** — '
         f'{"met" if ok else "**not met**"} by this measure. `make test` prints the '
-        'sum over its pytest processes and its kernel builder at its end ("numba '
-        'compiling"); a test that runs the engine in a subprocess on an unwritable cache compiles the run once more there.')
+        'sum over its pytest processes at its end ("numba compiling in the pytest '
+        'processes"); a test that runs the engine in a subprocess on an unwritable cache compiles the run once more there.')
     add('')
 
 

@@ -23,10 +23,7 @@ its own at the weakest autogroup nice (:func:`_leave_the_ros_tests_autogroup`).
 import ctypes
 import os
 import random
-import shutil
-import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -34,7 +31,6 @@ import pytest
 
 from hill_muscle_ros.dds_transport import use_udp_transport
 from hill_muscle_ros.domain_lock import lock_free_domain
-import kernel_builder
 from stall_watch import StallWatcher
 
 #: Domain IDs 1..100 stay clear of 0 (the default most people use), of the
@@ -100,117 +96,31 @@ def protocol_paths():
     return {'I': PROTOCOLS / 'protocol_I.yaml', 'II': PROTOCOLS / 'protocol_II.yaml'}
 
 
-#: Where the kernel builder writes its result (set by the run's first process,
-#: inherited by xdist workers), and its process id.
-_KERNELS_MARKER_ENV = 'HILL_MUSCLE_TEST_KERNELS_MARKER'
-_KERNELS_PID_ENV = 'HILL_MUSCLE_TEST_KERNELS_PID'
-#: [s] how long a test waits for the builder: a cold compile at the weakest
-#: priority beside the tests takes about a minute here.
-KERNEL_BUILD_TIMEOUT_S = 600.0
-#: Test modules that start no node loading the compiled FES muscle or limb and
-#: call none of their kernels: they run while the builder compiles. A module
-#: listed wrongly only loads (or compiles) the kernels itself, slower.
-BEFORE_THE_KERNELS = frozenset({
-    'test_colcon_build', 'test_controller_closed_loop', 'test_controller_demo',
-    'test_controller_node', 'test_dds_transport', 'test_demo'})
-#: The builder process, in the process that started it, and its result once
-#: the session is over.
-_builder = None
-_builder_outcome = None
-
-
-def _weakest_priority() -> None:
-    """In a child that ``start_new_session`` put in a session of its own: the
-    weakest autogroup nice and the idle CPU policy (see
-    :func:`_leave_the_ros_tests_autogroup`)."""
-    try:
-        with open('/proc/self/autogroup', 'w') as autogroup:
-            autogroup.write(str(_WEAKEST_NICE))
-    except OSError:
-        pass
-    if hasattr(os, 'SCHED_IDLE'):
-        os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
-
-
 def pytest_sessionstart(session):
-    """Start building the compiled limb and FES muscle, when the limb and
-    simulator nodes would run them (numba importable, ``HILL_MUSCLE_ENGINE``
-    not ``python``): ``test/kernel_builder.py`` in a process of its own, at
-    the weakest priority. A test that may need them waits for it
-    (:func:`_kernels_built`), so that its nodes load them from numba's disk
-    cache (about 1 s) instead of compiling them (about 30 s, the tests'
-    whole start-up deadline); the modules in :data:`BEFORE_THE_KERNELS` run
-    meanwhile. Under xdist the controller starts it before its workers, which
-    inherit where to look."""
-    global _builder
+    """Load the compiled limb and the compiled FES muscle once, before any test,
+    when the limb and simulator nodes would run them (numba importable,
+    ``HILL_MUSCLE_ENGINE`` not ``python``): a node started by a test then loads
+    them from numba's disk cache (about 1 s) instead of compiling them (about
+    30 s, the tests' whole start-up deadline). The offline tests compile these
+    kernels anyway, so the run compiles nothing more. Under xdist the controller
+    does it before it starts its workers, which then load from the cache."""
     if 'PYTEST_XDIST_WORKER' in os.environ:
         return
-    from hill_muscle_ros.model import engine
+    from hill_muscle_ros.model import engine, fes_kernels, limb_kernels
     try:
         if engine.choice() != engine.COMPILED:
             return
     except (ValueError, ImportError):
         return   # the node falls back to Python then; test_node_limb says whether it should
-    marker = Path(tempfile.mkdtemp(prefix='hill_muscle_ros_kernels_')) / 'built.json'
-    log = open(marker.with_suffix('.log'), 'wb')
-    _builder = subprocess.Popen(
-        [sys.executable, str(Path(__file__).with_name('kernel_builder.py')), str(marker)],
-        stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
-        preexec_fn=_weakest_priority)
-    log.close()   # the child has its own descriptor
-    os.environ[_KERNELS_MARKER_ENV] = str(marker)
-    os.environ[_KERNELS_PID_ENV] = str(_builder.pid)
-
-
-def _running(pid: int) -> bool:
-    """Whether process ``pid`` exists and has not exited (a zombie has)."""
-    try:
-        stat = Path(f'/proc/{pid}/stat').read_text(errors='replace')
-    except OSError:
-        return False
-    return stat[stat.rindex(')') + 2:].split()[0] != 'Z'
-
-
-def _builder_result(timeout_s: float) -> dict | None:
-    """The builder's result once it has finished (``None`` if none was started).
-
-    :raises TimeoutError: if it has not finished within ``timeout_s``, or
-        ended without writing its result
-    """
-    marker = os.environ.get(_KERNELS_MARKER_ENV)
-    if marker is None:
-        return None
-    marker = Path(marker)
-    deadline = time.monotonic() + timeout_s
-    while (result := kernel_builder.read_marker(marker)) is None:
-        if not _running(int(os.environ[_KERNELS_PID_ENV])):
-            if (result := kernel_builder.read_marker(marker)) is not None:
-                break
-            log = marker.with_suffix('.log')
-            raise TimeoutError(f'the kernel builder ended without a result; its log '
-                               f'{log}:\n{log.read_text(errors="replace")[-3000:]}')
-        if time.monotonic() > deadline:
-            raise TimeoutError(f'the kernel builder wrote no {marker} within {timeout_s:g} s')
-        time.sleep(kernel_builder.POLL_S)
-    return result
-
-
-@pytest.fixture(scope='module', autouse=True)
-def _kernels_built(request):
-    """Wait for the kernel builder before a module outside :data:`BEFORE_THE_KERNELS`.
-
-    Module scope: an autouse fixture comes before the other fixtures of its
-    scope and after those of wider ones, and modules start their nodes in
-    module fixtures too (the knee demo's run)."""
-    module = request.module.__name__.rsplit('.', 1)[-1]
-    if module not in BEFORE_THE_KERNELS:
-        try:
-            result = _builder_result(KERNEL_BUILD_TIMEOUT_S)
-        except TimeoutError as err:
-            pytest.fail(str(err))
-        if result is not None and not result['ok']:
-            pytest.fail(f'the kernel builder failed:\n{result["error"]}')
-    yield
+    reporter = session.config.pluginmanager.get_plugin('terminalreporter')
+    started = time.monotonic()
+    fes_kernels.compiled()   # the simulator node's FES muscle (compiled_muscle)
+    limb_kernels.compiled()
+    if reporter is not None:
+        reporter.write_line(
+            f'compiled limb and FES muscle loaded for the node tests in '
+            f'{time.monotonic() - started:.1f} s ({engine.compile_seconds():.1f} s of it '
+            'compiling)')
 
 
 #: Key of a worker's compiling seconds in xdist's ``workeroutput``.
@@ -226,18 +136,10 @@ def _compile_seconds() -> float:
 
 
 def pytest_sessionfinish(session):
-    """An xdist worker hands its compiling time to the controller; the process
-    that started the builder waits for it (a short run may end first), so
-    that it leaves no process behind and numba's cache whole."""
+    """An xdist worker hands its compiling time to the controller."""
     workeroutput = getattr(session.config, 'workeroutput', None)
     if workeroutput is not None:
         workeroutput[_WORKER_COMPILE_KEY] = _compile_seconds()
-    global _builder_outcome
-    if _builder is not None:
-        _builder.wait()
-        marker = Path(os.environ[_KERNELS_MARKER_ENV])
-        _builder_outcome = kernel_builder.read_marker(marker)
-        shutil.rmtree(marker.parent, ignore_errors=True)
 
 
 def pytest_testnodedown(node, error):
@@ -248,22 +150,18 @@ def pytest_testnodedown(node, error):
 
 
 def pytest_terminal_summary(terminalreporter):
-    """Say how long the pytest processes and the kernel builder spent in
-    numba's compiler: a clean clone compiles every kernel once (the budget is
-    60 s), a second run loads them."""
-    parts = {'this process': _compile_seconds()}
-    result = _builder_outcome
-    if result is not None:
-        parts['kernel builder'] = result['compile_s']
+    """Say how long the pytest processes spent in numba's compiler: a clean
+    clone compiles every kernel once (the budget is 60 s), a second run loads
+    them. Under xdist: this process and each worker, and their sum."""
+    own = _compile_seconds()
+    if not _workers_compile_s:
         terminalreporter.write_line(
-            f'kernel builder: {"built" if result["ok"] else "FAILED"} the compiled limb '
-            f'and FES muscle in {result["wall_s"]:.1f} s beside the first tests')
-    for k, seconds in enumerate(_workers_compile_s):
-        parts[f'worker {k}'] = seconds
-    detail = ', '.join(f'{name} {s:.1f} s' for name, s in parts.items())
+            f'numba compiling in this process: {own:.1f} s (subprocesses not counted)')
+        return
+    workers = ', '.join(f'{s:.1f}' for s in _workers_compile_s)
     terminalreporter.write_line(
-        f'numba compiling: {sum(parts.values()):.1f} s ({detail}; other subprocesses '
-        'not counted)')
+        f'numba compiling in the pytest processes: {own + sum(_workers_compile_s):.1f} s '
+        f'(this one {own:.1f} s, workers {workers} s; their subprocesses not counted)')
 
 
 # --------------------------------------------------------------------------- two workers

@@ -46,18 +46,10 @@ QUOTE_CHARS = 600
 HISTORY_S = 600.0
 
 
-#: Index of the scheduling policy among the fields of /proc/<pid>/stat after
-#: the command (field 41 of proc(5), the fields counted from 1, state being 3).
-_STAT_POLICY_INDEX = 41 - 3
-
-
 def _descendants(root: int) -> dict[int, str]:
-    """Process ids and names of every process below ``root`` (from /proc), but
-    those at the idle CPU policy: they wait for a CPU by design (the test
-    run's kernel builder), which says nothing of the machine."""
+    """Process ids and names of every process below ``root`` (from /proc)."""
     children: dict[int, list[int]] = {}
     names: dict[int, str] = {}
-    idle: set[int] = set()
     for entry in os.scandir('/proc'):
         if not entry.name.isdigit():
             continue
@@ -68,18 +60,14 @@ def _descendants(root: int) -> dict[int, str]:
             continue  # gone meanwhile
         # "pid (comm) state ppid ...": comm may hold spaces and parentheses.
         comm = stat[stat.index('(') + 1:stat.rindex(')')]
-        fields = stat[stat.rindex(')') + 2:].split()
-        ppid = int(fields[1])
+        ppid = int(stat[stat.rindex(')') + 2:].split()[1])
         pid = int(entry.name)
         children.setdefault(ppid, []).append(pid)
         names[pid] = comm
-        if len(fields) > _STAT_POLICY_INDEX and int(fields[_STAT_POLICY_INDEX]) == os.SCHED_IDLE:
-            idle.add(pid)
     found, todo = {}, list(children.get(root, []))
     while todo:
         pid = todo.pop()
-        if pid not in idle:
-            found[pid] = names[pid]
+        found[pid] = names[pid]
         todo += children.get(pid, [])
     return found
 
