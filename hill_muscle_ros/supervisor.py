@@ -28,6 +28,7 @@ stopping processes needs no ROS environment.
 """
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import os
 import signal
@@ -152,6 +153,36 @@ def _child_setup(then: Callable[[], None] | None) -> Callable[[], None]:
     return setup
 
 
+#: Depth of the :func:`_deferring_stops` blocks the main thread is in.
+_critical_depth = 0
+#: A stop signal that arrived inside such a block, raised at its end.
+_deferred_stop: str | None = None
+
+
+@contextlib.contextmanager
+def _deferring_stops():
+    """A block in which :class:`StopSignals` raises nothing; a stop signal that
+    arrives inside it is raised as :class:`KeyboardInterrupt` as the block ends.
+
+    ``subprocess.Popen`` takes a lock of its own to reap a child and releases
+    it in a ``finally``. An exception raised by a signal handler between the
+    lock's acquisition and that ``try`` leaves the lock held for good: every
+    later ``poll()`` says "running" and ``wait()`` blocks forever. That hung
+    ``make demo`` after Ctrl-C in about one run of 15 here (the demo's stack:
+    ``Process.kill`` in ``Popen.wait``, the player already a zombie). Every
+    call of :class:`Process` into its ``Popen`` is such a block.
+    """
+    global _critical_depth, _deferred_stop
+    _critical_depth += 1
+    try:
+        yield
+    finally:
+        _critical_depth -= 1
+        if _critical_depth == 0 and _deferred_stop is not None:
+            name, _deferred_stop = _deferred_stop, None
+            raise KeyboardInterrupt(name)
+
+
 class StopSignals:
     """How a demo (a plain Python program that starts nodes) is stopped.
 
@@ -163,6 +194,9 @@ class StopSignals:
     inside rclpy's C extension comes out of it as another exception (pybind11
     turns it into ``RuntimeError: Unable to convert call argument ...``), and
     the demo must treat that as the interrupt it is, not as its own error.
+    Inside a call of :class:`Process` into ``subprocess.Popen`` (and while a
+    :class:`ProcessGroup` stops its processes) the interrupt waits for the
+    call to end (:func:`_deferring_stops`).
     """
 
     SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
@@ -174,8 +208,12 @@ class StopSignals:
             signal.signal(sig, self._on_signal)
 
     def _on_signal(self, signum, _frame) -> None:
+        global _deferred_stop
         if self.received is None:
             self.received = signum
+        if _critical_depth > 0:
+            _deferred_stop = signal.Signals(signum).name   # raised as the block ends
+            return
         raise KeyboardInterrupt(signal.Signals(signum).name)
 
 
@@ -198,10 +236,12 @@ class Process:
         self._log: IO[bytes] = open(self.log_path, 'wb')
         try:
             # Own session: a SIGKILL of its group cannot reach this process.
-            self.popen = subprocess.Popen(
-                self.cmd, stdout=self._log, stderr=subprocess.STDOUT,
-                env=env if env is not None else ros_environment(),
-                start_new_session=True, preexec_fn=_child_setup(preexec_fn))
+            # Deferring stops: a child started is a child recorded, to be stopped.
+            with _deferring_stops():
+                self.popen = subprocess.Popen(
+                    self.cmd, stdout=self._log, stderr=subprocess.STDOUT,
+                    env=env if env is not None else ros_environment(),
+                    start_new_session=True, preexec_fn=_child_setup(preexec_fn))
         except BaseException:
             self._log.close()
             raise
@@ -213,7 +253,8 @@ class Process:
     @property
     def returncode(self) -> int | None:
         """Exit status, or ``None`` while running."""
-        return self.popen.poll()
+        with _deferring_stops():
+            return self.popen.poll()
 
     def output(self) -> str:
         """Everything the process has written so far."""
@@ -230,8 +271,9 @@ class Process:
 
     def send_signal(self, sig: int) -> None:
         """Send ``sig`` to the process (not its group), if it still runs."""
-        if self.popen.poll() is None:
-            self.popen.send_signal(sig)
+        with _deferring_stops():
+            if self.popen.poll() is None:
+                self.popen.send_signal(sig)
 
     def wait(self, timeout_s: float) -> int:
         """Wait for the process to exit on its own; return its status.
@@ -239,7 +281,8 @@ class Process:
         :raises SupervisorError: if it still runs after ``timeout_s``, with its log
         """
         try:
-            return self.popen.wait(timeout=timeout_s)
+            with _deferring_stops():
+                return self.popen.wait(timeout=timeout_s)
         except subprocess.TimeoutExpired:
             raise SupervisorError(f'{self.name} still running after {timeout_s:g} s\n'
                                   f'{self.describe()}') from None
@@ -251,22 +294,24 @@ class Process:
 
         :return: the exit status
         """
-        if self.popen.poll() is None:
-            try:
-                self.popen.send_signal(signal.SIGINT)
-                self.popen.wait(timeout=grace_s)
-            except subprocess.TimeoutExpired:
-                self.kill()
-        self._log.close()
-        return self.popen.returncode
+        with _deferring_stops():
+            if self.popen.poll() is None:
+                try:
+                    self.popen.send_signal(signal.SIGINT)
+                    self.popen.wait(timeout=grace_s)
+                except subprocess.TimeoutExpired:
+                    self.kill()
+            self._log.close()
+            return self.popen.returncode
 
     def kill(self) -> None:
         """SIGKILL of the whole process group, and reap the process."""
-        try:
-            os.killpg(self.popen.pid, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
-        self.popen.wait()
+        with _deferring_stops():
+            try:
+                os.killpg(self.popen.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+            self.popen.wait()
 
 
 def wait_until(condition: Callable[[], Any], what: str, timeout_s: float,
@@ -345,9 +390,13 @@ class ProcessGroup:
                                       f'{proc.describe()}')
 
     def stop_all(self) -> None:
-        """Stop every process, the most recently started first."""
-        for proc in reversed(self.processes):
-            proc.stop(self.grace_s)
+        """Stop every process, the most recently started first.
+
+        A stop signal that arrives meanwhile is raised once all are stopped.
+        """
+        with _deferring_stops():
+            for proc in reversed(self.processes):
+                proc.stop(self.grace_s)
 
     def __enter__(self) -> 'ProcessGroup':
         return self

@@ -1,5 +1,11 @@
 """The demos' stop signals (supervisor.StopSignals), offline.
 
+A stop signal that arrives while a supervised process is being polled,
+waited for or stopped is raised once that call is over, not inside
+``subprocess.Popen``: raised between Popen taking its reaping lock and the
+``try`` that releases it, it left the lock held, and ``make demo`` hung in
+``Popen.wait`` after Ctrl-C in about one run of 15.
+
 A fresh-clone run saw ``make demo-knee`` exit 1 ("demo-knee: error: Unable
 to convert call argument '0' to Python object") on SIGINT: the
 KeyboardInterrupt raised by the signal handler came out of rclpy's pybind11
@@ -8,11 +14,15 @@ ROS: a stop signal is remembered, and a demo that meets any error after one
 reports the interrupt (exit 130), not an error.
 """
 import signal
+import sys
 
 import pytest
 
 from hill_muscle_ros import demo_knee
-from hill_muscle_ros.supervisor import StopSignals
+from hill_muscle_ros.supervisor import Process, StopSignals
+
+#: [s] grace of the sleeping child's stop (SIGINT ends it at once).
+GRACE_S = 10.0
 
 #: pybind11's message when a Python exception interrupts an argument conversion.
 PYBIND11_MESSAGE = "Unable to convert call argument '0' to Python object"
@@ -60,3 +70,69 @@ def test_an_error_without_a_stop_signal_is_reported_as_an_error(
     monkeypatch.setattr(demo_knee, 'run', run_failing)
     assert demo_knee.main(['--out', str(tmp_path / 'out')]) == demo_knee.EXIT_ERROR
     assert 'the limb node exited' in capsys.readouterr().err
+
+
+class SignalAfterAcquire:
+    """Stands in for Popen's reaping lock: sends a stop signal to this process
+    right after the lock is taken, in the window before Popen's ``try``."""
+
+    def __init__(self, lock, sig: int) -> None:
+        self._lock, self._sig, self.fired = lock, sig, False
+
+    def acquire(self, *args) -> bool:
+        taken = self._lock.acquire(*args)
+        if taken and not self.fired:
+            self.fired = True
+            signal.raise_signal(self._sig)   # the handler runs before this returns
+        return taken
+
+    def release(self) -> None:
+        self._lock.release()
+
+    def locked(self) -> bool:
+        return self._lock.locked()
+
+    def __enter__(self):
+        self.acquire()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.release()
+
+
+@pytest.fixture
+def sleeper(tmp_path):
+    proc = Process('sleeper', [sys.executable, '-c', 'import time; time.sleep(60)'],
+                   tmp_path / 'sleeper.log', env={})
+    yield proc
+    proc.kill()
+
+
+def test_a_stop_signal_inside_a_poll_is_raised_after_it_and_the_child_can_still_be_stopped(
+        restore_handlers, sleeper):
+    StopSignals()
+    lock = sleeper.popen._waitpid_lock = SignalAfterAcquire(sleeper.popen._waitpid_lock,
+                                                           signal.SIGINT)
+    with pytest.raises(KeyboardInterrupt):
+        sleeper.returncode
+    assert lock.fired
+    assert not lock.locked(), 'the stop signal left Popen\'s reaping lock held'
+    assert sleeper.stop(GRACE_S) == -signal.SIGINT
+
+
+def test_a_stop_signal_during_the_stop_of_a_group_stops_every_process_first(
+        restore_handlers, tmp_path):
+    from hill_muscle_ros.supervisor import ProcessGroup
+    StopSignals()
+    group = ProcessGroup(tmp_path, env={}, grace_s=GRACE_S)
+    first = group.start('first', [sys.executable, '-c', 'import time; time.sleep(60)'])
+    second = group.start('second', [sys.executable, '-c', 'import time; time.sleep(60)'])
+    second.popen._waitpid_lock = SignalAfterAcquire(second.popen._waitpid_lock, signal.SIGTERM)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            group.stop_all()
+        # Both ended (the first may take SIGINT still starting up: exit 1).
+        assert first.returncode is not None and second.returncode is not None
+    finally:
+        first.kill()
+        second.kill()
