@@ -17,10 +17,12 @@ $(STAMP): setup.py setup.cfg package.xml requirements-dev.txt requirements-ros.t
 	$(BIN)/python -m pip install --disable-pip-version-check -q --no-deps -e .
 	touch $(STAMP)
 
-# Two pytest workers: one runs the ROS tests one at a time, in file order, the
-# other the offline tests beside them at idle CPU priority (test/conftest.py).
+# Serial. `pytest -n 2 --dist loadgroup` runs the offline tests beside the ROS
+# tests at idle priority in a session of their own (test/conftest.py); not the
+# default: the simulator's 20 ms tick-gap bound under tool churn failed beside
+# them on a fresh clone.
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -n 2 --dist loadgroup --durations=15
+	$(BIN)/python -m pytest -q --durations=15
 
 # The live demo: simulator, protocol player and recorder as three ROS 2
 # processes on a DDS domain of their own; the bag is read back, plotted

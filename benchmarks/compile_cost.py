@@ -1,7 +1,7 @@
 """Cold compile cost of each set of compiled kernels (a benchmark, not a test).
 
-A fresh clone compiles every kernel set once (``make test`` prints the sum over
-its pytest processes as "numba compiling in the pytest processes"). This
+A fresh clone compiles every kernel set once (``make test`` prints the sum as
+"numba compiling in this process"). This
 measures each set's share: every run is a new Python process on a new, empty
 numba cache directory (``NUMBA_CACHE_DIR``), which builds the kernel sets in the order given, and
 reports for each the seconds numba spent compiling it
@@ -127,9 +127,9 @@ def write_section(add, m: dict) -> None:
     add(f'- Goal: a fresh clone\'s `make test` compiles for at most {TARGET_COMPILE_S:g} s. '
         f'Every kernel set compiled once, cold, in one process: '
         f'**{statistics.median(totals):.1f} s** — '
-        f'{"met" if ok else "**not met**"} by this measure. `make test` prints the '
-        'sum over its pytest processes at its end ("numba compiling in the pytest '
-        'processes"); a test that runs the engine in a subprocess on an unwritable cache compiles the run once more there.')
+        f'{"met" if ok else "**not met**"} by this measure. `make test` prints its '
+        'process\'s figure at its end ("numba compiling in this process"; with `-n 2`, '
+        'the sum over the pytest processes); a test that runs the engine in a subprocess on an unwritable cache compiles the run once more there.')
     add('')
 
 

@@ -7,8 +7,9 @@ two concurrent runs on one machine never draw the same one. Subprocesses
 inherit these variables. Under pytest-xdist each worker claims a domain of
 its own.
 
-Two workers (``pytest -n 2 --dist loadgroup``, as ``make test`` runs it;
-plain ``pytest`` runs everything in one process, in file order). The tests that
+Two workers, opt-in (``pytest -n 2 --dist loadgroup``; ``make test`` runs
+serially: the simulator's 20 ms tick-gap bound under tool churn failed beside
+the offline worker on a fresh clone). The tests that
 start ROS processes or DDS participants are timing claims about a 1 kHz loop
 on 2 cores, so they run as before: one at a time, in file order, in one worker
 (work unit :data:`SERIAL_GROUP`), at normal priority. The others (the model,
