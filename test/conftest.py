@@ -259,9 +259,10 @@ def _set_priority(policy: int, io_class: int) -> None:
     Linux keeps both per thread, and a thread inherits them from the thread
     that creates it. Setting them for the calling thread alone left the
     threads made before it at normal priority: the BLAS pool that importing
-    NumPy starts, for one. Busy beside the ROS tests, such a thread kept a
-    closed-loop test's force controller from a CPU for 140-234 ms (measured
-    with the stall watcher, two repeated runs of the 15 N stretch test).
+    NumPy starts, for one (read back from /proc: policy 0 beside the main
+    thread's 5). The stalls the closed-loop tests measured beside this worker
+    were the session's share (:func:`_leave_the_ros_tests_autogroup`): they
+    stayed with every thread idle, and went with the session of its own.
     """
     for entry in os.listdir('/proc/self/task'):
         tid = int(entry)
