@@ -236,7 +236,8 @@ class Process:
         self._log: IO[bytes] = open(self.log_path, 'wb')
         try:
             # Own session: a SIGKILL of its group cannot reach this process.
-            # Deferring stops: a child started is a child recorded, to be stopped.
+            # No stop signal inside Popen (see _deferring_stops); ProcessGroup.start
+            # defers it further, until the process is in the group.
             with _deferring_stops():
                 self.popen = subprocess.Popen(
                     self.cmd, stdout=self._log, stderr=subprocess.STDOUT,
@@ -366,10 +367,14 @@ class ProcessGroup:
 
     def start(self, name: str, cmd: Sequence[str], env: dict[str, str] | None = None,
               preexec_fn: Callable[[], None] | None = None) -> Process:
-        """Start a process logging to ``<log_dir>/<name>.log``; it stops with the group."""
-        proc = self.process_class(name, cmd, self.log_dir / f'{name}.log',
-                                  env if env is not None else self.env, preexec_fn)
-        self.processes.append(proc)
+        """Start a process logging to ``<log_dir>/<name>.log``; it stops with the group.
+
+        A stop signal that arrives while it starts is raised once it is in the
+        group, so that the group's stop reaches it."""
+        with _deferring_stops():
+            proc = self.process_class(name, cmd, self.log_dir / f'{name}.log',
+                                      env if env is not None else self.env, preexec_fn)
+            self.processes.append(proc)
         return proc
 
     def wait_until(self, condition: Callable[[], Any], what: str, timeout_s: float,

@@ -136,3 +136,26 @@ def test_a_stop_signal_during_the_stop_of_a_group_stops_every_process_first(
     finally:
         first.kill()
         second.kill()
+
+
+def test_a_stop_signal_while_a_group_starts_a_process_comes_after_it_joined_the_group(
+        restore_handlers, tmp_path, monkeypatch):
+    from hill_muscle_ros import supervisor
+    real_popen = supervisor.subprocess.Popen
+
+    def popen_then_signal(*args, **kwargs):
+        child = real_popen(*args, **kwargs)
+        signal.raise_signal(signal.SIGINT)   # the child runs: the signal comes now
+        return child
+
+    StopSignals()
+    group = supervisor.ProcessGroup(tmp_path, env={}, grace_s=GRACE_S)
+    monkeypatch.setattr(supervisor.subprocess, 'Popen', popen_then_signal)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            group.start('sleeper', [sys.executable, '-c', 'import time; time.sleep(60)'])
+        monkeypatch.undo()
+        assert [p.name for p in group.processes] == ['sleeper'], 'a started child left unstopped'
+    finally:
+        monkeypatch.undo()
+        group.stop_all()
