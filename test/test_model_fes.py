@@ -5,9 +5,10 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, strategies as st
 
 from hill_muscle_ros.model import Muscle, MuscleParams, Protocol, simulate
-from hill_muscle_ros.model.fes_muscle import FesMuscle
+from hill_muscle_ros.model.fes_muscle import FesMuscle, fes_velocity, quasi_static_force
 from hill_muscle_ros.model.protocol import commands_from_pulse_widths
 from hill_muscle_ros.model.stimulus import command_from_pulse_width
 from hill_muscle_ros.resources import protocol_path
@@ -305,3 +306,23 @@ def test_single_relative_muscle_rising_from_zero_has_no_force_spike():
                                       'recruitment': [[0.0, 0.0], [0.1, 0.0], [0.3, 0.3]]})
     coarse, fine = simulate(protocol, params, 1000.0), simulate(protocol, params, 20000.0)
     np.testing.assert_allclose(coarse.f_se_n, fine.f_se_n[::20], rtol=0, atol=0.1)
+
+
+@given(f0=st.floats(1e-3, 3000.0), share=st.floats(-0.95, 0.95), relative=st.booleans())
+def test_the_quasi_static_force_is_the_one_whose_velocity_is_the_mtus(f0, share, relative):
+    """quasi_static_force is Eq. 3 itself: the force at which the inverted
+    Eq. 3 (fes_velocity, the CE's ODE) gives back the velocity, over the whole
+    range from the fastest shortening to the fastest lengthening, with absolute
+    and F0-relative constants."""
+    a, b, a_ecc, b_ecc, f_iso_max, k_se = 375.0, 0.235, 375.0, 0.176, 1500.0, 962000.0
+    scale = f0 / f_iso_max if relative else 1.0
+    v_max = b * f0 / (a * scale) if share < 0.0 else b_ecc * f0 / (a_ecc * scale)
+    v = share * v_max
+    f = quasi_static_force(v, f0, a, b, a_ecc, b_ecc, f_iso_max, relative)
+    # An SE stretched by f / k_SE with the CE at rest length carries f.
+    back = fes_velocity(0.0, f / k_se, f0, k_se, 0.0, a, b, a_ecc, b_ecc, f_iso_max, relative)
+    assert back == pytest.approx(v, rel=1e-9, abs=1e-12)
+
+
+def test_without_recruitment_the_quasi_static_force_is_zero():
+    assert quasi_static_force(0.1, 0.0, 375.0, 0.235, 375.0, 0.176, 1500.0, True) == 0.0

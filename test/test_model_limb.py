@@ -25,6 +25,7 @@ from fes_reference import _params as muscle_params
 from fes_reference import command as curve_command
 from fes_reference import fl_scalar
 from hill_muscle_ros.model import MuscleParams, Protocol, simulate
+from hill_muscle_ros.model.fes_muscle import FesMuscle
 from hill_muscle_ros.model.limb import Limb, LimbPlant, LimbProtocol, simulate_limb
 from hill_muscle_ros.model.protocol import ProtocolError
 from hill_muscle_ros.params_file import load_plant
@@ -142,14 +143,21 @@ def sample_knots(knots, t):
     return out
 
 
-def run_case(name):
-    """Production at 1 ms and the reference on one accuracy case."""
+def case_inputs(name):
+    """The plant mapping, the stimulation key and knots, and the protocol of an
+    accuracy case."""
     quadriceps, hamstrings, key = CASES[name]
     plant = plant_dict(quadriceps, hamstrings)
     knots = RECRUITMENT if key == 'recruitment' else PULSE_WIDTH
     protocol = LimbProtocol.from_mapping({
         'name': name, 'duration_s': DURATION_S,
         'muscles': {m: {key: knots[m]} for m in NAMES}, 'external_torque_n_m': PUSHES})
+    return plant, key, knots, protocol
+
+
+def run_case(name):
+    """Production at 1 ms and the reference on one accuracy case."""
+    plant, key, knots, protocol = case_inputs(name)
     result = simulate_limb(LimbPlant.from_mapping(plant), protocol)
     t = result.t_s
     commands = np.column_stack([
@@ -189,6 +197,26 @@ def test_each_force_within_0_5_N_of_the_reference(runs, name):
     for j, m in enumerate(NAMES):
         err = np.max(np.abs(result[f'{m}_force_n'] - ref['force_n'][:, j]))
         assert err <= FORCE_ACCURACY_N, f'{m}: max |force - reference| = {err:.3g} N'
+
+
+def test_the_relative_fv_release_is_quasi_static_in_an_accuracy_case(monkeypatch):
+    """The hamstrings of this case have relative F-V constants and deactivate
+    fast: as their last units leave, their CE relaxes faster than
+    QUASI_STATIC_RATE_PER_S and is taken quasi-static (its force is Eq. 3's at
+    the MTU's velocity), so the two accuracy tests above check that path
+    against the reference."""
+    plant, _, _, protocol = case_inputs('fes-single-quadriceps-multi-hamstrings')
+    quasi = []
+    original = FesMuscle.quasi_static_force
+
+    def spy(self, *args):
+        quasi.append(self.params.fv_scaling)
+        return original(self, *args)
+
+    monkeypatch.setattr(FesMuscle, 'quasi_static_force', spy)
+    monkeypatch.setenv('HILL_MUSCLE_ENGINE', 'python')   # the spy sees the Python limb
+    simulate_limb(LimbPlant.from_mapping(plant), protocol)
+    assert quasi and set(quasi) == {'relative'}
 
 
 @pytest.mark.parametrize('name', list(CASES))

@@ -37,11 +37,13 @@ from typing import Sequence
 import numpy as np
 
 from . import curves, fes_muscle, memory, stimulus, unit_pool, units
-from .curves import (ECC_PLATEAU, FL_A, FL_B, FL_C, force_length, force_velocity_inverse,
-                     parallel_force, series_force)
-from .fes_muscle import (MAX_EVENTS_PER_PIECE, MAX_SUBSTEPS, RK4_MAX_H_LAMBDA,
-                         fes_velocity, fitness_at, piece_activation, relaxation_rate,
-                         riener_limit, riener_rate, rise_start, rk4_update, substep_count)
+from .curves import (ECC_PLATEAU, FL_A, FL_B, FL_C, force_length, force_velocity,
+                     force_velocity_inverse, parallel_force, series_force)
+from .fes_muscle import (MAX_EVENTS_PER_PIECE, MAX_SUBSTEPS, QUASI_STATIC_RATE_PER_S,
+                         RK4_MAX_H_LAMBDA,
+                         fes_velocity, fitness_at, piece_activation, quasi_static_force,
+                         relaxation_rate, riener_limit, riener_rate, rise_start, rk4_update,
+                         substep_count)
 from .memory import recruited_units
 from .params import MuscleParams
 from .stimulus import DelayLine, activation_at, time_to_reach
@@ -511,12 +513,20 @@ def stiffness_rate(F, I, i, l, dl, t):
                            F[fp + P_F_ISO_MAX], I[ip + I_RELATIVE] != 0)
 
 
-def substeps(F, I, i, h, l, dl, s0, s1):
-    """RK4 steps over [s0, s1] (FesMuscle.substeps)."""
+def peak_rate(F, I, i, l, dl, s0, s1):
+    """[1/s] the CE's relaxation rate over [s0, s1] (FesMuscle.peak_rate)."""
     r0 = stiffness_rate(F, I, i, l, dl, s0)
     r1 = stiffness_rate(F, I, i, l, dl, 0.5 * (s0 + s1))
     r2 = stiffness_rate(F, I, i, l, dl, s1)
-    return substep_count(h, max(r0, max(r1, r2)))
+    return max(r0, max(r1, r2))
+
+
+def quasi_force(F, I, i, v, f0):
+    """[N] the CE's force moving at ``v`` with F0 = ``f0`` (FesMuscle.quasi_static_force)."""
+    fp, ip = hdr(I, i, H_FP), hdr(I, i, H_IP)
+    return quasi_static_force(v, f0, F[fp + P_A], F[fp + P_B],
+                              F[fp + P_A_ECC], F[fp + P_B_ECC], F[fp + P_F_ISO_MAX],
+                              I[ip + I_RELATIVE] != 0)
 
 
 def single_fatigue(F, I, i):
@@ -791,11 +801,18 @@ def muscle_integrate(F, I, i, s0, s1, t0, dl0, rate):
     if h <= 0.0:
         return
     begin_interval(F, I, i, s0, s1)
-    n = substeps(F, I, i, h, F[fs + S_L], dl0 + rate * (s0 - t0), s0, s1)
-    for j in range(n):
-        a = s0 + h * j / n
-        b = s1 if j == n - 1 else s0 + h * (j + 1) / n
-        muscle_rk4(F, I, i, a, b, t0, dl0, rate)
+    l = F[fs + S_L]
+    peak = peak_rate(F, I, i, l, dl0 + rate * (s0 - t0), s0, s1)
+    if peak >= QUASI_STATIC_RATE_PER_S:
+        fp = hdr(I, i, H_FP)
+        f = quasi_force(F, I, i, rate, eff_f_iso(F, I, i, l, s1))
+        F[fs + S_L] = F[fp + P_L_REST] + dl0 + rate * (s1 - t0) - f / F[fp + P_K_SE]
+    else:
+        n = substep_count(h, peak)
+        for j in range(n):
+            a = s0 + h * j / n
+            b = s1 if j == n - 1 else s0 + h * (j + 1) / n
+            muscle_rk4(F, I, i, a, b, t0, dl0, rate)
     end_interval(F, I, i, s1)
 
 
@@ -1031,18 +1048,19 @@ def _plain() -> types.SimpleNamespace:
 
 #: The shared equations of other modules, compiled over this module's scope
 #: (whose imports include the constants they read), small enough to inline.
-_EQUATIONS = ('force_length', 'force_velocity_inverse', 'series_force', 'parallel_force',
-              'rk4_update', 'activation_at', 'time_to_reach',
+_EQUATIONS = ('force_length', 'force_velocity', 'force_velocity_inverse', 'series_force',
+              'parallel_force', 'rk4_update', 'activation_at', 'time_to_reach',
               'piece_activation', 'rise_start', 'fitness_at', 'riener_rate', 'riener_limit',
-              'fes_velocity', 'relaxation_rate', 'substep_count', 'recruited_units',
-              'fl_clear', 'type_fl_sum', 'moment_force', 'recruited_excess',
+              'fes_velocity', 'quasi_static_force', 'relaxation_rate', 'substep_count',
+              'recruited_units', 'fl_clear', 'type_fl_sum', 'moment_force', 'recruited_excess',
               'resting_deficit')
 #: This module's functions, callees before callers.
 _KERNELS = ('hdr', 'scratch', 'forget_eff_f_iso', 'per_type', 'per_sum', 'moment',
             'delay_push', 'delay_settle', 'pool_static_row', 'pool_push_recruited',
             'pool_clocks', 'pool_advance_to', 'pool_recruit', 'pool_release', 'pool_update',
             'pool_eff_f_iso_clipped', 'pool_eff_f_iso', 'pool_mean_fitness', 'eff_f_iso',
-            'velocity', 'stiffness_rate', 'substeps', 'single_fatigue', 'begin_interval',
+            'velocity', 'stiffness_rate', 'peak_rate', 'quasi_force',
+            'single_fatigue', 'begin_interval',
             'end_interval', 'set_activation', 'tau_for', 'set_piece', 'settle_now',
             'give_command', 'add_event', 'group_target', 'plan_events', 'plan_piece', 'plan',
             'apply', 'muscle_rk4', 'muscle_integrate', 'muscle_advance', 'muscle_outputs',

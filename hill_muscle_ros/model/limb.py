@@ -17,8 +17,13 @@ gives the instants at which its recruitment changes within a step, the limb
 integrates the joint and all CE lengths up to each instant of any muscle and
 lets that muscle update its memory there, so each unit still stores the CE
 length of its own recruitment instant. A muscle with nothing recruited has a
-free CE that follows its MTU (f_SE = 0). The single muscle with an imposed
-length (:class:`~hill_muscle_ros.model.muscle.Muscle`) is unchanged.
+free CE that follows its MTU (f_SE = 0). A muscle whose CE relaxes faster
+than :data:`~hill_muscle_ros.model.fes_muscle.QUASI_STATIC_RATE_PER_S` (few
+units left with ``fv_scaling: relative``) is quasi-static over the interval:
+its CE moves with its MTU, its SE carries the force Eq. 3 gives that velocity,
+and it leaves the RK4 state, whose steps are cut for the other CEs only
+(doc/model.md section 7.6). The single muscle with an imposed length
+(:class:`~hill_muscle_ros.model.muscle.Muscle`) is unchanged.
 
 The external torque and the stimulation are held over each step (zero-order
 hold), as the simulator node holds its inputs.
@@ -33,7 +38,7 @@ from typing import Any, Mapping, NamedTuple, Sequence
 import numpy as np
 
 from .curves import parallel_force, series_force
-from .fes_muscle import FesMuscle, rk4_update
+from .fes_muscle import QUASI_STATIC_RATE_PER_S, FesMuscle, rk4_update, substep_count
 from .muscle import DL_MT_LIMIT_M, check_recruitment
 from .params import _FLOAT_MAX, MuscleParams, _float, _spec, finite_float
 from .protocol import (Knots, ProtocolError, _parse_knots, check_protocol_keys,
@@ -342,7 +347,7 @@ class Limb:
     # -- dynamics ---------------------------------------------------------------------
 
     def _forces(self, theta: float, omega: float, ls: list[float], t: float,
-                free: list[bool]) -> tuple[float, list[float]]:
+                free: list[bool], quasi: list[bool]) -> tuple[float, list[float]]:
         """Angular acceleration and the CE velocities at one RK4 stage."""
         j = self.joint
         torque = 0.0
@@ -354,6 +359,9 @@ class Limb:
             if free[i]:
                 f_se = 0.0
                 v_ce.append(-s_r * omega)        # the free CE follows its MTU
+            elif quasi[i]:
+                f_se = m.quasi_static_force(-s_r * omega, ls[i], t)
+                v_ce.append(-s_r * omega)        # and so does the quasi-static one
             else:
                 l = ls[i]
                 f_se = series_force(p.k_se_n_per_m, dl, l, p.l_rest_m)
@@ -367,40 +375,46 @@ class Limb:
 
     def _integrate(self, s0: float, s1: float) -> None:
         """RK4 of (theta, omega, l_CE...) over [s0, s1], no recruitment change
-        inside; cut into as many equal steps as the stiffest CE needs
-        (:meth:`~hill_muscle_ros.model.fes_muscle.FesMuscle.substeps`)."""
+        inside; each quasi-static CE (relaxation rate at least
+        :data:`~hill_muscle_ros.model.fes_muscle.QUASI_STATIC_RATE_PER_S`) out of
+        it, cut into as many equal steps as the stiffest other CE needs
+        (:func:`~hill_muscle_ros.model.fes_muscle.substep_count`)."""
         h = s1 - s0
         if h <= 0.0:
             return
         muscles = self.muscles
         for m in muscles:
             m.begin_interval(s0, s1)
-        n = max([m.substeps(h, m.l_ce_m, m.dl_mt_m, s0, s1) for m in muscles], default=1)
+        rates = [m.peak_rate(m.l_ce_m, m.dl_mt_m, s0, s1) for m in muscles]
+        quasi = [rate >= QUASI_STATIC_RATE_PER_S for rate in rates]
+        n = max([substep_count(h, rate) for rate, q in zip(rates, quasi) if not q],
+                default=1)
         for i in range(n):
             a = s0 + h * i / n
             b = s1 if i == n - 1 else s0 + h * (i + 1) / n
-            self._rk4(a, b)
+            self._rk4(a, b, quasi)
         for m in muscles:
             m.end_interval(s1)
 
-    def _rk4(self, s0: float, s1: float) -> None:
-        """One RK4 step of the joint and every CE over [s0, s1]."""
+    def _rk4(self, s0: float, s1: float, quasi: list[bool]) -> None:
+        """One RK4 step of the joint and every CE over [s0, s1]; a quasi-static CE
+        is put where its SE carries its force at the end."""
         h = s1 - s0
         muscles = self.muscles
         free = [m.free(m.l_ce_m, s0, s1) for m in muscles]
         th, om = self.theta_rad, self.omega_rad_per_s
         ls = [m.l_ce_m for m in muscles]
         mid = s0 + 0.5 * h
-        a1, v1 = self._forces(th, om, ls, s0, free)
+        a1, v1 = self._forces(th, om, ls, s0, free, quasi)
         th2, om2 = th + 0.5 * h * om, om + 0.5 * h * a1
         ls2 = [l + 0.5 * h * v for l, v in zip(ls, v1)]
-        a2, v2 = self._forces(th2, om2, ls2, mid, free)
+        a2, v2 = self._forces(th2, om2, ls2, mid, free, quasi)
         th3, om3 = th + 0.5 * h * om2, om + 0.5 * h * a2
         ls3 = [l + 0.5 * h * v for l, v in zip(ls, v2)]
-        a3, v3 = self._forces(th3, om3, ls3, mid, free)
+        a3, v3 = self._forces(th3, om3, ls3, mid, free, quasi)
         th4, om4 = th + h * om3, om + h * a3
         ls4 = [l + h * v for l, v in zip(ls, v3)]
-        a4, v4 = self._forces(th4, om4, ls4, s1, free)
+        a4, v4 = self._forces(th4, om4, ls4, s1, free, quasi)
         self.theta_rad = rk4_update(th, h, om, om2, om3, om4)
         self.omega_rad_per_s = rk4_update(om, h, a1, a2, a3, a4)
         for i, m in enumerate(muscles):
@@ -408,6 +422,10 @@ class Limb:
             l = rk4_update(ls[i], h, v1[i], v2[i], v3[i], v4[i])
             if free[i] or m.eff_f_iso(l, s1) == 0.0:
                 l = m.params.l_rest_m + dl
+            elif quasi[i]:
+                s_r = self._sign[i] * self._arm[i]
+                f = m.quasi_static_force(-s_r * self.omega_rad_per_s, l, s1)
+                l = m.params.l_rest_m + dl - f / m.params.k_se_n_per_m
             m.l_ce_m, m.dl_mt_m = l, dl
 
     def step(self, commands: Sequence[float], external_torque_n_m: float,

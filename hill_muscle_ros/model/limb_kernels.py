@@ -6,7 +6,9 @@ The joint and its muscles are integrated together exactly as
 muscle plans its recruitment changes of the step, the events of all muscles
 are taken in time order (a stable sort: each muscle keeps its own order), the
 joint and every CE length are integrated with RK4 up to each event, with as
-many substeps as the stiffest CE needs. The muscles are those of
+many substeps as the stiffest CE needs; a quasi-static CE is out of the RK4
+state (its SE carries :func:`~.fes_muscle.quasi_static_force` of its MTU's
+velocity). The muscles are those of
 :mod:`.fes_kernels` (every variant and FES feature), their equations the
 shared ones; the joint's are written here once and are the reference's
 (the reference's ``_forces`` and ``_rk4`` are the readable form of the same
@@ -31,13 +33,14 @@ import numpy as np
 
 from . import curves, fes_kernels, fes_muscle, limb, memory, stimulus, unit_pool, units
 from .curves import parallel_force, series_force
-from .fes_muscle import rk4_update
+from .fes_muscle import QUASI_STATIC_RATE_PER_S, rk4_update, substep_count
 from .limb import joint_acceleration, mtu_length_change
 from .muscle import DL_MT_LIMIT_M
-from .fes_kernels import (A_END, DELAY_FULL, OK, H_FS, P_K_PE, P_K_SE, P_L_REST, S_CMD,
+from .fes_kernels import (A_END, DELAY_FULL, OK, H_FS, H_IP, I_INITIAL, P_K_PE, P_K_SE,
+                          P_L_REST, S_CMD,
                           S_DL, S_L, S_R, S_T, FesBundle, apply, begin_interval, eff_f_iso,
-                          end_interval, give_command, hdr, plan, settle_now, substeps,
-                          velocity, H_FP, H_JS, H_EVT, J_NEV)
+                          end_interval, give_command, hdr, peak_rate, plan, quasi_force,
+                          settle_now, velocity, H_FP, H_JS, H_EVT, J_NEV)
 
 # Entries of the limb's float array ``L``: the joint, its state, then per muscle
 # (from L_MUSCLES, L_PER_MUSCLE each) its action sign, moment arm and reference angle.
@@ -46,9 +49,11 @@ from .fes_kernels import (A_END, DELAY_FULL, OK, H_FS, P_K_PE, P_K_SE, P_L_REST,
 M_SIGN, M_ARM, M_REF = range(3)
 L_PER_MUSCLE = 3
 # Rows of the stage scratch ``W`` (rows of muscles): CE lengths of the four
-# stages, CE velocities of the four stages, free flags.
-W_L1, W_L2, W_L3, W_L4, W_V1, W_V2, W_V3, W_V4, W_FREE = range(9)
-N_W = 9
+# stages, CE velocities of the four stages, free flags, quasi-static flags, and
+# F0 at the step's start, middle and end where it does not depend on l_CE.
+(W_L1, W_L2, W_L3, W_L4, W_V1, W_V2, W_V3, W_V4, W_FREE, W_QUASI, W_F0A, W_F0M,
+ W_F0B) = range(13)
+N_W = 13
 #: Status of a limb step beyond fes_kernels' OK and DELAY_FULL: muscle i is
 #: stretched out of range at the step's end (status DL_OUT_OF_RANGE + i).
 DL_OUT_OF_RANGE = 2
@@ -68,6 +73,20 @@ def dl_mt(L, i, theta):
     return mtu_length_change(L[j + M_SIGN] * L[j + M_ARM], theta, L[j + M_REF])
 
 
+def length_free(I, i):
+    """True if muscle ``i``'s F0 does not depend on l_CE (``length: initial``):
+    a step then takes it once per stage instant (W_F0A, W_F0M, W_F0B)."""
+    return I[hdr(I, i, H_IP) + I_INITIAL] != 0
+
+
+def stage_f0(F, I, W, i, l, stage, t):
+    """[N] F0 of muscle ``i`` at RK4 stage ``stage`` (a row W_L1..W_L4 of ``W``),
+    CE length ``l``, instant ``t``: limb_rk4's where it does not depend on l_CE."""
+    if length_free(I, i):
+        return W[W_F0A + (stage + 1) // 2, i]   # stages 1, 2, 3, 4: start, mid, mid, end
+    return eff_f_iso(F, I, i, l, t)
+
+
 def forces(F, I, L, W, nm, theta, omega, stage, t, v_row):
     """[rad/s^2] the joint's angular acceleration at one RK4 stage, and each CE's
     velocity into row ``v_row`` of ``W`` (Limb._forces).
@@ -83,10 +102,13 @@ def forces(F, I, L, W, nm, theta, omega, stage, t, v_row):
         if W[W_FREE, i] != 0.0:
             f_se = 0.0
             W[v_row, i] = -s_r * omega          # the free CE follows its MTU
+        elif W[W_QUASI, i] != 0.0:
+            f_se = quasi_force(F, I, i, -s_r * omega, stage_f0(F, I, W, i, W[stage, i], stage, t))
+            W[v_row, i] = -s_r * omega          # and so does the quasi-static one
         else:
             l = W[stage, i]
             f_se = series_force(F[fp + P_K_SE], dl, l, F[fp + P_L_REST])
-            W[v_row, i] = velocity(F, I, i, l, dl, eff_f_iso(F, I, i, l, t))
+            W[v_row, i] = velocity(F, I, i, l, dl, stage_f0(F, I, W, i, l, stage, t))
         torque += s_r * (f_se + parallel_force(F[fp + P_K_PE], dl))
     return joint_acceleration(torque, theta, omega, L[L_TAU], L[L_INERTIA], L[L_MASS],
                               L[L_GRAVITY], L[L_COM], L[L_STIFFNESS], L[L_EQUILIBRIUM],
@@ -96,14 +118,20 @@ def forces(F, I, L, W, nm, theta, omega, stage, t, v_row):
 def limb_rk4(F, I, L, W, nm, s0, s1):
     """One RK4 step of the joint and every CE over [s0, s1] (Limb._rk4)."""
     h = s1 - s0
+    mid = s0 + 0.5 * h
     for i in range(nm):
         fs = hdr(I, i, H_FS)
         l = F[fs + S_L]
         W[W_L1, i] = l
-        W[W_FREE, i] = 1.0 if (eff_f_iso(F, I, i, l, s0) == 0.0
-                               and eff_f_iso(F, I, i, l, s1) == 0.0) else 0.0
+        if length_free(I, i):
+            W[W_F0A, i] = eff_f_iso(F, I, i, l, s0)
+            W[W_F0M, i] = eff_f_iso(F, I, i, l, mid)
+            W[W_F0B, i] = eff_f_iso(F, I, i, l, s1)
+            free = W[W_F0A, i] == 0.0 and W[W_F0B, i] == 0.0
+        else:
+            free = eff_f_iso(F, I, i, l, s0) == 0.0 and eff_f_iso(F, I, i, l, s1) == 0.0
+        W[W_FREE, i] = 1.0 if free else 0.0
     th, om = L[L_THETA], L[L_OMEGA]
-    mid = s0 + 0.5 * h
     a1 = forces(F, I, L, W, nm, th, om, W_L1, s0, W_V1)
     th2, om2 = th + 0.5 * h * om, om + 0.5 * h * a1
     for i in range(nm):
@@ -124,15 +152,22 @@ def limb_rk4(F, I, L, W, nm, s0, s1):
         fs = hdr(I, i, H_FS)
         dl = dl_mt(L, i, theta)
         l = rk4_update(W[W_L1, i], h, W[W_V1, i], W[W_V2, i], W[W_V3, i], W[W_V4, i])
-        if W[W_FREE, i] != 0.0 or eff_f_iso(F, I, i, l, s1) == 0.0:
-            l = F[hdr(I, i, H_FP) + P_L_REST] + dl
+        fp = hdr(I, i, H_FP)
+        f0 = stage_f0(F, I, W, i, l, W_L4, s1)
+        if W[W_FREE, i] != 0.0 or f0 == 0.0:
+            l = F[fp + P_L_REST] + dl
+        elif W[W_QUASI, i] != 0.0:
+            s_r = L[muscle_slot(i) + M_SIGN] * L[muscle_slot(i) + M_ARM]
+            l = F[fp + P_L_REST] + dl - quasi_force(F, I, i, -s_r * L[L_OMEGA], f0) / F[
+                fp + P_K_SE]
         F[fs + S_L] = l
         F[fs + S_DL] = dl
 
 
 def limb_integrate(F, I, L, W, nm, s0, s1):
     """RK4 of the joint and every CE over [s0, s1], no recruitment change inside,
-    cut as the stiffest CE needs (Limb._integrate)."""
+    the quasi-static CEs out of it, cut as the stiffest other CE needs
+    (Limb._integrate)."""
     h = s1 - s0
     if h <= 0.0:
         return
@@ -141,8 +176,11 @@ def limb_integrate(F, I, L, W, nm, s0, s1):
     n = 1
     for i in range(nm):
         fs = hdr(I, i, H_FS)
-        k = substeps(F, I, i, h, F[fs + S_L], F[fs + S_DL], s0, s1)
-        n = k if (i == 0 or k > n) else n
+        rate = peak_rate(F, I, i, F[fs + S_L], F[fs + S_DL], s0, s1)
+        quasi = rate >= QUASI_STATIC_RATE_PER_S
+        W[W_QUASI, i] = 1.0 if quasi else 0.0
+        if not quasi:
+            n = max(n, substep_count(h, rate))
     for j in range(n):
         a = s0 + h * j / n
         b = s1 if j == n - 1 else s0 + h * (j + 1) / n
@@ -387,8 +425,9 @@ RUN_MIN_MUSCLE_STEPS = 10_000
 
 #: The joint's equations (model/limb.py), compiled over this module's scope.
 _EQUATIONS = ('mtu_length_change', 'joint_acceleration')
-_KERNELS = ('muscle_slot', 'dl_mt', 'forces', 'limb_rk4', 'limb_integrate', 'limb_step',
-            'limb_give', 'limb_record', 'limb_hold', 'limb_run', 'limb_entry')
+_KERNELS = ('muscle_slot', 'dl_mt', 'length_free', 'stage_f0', 'forces', 'limb_rk4',
+            'limb_integrate', 'limb_step', 'limb_give', 'limb_record', 'limb_hold', 'limb_run',
+            'limb_entry')
 #: Compiled into :func:`limb_entry` by numba's own inlining (each has one call
 #: site there), so that they are no compiled functions of their own each
 #: holding the muscle's code again.
@@ -414,12 +453,13 @@ def compiled() -> types.SimpleNamespace:
     from . import engine
     scope = fes_kernels.scope_calling(
         globals(), ('apply', 'begin_interval', 'eff_f_iso', 'end_interval', 'give_command',
-                    'hdr', 'plan', 'settle_now', 'substeps', 'velocity', 'series_force',
-                    'parallel_force', 'rk4_update'))
+                    'hdr', 'plan', 'settle_now', 'peak_rate', 'quasi_force', 'substep_count',
+                    'velocity', 'series_force', 'parallel_force', 'rk4_update'))
     leaf = {'error_model': 'numpy', 'inline': 'always'}
     body = {'error_model': 'numpy'}
     options = {name: body for name in _KERNELS}
-    options.update({name: leaf for name in _EQUATIONS + ('muscle_slot', 'dl_mt') + _INTO_ENTRY})
+    options.update({name: leaf for name in _EQUATIONS + ('muscle_slot', 'dl_mt', 'length_free',
+                                                         'stage_f0') + _INTO_ENTRY})
 
     # The one entry point, with its signature: compiled (or loaded) here, never
     # at a first step.
