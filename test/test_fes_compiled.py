@@ -197,3 +197,22 @@ def test_delay_line_grows_for_a_shorter_step(kernels):
     muscle.run(r[::-1], np.zeros(40), 1e-4, None, cols)
     assert np.abs(first - ref[:40]).max() <= TOL
     assert np.abs(second - np.array(cols).T).max() <= TOL
+
+
+def test_a_new_bundle_starts_fresh_though_its_layout_is_kept(kernels):
+    """FesBundle keeps the laid-out arrays of recent parameter sets: a bundle made
+    after another of the same muscle has run equals one laid out from scratch,
+    and owns its arrays (writable, shared with no other bundle)."""
+    params = MuscleParams(n_units=200, fibre_fractions=[0.4, 0.6], recruitment_order='random',
+                          recruitment_seed=5, fatigue='riener', tau_fatigue_s=[3.0, 1.0],
+                          emd_s=0.02, tau_act_s=0.03)
+    used = fes_kernels.FesBundle([params])
+    n = 300
+    fes_kernels.run_muscle(used, 0, np.full(n, 0.6), np.zeros(n), 1e-3, None, kernels)
+    new = fes_kernels.FesBundle([params])
+    scratch = fes_kernels.FesBundle._filled((params,), new.cap)
+    np.testing.assert_array_equal(new.F, scratch.F)
+    np.testing.assert_array_equal(new.I, scratch.I)
+    assert not np.array_equal(used.F, new.F)
+    assert new.F.flags.writeable and new.I.flags.writeable
+    assert not np.shares_memory(new.F, used.F) and not np.shares_memory(new.I, used.I)

@@ -401,7 +401,7 @@ class FesMuscle(Muscle):
         within the interval, and with relative constants the rate is largest
         when F0 is smallest but not zero)."""
         return max(self.stiffness_rate(l_ce_m, dl_mt_m, t)
-                   for t in (s0, 0.5 * (s0 + s1), s1))
+                   for t in (s0, s0 + 0.5 * (s1 - s0), s1))   # the RK4 step's instants
 
     def quasi_static_force(self, v_ce_m_per_s: float, l_ce_m: float, t_s: float) -> float:
         """[N] the CE's force moving at ``v_ce_m_per_s`` with the F0 of CE length

@@ -37,9 +37,8 @@ from .fes_muscle import QUASI_STATIC_RATE_PER_S, rk4_update, substep_count
 from .limb import joint_acceleration, mtu_length_change
 from .muscle import DL_MT_LIMIT_M
 from .fes_kernels import (A_END, DELAY_FULL, OK, H_FS, H_IP, I_INITIAL, P_K_PE, P_K_SE,
-                          P_L_REST, S_CMD,
-                          S_DL, S_L, S_R, S_T, FesBundle, apply, begin_interval, eff_f_iso,
-                          end_interval, give_command, hdr, peak_rate, plan, quasi_force,
+                          P_L_REST, S_CMD, S_DL, S_L, S_R, S_T, FesBundle, apply, begin_interval, eff_f_iso,
+                          end_interval, give_command, hdr, peak_rate, plan, quasi_force, rate_at,
                           settle_now, velocity, H_FP, H_JS, H_EVT, J_NEV)
 
 # Entries of the limb's float array ``L``: the joint, its state, then per muscle
@@ -115,8 +114,19 @@ def forces(F, I, L, W, nm, theta, omega, stage, t, v_row):
                               L[L_DAMPING])
 
 
-def limb_rk4(F, I, L, W, nm, s0, s1):
-    """One RK4 step of the joint and every CE over [s0, s1] (Limb._rk4)."""
+def stage_f0s(F, I, W, i, l, s0, mid, s1):
+    """F0 of a length-free muscle ``i`` at a step's start, middle and end into ``W``."""
+    W[W_F0A, i] = eff_f_iso(F, I, i, l, s0)
+    W[W_F0M, i] = eff_f_iso(F, I, i, l, mid)
+    W[W_F0B, i] = eff_f_iso(F, I, i, l, s1)
+
+
+def limb_rk4(F, I, L, W, nm, s0, s1, have_f0):
+    """One RK4 step of the joint and every CE over [s0, s1] (Limb._rk4).
+
+    :param have_f0: True if ``W`` holds the F0s of [s0, s1] of the length-free
+        muscles already (limb_integrate's, for an interval of one step)
+    """
     h = s1 - s0
     mid = s0 + 0.5 * h
     for i in range(nm):
@@ -124,9 +134,8 @@ def limb_rk4(F, I, L, W, nm, s0, s1):
         l = F[fs + S_L]
         W[W_L1, i] = l
         if length_free(I, i):
-            W[W_F0A, i] = eff_f_iso(F, I, i, l, s0)
-            W[W_F0M, i] = eff_f_iso(F, I, i, l, mid)
-            W[W_F0B, i] = eff_f_iso(F, I, i, l, s1)
+            if not have_f0:
+                stage_f0s(F, I, W, i, l, s0, mid, s1)
             free = W[W_F0A, i] == 0.0 and W[W_F0B, i] == 0.0
         else:
             free = eff_f_iso(F, I, i, l, s0) == 0.0 and eff_f_iso(F, I, i, l, s1) == 0.0
@@ -174,9 +183,18 @@ def limb_integrate(F, I, L, W, nm, s0, s1):
     for i in range(nm):
         begin_interval(F, I, i, s0, s1)
     n = 1
+    mid = s0 + 0.5 * h
     for i in range(nm):
         fs = hdr(I, i, H_FS)
-        rate = peak_rate(F, I, i, F[fs + S_L], F[fs + S_DL], s0, s1)
+        l, dl = F[fs + S_L], F[fs + S_DL]
+        if length_free(I, i):
+            # peak_rate's three instants are those of a single RK4 step over [s0, s1].
+            stage_f0s(F, I, W, i, l, s0, mid, s1)
+            rate = max(rate_at(F, I, i, l, dl, W[W_F0A, i]),
+                       max(rate_at(F, I, i, l, dl, W[W_F0M, i]),
+                           rate_at(F, I, i, l, dl, W[W_F0B, i])))
+        else:
+            rate = peak_rate(F, I, i, l, dl, s0, s1)
         quasi = rate >= QUASI_STATIC_RATE_PER_S
         W[W_QUASI, i] = 1.0 if quasi else 0.0
         if not quasi:
@@ -184,7 +202,7 @@ def limb_integrate(F, I, L, W, nm, s0, s1):
     for j in range(n):
         a = s0 + h * j / n
         b = s1 if j == n - 1 else s0 + h * (j + 1) / n
-        limb_rk4(F, I, L, W, nm, a, b)
+        limb_rk4(F, I, L, W, nm, a, b, n == 1)
     for i in range(nm):
         end_interval(F, I, i, s1)
 
@@ -380,7 +398,8 @@ class LimbArrays:
             self.L[slot + M_REF] = m.reference_angle_rad
         self.W = np.zeros((N_W, max(nm, 1)))
         self._size_timeline()
-        self.reset()
+        self.L[L_THETA] = plant.joint.initial_angle_rad
+        self._place_ces()   # the new bundle is at rest already
 
     def _size_timeline(self) -> None:
         total = sum(int(self.bundle.I[i * fes_kernels.N_HDR + fes_kernels.H_CAPEV])
@@ -392,8 +411,13 @@ class LimbArrays:
         """Limb.reset: theta_0, at rest, each CE at l_rest + dl_MT(theta_0)."""
         self.L[L_THETA] = self.plant.joint.initial_angle_rad
         self.L[L_OMEGA] = self.L[L_T] = self.L[L_TAU] = 0.0
-        for i, m in enumerate(self.plant.muscles):
+        for i in range(self.nm):
             self.bundle.reset(i)
+        self._place_ces()
+
+    def _place_ces(self) -> None:
+        """Each CE at l_rest + dl_MT(theta)."""
+        for i, m in enumerate(self.plant.muscles):
             fs = self.bundle.view(i, 'fs')
             fs[S_DL] = dl = dl_mt(self.L, i, self.L[L_THETA])
             fs[S_L] = m.params.l_rest_m + dl
@@ -425,9 +449,9 @@ RUN_MIN_MUSCLE_STEPS = 10_000
 
 #: The joint's equations (model/limb.py), compiled over this module's scope.
 _EQUATIONS = ('mtu_length_change', 'joint_acceleration')
-_KERNELS = ('muscle_slot', 'dl_mt', 'length_free', 'stage_f0', 'forces', 'limb_rk4',
-            'limb_integrate', 'limb_step', 'limb_give', 'limb_record', 'limb_hold', 'limb_run',
-            'limb_entry')
+_KERNELS = ('muscle_slot', 'dl_mt', 'length_free', 'stage_f0', 'stage_f0s', 'forces',
+            'limb_rk4', 'limb_integrate', 'limb_step', 'limb_give', 'limb_record', 'limb_hold',
+            'limb_run', 'limb_entry')
 #: Compiled into :func:`limb_entry` by numba's own inlining (each has one call
 #: site there), so that they are no compiled functions of their own each
 #: holding the muscle's code again.
@@ -453,13 +477,14 @@ def compiled() -> types.SimpleNamespace:
     from . import engine
     scope = fes_kernels.scope_calling(
         globals(), ('apply', 'begin_interval', 'eff_f_iso', 'end_interval', 'give_command',
-                    'hdr', 'plan', 'settle_now', 'peak_rate', 'quasi_force', 'substep_count',
+                    'hdr', 'plan', 'settle_now', 'peak_rate', 'quasi_force', 'rate_at',
+                    'substep_count',
                     'velocity', 'series_force', 'parallel_force', 'rk4_update'))
     leaf = {'error_model': 'numpy', 'inline': 'always'}
     body = {'error_model': 'numpy'}
     options = {name: body for name in _KERNELS}
     options.update({name: leaf for name in _EQUATIONS + ('muscle_slot', 'dl_mt', 'length_free',
-                                                         'stage_f0') + _INTO_ENTRY})
+                                                         'stage_f0', 'stage_f0s') + _INTO_ENTRY})
 
     # The one entry point, with its signature: compiled (or loaded) here, never
     # at a first step.
