@@ -91,6 +91,24 @@ def stall_watcher():
         yield watcher
 
 
+@pytest.fixture
+def quasi_static_calls(monkeypatch):
+    """The Python engine only, and a list that records each call of
+    ``FesMuscle.quasi_static_force`` (the muscle's ``fv_scaling``): did a run
+    take a CE quasi-static?"""
+    from hill_muscle_ros.model.fes_muscle import FesMuscle
+    calls = []
+    original = FesMuscle.quasi_static_force
+
+    def spy(self, *args):
+        calls.append(self.params.fv_scaling)
+        return original(self, *args)
+
+    monkeypatch.setattr(FesMuscle, 'quasi_static_force', spy)
+    monkeypatch.setenv('HILL_MUSCLE_ENGINE', 'python')   # the spy sees the Python engine
+    return calls
+
+
 @pytest.fixture(scope='session')
 def protocol_paths():
     """Paths of the shipped protocols by their short name."""

@@ -15,7 +15,6 @@ import pytest
 from fes_reference import fes_reference
 from hill_muscle_ros import cli, resources
 from hill_muscle_ros.model import Protocol, simulate
-from hill_muscle_ros.model.fes_muscle import FesMuscle
 from hill_muscle_ros.model.stimulus import command_from_pulse_width
 from hill_muscle_ros.params_file import load_muscle_params
 
@@ -162,7 +161,7 @@ DT_REF_STIFF_S = 2e-6
 
 
 def test_the_release_under_stretch_is_quasi_static_and_within_0_05_N_of_the_reference(
-        preset, monkeypatch):
+        preset, quasi_static_calls):
     """Released while the MTU is stretched (lengthening), the last units' CE
     relaxes faster than QUASI_STATIC_RATE_PER_S: the step takes it quasi-static
     (Eq. 3's force at the MTU's velocity) and still meets the FES muscle's
@@ -172,20 +171,11 @@ def test_the_release_under_stretch_is_quasi_static_and_within_0_05_N_of_the_refe
         'name': 'release under stretch', 'duration_s': 1.0,
         'pulse_width_s': [[0.05, 0.0], [0.05, PW_STEP_S], [0.5, PW_STEP_S], [0.5, 0.0]],
         'dl_mt_m': [[0.0, 0.0], [0.4, 0.0], [0.8, 0.012], [1.0, 0.0]]})
-    quasi = []
-    original = FesMuscle.quasi_static_force
-
-    def spy(self, *args):
-        quasi.append(args)
-        return original(self, *args)
-
-    monkeypatch.setattr(FesMuscle, 'quasi_static_force', spy)
-    monkeypatch.setenv('HILL_MUSCLE_ENGINE', 'python')   # the spy sees the Python muscle
     result = simulate(protocol, params)
     ref = fes_reference(dataclasses.asdict(params), result.t_s,
                         protocol.stimulation(result.t_s), protocol.stimulation_key,
                         protocol.dl_mt(result.t_s), dt_ref_s=DT_REF_STIFF_S)
-    assert quasi, 'the release never made the CE quasi-static'
+    assert quasi_static_calls, 'the release never made the CE quasi-static'
     assert np.max(np.abs(result.force_n - ref['force_n'])) <= ACCURACY_N
 
 

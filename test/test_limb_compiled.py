@@ -13,7 +13,6 @@ import yaml
 from hypothesis import HealthCheck, given, settings, strategies as st
 
 from hill_muscle_ros.model import engine, limb_kernels
-from hill_muscle_ros.model.fes_muscle import FesMuscle
 from hill_muscle_ros.model.limb import LimbPlant, LimbProtocol, simulate_limb
 
 #: [rad], [rad/s], [m], [N]: agreement asked of every column.
@@ -209,20 +208,13 @@ def test_auto_takes_the_compiled_limb_where_it_pays(kernels, monkeypatch):
     assert len(calls) == 2
 
 
-def test_engines_agree_while_the_released_quadriceps_is_quasi_static(kernels, monkeypatch):
+def test_engines_agree_while_the_released_quadriceps_is_quasi_static(kernels, monkeypatch,
+                                                                     quasi_static_calls):
     """The knee extension's release: the quadriceps' last units leave, its CE
     relaxes faster than QUASI_STATIC_RATE_PER_S and is taken quasi-static (the
     Python limb asks for its force there), and both engines agree to 1e-9."""
     plant = PLANTS['knee']
     protocol = LimbProtocol.from_yaml(CONFIG / 'protocols' / 'knee_extension.yaml')
-    quasi = []
-    original = FesMuscle.quasi_static_force
-
-    def spy(self, *args):
-        quasi.append(args)
-        return original(self, *args)
-
-    monkeypatch.setattr(FesMuscle, 'quasi_static_force', spy)
     ref = _python(plant, protocol, monkeypatch)
-    assert quasi, 'the release never made a CE quasi-static'
+    assert quasi_static_calls, 'the release never made a CE quasi-static'
     _assert_same(ref, limb_kernels.simulate_limb_compiled(plant, protocol, 1000.0, kernels))

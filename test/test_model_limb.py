@@ -25,7 +25,6 @@ from fes_reference import _params as muscle_params
 from fes_reference import command as curve_command
 from fes_reference import fl_scalar
 from hill_muscle_ros.model import MuscleParams, Protocol, simulate
-from hill_muscle_ros.model.fes_muscle import FesMuscle
 from hill_muscle_ros.model.limb import Limb, LimbPlant, LimbProtocol, simulate_limb
 from hill_muscle_ros.model.protocol import ProtocolError
 from hill_muscle_ros.params_file import load_plant
@@ -199,24 +198,15 @@ def test_each_force_within_0_5_N_of_the_reference(runs, name):
         assert err <= FORCE_ACCURACY_N, f'{m}: max |force - reference| = {err:.3g} N'
 
 
-def test_the_relative_fv_release_is_quasi_static_in_an_accuracy_case(monkeypatch):
+def test_the_relative_fv_release_is_quasi_static_in_an_accuracy_case(quasi_static_calls):
     """The hamstrings of this case have relative F-V constants and deactivate
     fast: as their last units leave, their CE relaxes faster than
     QUASI_STATIC_RATE_PER_S and is taken quasi-static (its force is Eq. 3's at
     the MTU's velocity), so the two accuracy tests above check that path
     against the reference."""
     plant, _, _, protocol = case_inputs('fes-single-quadriceps-multi-hamstrings')
-    quasi = []
-    original = FesMuscle.quasi_static_force
-
-    def spy(self, *args):
-        quasi.append(self.params.fv_scaling)
-        return original(self, *args)
-
-    monkeypatch.setattr(FesMuscle, 'quasi_static_force', spy)
-    monkeypatch.setenv('HILL_MUSCLE_ENGINE', 'python')   # the spy sees the Python limb
     simulate_limb(LimbPlant.from_mapping(plant), protocol)
-    assert quasi and set(quasi) == {'relative'}
+    assert quasi_static_calls and set(quasi_static_calls) == {'relative'}
 
 
 @pytest.mark.parametrize('name', list(CASES))
