@@ -167,9 +167,8 @@ def test_outputs_and_state_are_not_shared_with_the_callers_arrays(engine):
 
 
 @pytest.mark.parametrize('lengths', [('initial', 'instantaneous'), ('initial',)])
-def test_one_thread_and_all_threads_give_the_same_numbers(monkeypatch, lengths):
+def test_the_serial_loop_one_thread_and_all_threads_give_the_same_numbers(monkeypatch, lengths):
     import numba
-    monkeypatch.setattr(kernels, 'PARALLEL_MIN_K', 1)   # this small K on every thread
     k = 64
     rng = np.random.default_rng(3)
     params = [MuscleParams(units=('multi', 'single')[i % 2], length=lengths[i // 2 % len(lengths)],
@@ -177,7 +176,10 @@ def test_one_thread_and_all_threads_give_the_same_numbers(monkeypatch, lengths):
     before = numba.get_num_threads()
     outs = {}
     try:
-        for threads in (1, numba.config.NUMBA_NUM_THREADS):
+        # The serial loop (K below PARALLEL_MIN_K), then the parallel loop
+        # (this small K on every thread) on one thread and on all of them.
+        for threads, min_k in ((1, k + 1), (1, 1), (numba.config.NUMBA_NUM_THREADS, 1)):
+            monkeypatch.setattr(kernels, 'PARALLEL_MIN_K', min_k)
             numba.set_num_threads(threads)
             batch = MuscleBatch(params, engine='compiled')
             reference = MuscleBatch(params, engine='numpy')
@@ -187,11 +189,13 @@ def test_one_thread_and_all_threads_give_the_same_numbers(monkeypatch, lengths):
                 dl = 0.005 * math.sin(j / 30)
                 out = batch.step(r, dl, 1e-3)
                 assert_outputs_agree(out, reference.step(r, dl, 1e-3), f'step {j}')
-            outs[threads] = out
+            outs[threads, min_k] = out
     finally:
         numba.set_num_threads(before)
-    for a, b in zip(*outs.values()):
-        np.testing.assert_array_equal(a, b)
+    serial, *parallel = outs.values()
+    for other in parallel:
+        for a, b in zip(serial, other):
+            np.testing.assert_array_equal(a, b)
 
 
 def test_a_small_batch_leaves_the_number_of_threads_as_it_was():
@@ -215,8 +219,8 @@ def test_the_kernel_runs_as_plain_python_with_the_compiled_results():
             batch._gain, batch._v_ce, True, batch._initial, False, batch._param_rows)
     python_out = np.empty((kernels.N_OUTPUTS, len(params)))
     compiled_out = np.empty_like(python_out)
-    kernels.step_all(*args, python_out)
-    kernels.compiled().step_all(*args, compiled_out)
+    kernels.step_all(*args, python_out, False)
+    kernels.compiled().step_all(*args, compiled_out, False)
     np.testing.assert_array_equal(python_out, compiled_out)
 
 

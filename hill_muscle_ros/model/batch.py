@@ -92,9 +92,8 @@ class BatchOutputs(NamedTuple):
     mean_fitness: np.ndarray
 
 
-def _force_length(l_ce_m: np.ndarray, l_opt_m: np.ndarray) -> np.ndarray:
-    """FL(l_ce / l_opt) clipped at zero (Eq. 1), elementwise; as curves.force_length."""
-    x = l_ce_m / l_opt_m
+def _force_length(x: np.ndarray) -> np.ndarray:
+    """FL(x) clipped at zero (Eq. 1), elementwise; as curves.force_length."""
     return np.maximum((FL_A * x + FL_B) * x + FL_C, 0.0)
 
 
@@ -125,6 +124,7 @@ class MuscleBatch:
         self._k_pe = column('k_pe_n_per_m')
         self._l_rest = column('l_rest_m')
         self._l_opt = column('l_opt_m')
+        self._inv_l_opt = 1.0 / self._l_opt
         self._a = column('fv_a_n')
         self._b = column('fv_b_m_per_s')
         self._a_ecc = column('fv_a_ecc_n')
@@ -361,7 +361,7 @@ class MuscleBatch:
         if single_initial.any():
             f_single = self._f_iso_single[idx]
             rises = single_initial & (r_old == 0.0) & (r_new > 0.0)
-            f_at_l = f_iso_max * _force_length(self.l_ce_m[idx], self._l_opt[idx])
+            f_at_l = f_iso_max * _force_length(self.l_ce_m[idx] / self._l_opt[idx])
             f_single = np.where(rises, f_at_l, f_single)
             f_single = np.where(r_new == 0.0, 0.0, f_single)
             self._f_iso_single[idx] = np.where(single_initial, f_single,
@@ -382,7 +382,8 @@ class MuscleBatch:
         """[N] Eff.f_iso of every muscle at CE lengths ``l_ce``."""
         if self._all_initial:
             return self._gain
-        f0 = self._gain * _force_length(l_ce, self._l_opt)
+        # x = l_CE (1 / l_opt), as every engine's step takes it (kernels.eff_f_iso).
+        f0 = self._gain * _force_length(l_ce * self._inv_l_opt)
         if self._any_initial:
             f0 = np.where(self._initial, self._gain, f0)
         return f0

@@ -84,7 +84,12 @@ def eff_f_iso(l_ce_m: float, gain_n: float, l_opt_m: float, initial: bool) -> fl
     """
     if initial:
         return gain_n
-    return gain_n * force_length(l_ce_m / l_opt_m)
+    # x = l_CE (1 / l_opt): the step takes FL seven times at one l_opt, and
+    # LLVM computes the reciprocal once where it would divide seven times (the
+    # batch of four mixed variants: 8 % a step). Every engine of the paper's
+    # model takes x so, since at the ends of the FL range one rounding of x
+    # decides whether the CE is free.
+    return gain_n * force_length(l_ce_m * (1.0 / l_opt_m))
 
 
 def ce_velocity(l_ce_m: float, dl_mt_m: float, f0_n: float, k_se: float, l_rest_m: float,
@@ -183,7 +188,7 @@ def step_muscle(i: int, l0, dl0, dl1, dt: float, gain, k1_prev, have_k1: bool,
 
 
 def step_all(l0, dl0, dl1, dt: float, gain, k1_prev, have_k1: bool, initial,
-             all_initial: bool, params, out) -> None:
+             all_initial: bool, params, out, parallel: bool) -> None:
     """Step every muscle (:func:`step_one`) and write its outputs.
 
     :param l0: [m] (K,) CE lengths at the start
@@ -201,12 +206,23 @@ def step_all(l0, dl0, dl1, dt: float, gain, k1_prev, have_k1: bool, initial,
         not columns: contiguous per parameter, as the vector loop loads them)
     :param out: (N_OUTPUTS, K) written: l_CE [m], v_CE [m/s], Eff.f_iso [N],
         v of the free CE [m/s], f_SE [N], f_PE [N], force [N]
+    :param parallel: True to run the loop over muscles on numba's threads,
+        False on the calling thread alone (see :data:`PARALLEL_MIN_K`)
     """
-    if all_initial:
+    # The serial loops are plain loops of this function, not a parallel loop
+    # on one thread: numba.set_num_threads around each call cost 15 us a step
+    # of 10,000 muscles (about 200 us in all).
+    if parallel and all_initial:
         for i in prange(l0.shape[0]):
             step_muscle(i, l0, dl0, dl1, dt, gain, k1_prev, have_k1, True, params, out)
-    else:
+    elif parallel:
         for i in prange(l0.shape[0]):
+            step_muscle(i, l0, dl0, dl1, dt, gain, k1_prev, have_k1, initial[i], params, out)
+    elif all_initial:
+        for i in range(l0.shape[0]):
+            step_muscle(i, l0, dl0, dl1, dt, gain, k1_prev, have_k1, True, params, out)
+    else:
+        for i in range(l0.shape[0]):
             step_muscle(i, l0, dl0, dl1, dt, gain, k1_prev, have_k1, initial[i], params, out)
 
 
@@ -446,24 +462,18 @@ def scan_inputs(r, dl1, r_now, dl_limit_m: float) -> tuple:
 
 
 def launch(kernels: types.SimpleNamespace, parallel: bool, *args) -> None:
-    """Call the compiled :func:`step_all` on all numba threads or on one.
+    """Call the compiled :func:`step_all` on all numba threads or on the calling one.
 
     :param kernels: the compiled kernels (:func:`compiled`)
     :param parallel: False to run on the calling thread only, e.g. for a
-        small batch; the number of threads is restored afterwards
-    :param args: the arguments of :func:`step_all`
+        small batch (numba's number of threads is left as it is either way)
+    :param args: the arguments of :func:`step_all` but ``parallel``
     """
-    numba, step_all = kernels.numba, kernels.step_all
+    if not parallel:
+        kernels.step_all(*args, False)
+        return
     with LAUNCH_LOCK:
-        if parallel:
-            step_all(*args)
-            return
-        threads = numba.get_num_threads()
-        numba.set_num_threads(1)
-        try:
-            step_all(*args)
-        finally:
-            numba.set_num_threads(threads)
+        kernels.step_all(*args, True)
 
 
 #: The functions :func:`compiled` compiles: helpers of other modules, then
@@ -486,7 +496,7 @@ _CALLED_OFTEN = {'eff_f_iso': {'error_model': 'numpy'}, 'ce_velocity': {'error_m
 def _step_all_signature(numba):
     f8, c1, c2 = numba.float64, numba.float64[::1], numba.float64[:, ::1]
     return numba.void(c1, c1, c1, f8, c1, c1, numba.boolean, numba.boolean[::1],
-                      numba.boolean, c2, c2)
+                      numba.boolean, c2, c2, numba.boolean)
 
 
 def _scan_inputs_signature(numba):

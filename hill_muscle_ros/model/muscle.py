@@ -238,7 +238,8 @@ class Muscle:
             return self.recruitment * self._f_iso_single_n if self.recruitment > 0 else 0.0
         l_ce = self.l_ce_m if l_ce_m is None else l_ce_m
         scale = self.n_recruited / p.n_units if self._multi else self.recruitment
-        return scale * p.f_iso_max_n * force_length(l_ce / p.l_opt_m)
+        # x = l_CE (1 / l_opt), as every engine's step takes it (kernels.eff_f_iso).
+        return scale * p.f_iso_max_n * force_length(l_ce * (1.0 / p.l_opt_m))
 
     def outputs(self) -> MuscleOutputs:
         """The outputs at the current instant, derived from the state.
@@ -339,6 +340,8 @@ def _hot_loop(muscle: Muscle) -> Callable[..., MuscleOutputs]:
     k_se, k_pe, l_rest, l_opt = p.k_se_n_per_m, p.k_pe_n_per_m, p.l_rest_m, p.l_opt_m
     a, b, a_ecc, b_ecc = p.fv_a_n, p.fv_b_m_per_s, p.fv_a_ecc_n, p.fv_b_ecc_m_per_s
     two_b_ecc = 2.0 * b_ecc
+    # x = l_CE (1 / l_opt), as every engine's step takes it (kernels.eff_f_iso).
+    inv_l_opt = 1.0 / l_opt
     initial = muscle._initial
     apply_recruitment = muscle._apply_recruitment
 
@@ -346,7 +349,7 @@ def _hot_loop(muscle: Muscle) -> Callable[..., MuscleOutputs]:
         """[N] Eff.f_iso at CE length ``l_ce`` (Eq. 1 inlined)."""
         if initial:
             return gain
-        x = l_ce / l_opt
+        x = l_ce * inv_l_opt
         fl = (FL_A * x + FL_B) * x + FL_C
         return gain * fl if fl > 0.0 else 0.0
 
@@ -371,7 +374,7 @@ def _hot_loop(muscle: Muscle) -> Callable[..., MuscleOutputs]:
     else:
         def velocity(l_ce: float, dl_mt: float, gain: float) -> float:
             """[m/s] d l_ce / dt with Eff.f_iso following the CE length (Eq. 1)."""
-            x = l_ce / l_opt
+            x = l_ce * inv_l_opt
             fl = (FL_A * x + FL_B) * x + FL_C
             return velocity_at_f0(l_ce, dl_mt, gain * fl if fl > 0.0 else 0.0)
 
