@@ -68,7 +68,7 @@ def reference_step(m: Muscle, r: float, dl1: float, dt: float):
         k2 = rate(l0 + 0.5 * dt * k1, dlm)
         k3 = rate(l0 + 0.5 * dt * k2, dlm)
         k4 = rate(l0 + dt * k3, dl1)
-        l1 = l0 + dt * (k1 + 2.0 * k2 + 2.0 * k3 + k4) / 6.0
+        l1 = l0 + dt / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)   # h / 6 first, as the engines
     else:
         l1 = p.l_rest_m + dl1
     m.l_ce_m, m.dl_mt_m, m.t_s = l1, dl1, m.t_s + dt

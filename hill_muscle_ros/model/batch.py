@@ -455,7 +455,7 @@ class MuscleBatch:
         k2 = self._velocity(l0 + half_dt * k1, dl_mid, f0 if initial else None)
         k3 = self._velocity(l0 + half_dt * k2, dl_mid, f0 if initial else None)
         k4 = self._velocity(l0 + dt * k3, dl1, f0 if initial else None)
-        l_rk4 = l0 + dt * (k1 + 2.0 * k2 + 2.0 * k3 + k4) / 6.0
+        l_rk4 = l0 + dt / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
         l_free = self._l_rest + dl1
         l1 = np.where(f0 > 0.0, l_rk4, l_free)
         f0 = self._eff_f_iso(l1)

@@ -179,7 +179,7 @@ def quasi_static_force(v_ce_m_per_s: float, f0_n: float, a: float, b: float, a_e
 
 def rk4_update(y: float, h_s: float, k1: float, k2: float, k3: float, k4: float) -> float:
     """y + h (k1 + 2 k2 + 2 k3 + k4) / 6: classical RK4's step from its four stages."""
-    return y + h_s * (k1 + 2.0 * k2 + 2.0 * k3 + k4) / 6.0
+    return y + h_s / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
 
 
 def substep_count(h_s: float, rate: float) -> int:

@@ -421,7 +421,7 @@ def _hot_loop(muscle: Muscle) -> Callable[..., MuscleOutputs]:
                 k2 = velocity(l + half_dt * v, dl_mid, gain)
                 k3 = velocity(l + half_dt * k2, dl_mid, gain)
                 k4 = velocity(l + dt * k3, dl1, gain)
-                l = l + dt * (v + 2.0 * k2 + 2.0 * k3 + k4) / 6.0
+                l = l + dt / 6.0 * (v + 2.0 * k2 + 2.0 * k3 + k4)
             else:
                 l = l_rest + dl1
             if not initial:
