@@ -156,7 +156,7 @@ def step_one(l0: float, dl0: float, dl1: float, dt: float, gain: float, k1_prev:
                      k_se, l_rest, a, b, a_ecc, b_ecc)
     # h / 6 before the stages' sum: the division leaves the chain of the four
     # stages, each waiting on the last (one muscle's compiled run, Protocol II:
-    # 0.0406 -> 0.0372 us a step). Every engine's RK4 update is written so.
+    # 0.0406 -> 0.036-0.037 us a step). Every engine's RK4 update is written so.
     l1 = l0 + dt / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
     l1 = l1 if f0 > 0.0 else l_free
     f0 = eff_f_iso(l1, gain, l_opt, initial)
