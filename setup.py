@@ -62,12 +62,12 @@ setup(
     entry_points={
         'console_scripts': [
             'hill-muscle = hill_muscle_ros.cli:main',
-            'simulator = hill_muscle_ros.nodes.simulator:main',
-            'protocol_player = hill_muscle_ros.nodes.protocol_player:main',
-            'recorder = hill_muscle_ros.nodes.recorder:main',
-            'force_controller = hill_muscle_ros.nodes.force_controller:main',
-            'limb_simulator = hill_muscle_ros.nodes.limb:main',
-            'joint_controller = hill_muscle_ros.nodes.joint_controller:main',
+            'simulator = hill_muscle_ros.nodes.simulator:process_main',
+            'protocol_player = hill_muscle_ros.nodes.protocol_player:process_main',
+            'recorder = hill_muscle_ros.nodes.recorder:process_main',
+            'force_controller = hill_muscle_ros.nodes.force_controller:process_main',
+            'limb_simulator = hill_muscle_ros.nodes.limb:process_main',
+            'joint_controller = hill_muscle_ros.nodes.joint_controller:process_main',
         ],
     },
 )

@@ -167,3 +167,34 @@ def test_unknown_override_is_named_with_the_declared_parameters(node_with_overri
     with pytest.raises(StartupError) as err:
         reject_unknown_overrides(node_with_overrides)
     assert str(err.value) == f'unknown parameter `k_se_typo` (got 3.0); this node has: {declared}'
+
+
+NODE_SCRIPTS = ('simulator', 'protocol_player', 'recorder', 'force_controller',
+                'limb_simulator', 'joint_controller')
+
+
+def test_a_node_process_ends_with_its_status_after_pythons_exit_handlers_and_flushed_output():
+    # exit_process skips only the C and C++ exit handlers: an atexit function
+    # still runs, and text left in stdout's buffer (a pipe: block-buffered) is written.
+    import subprocess
+    import sys
+    code = ('import atexit, sys\n'
+            'from hill_muscle_ros.nodes._common import exit_process\n'
+            'atexit.register(lambda: print("exit handler ran", flush=True))\n'
+            'sys.stdout.write("buffered, no newline")\n'
+            'exit_process(3)\n')
+    done = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                          timeout=60)
+    assert done.returncode == 3, done.stderr
+    assert done.stdout == 'buffered, no newlineexit handler ran\n'
+
+
+def test_every_node_console_script_ends_its_process_through_exit_process():
+    from importlib.metadata import entry_points
+    scripts = {ep.name: ep for ep in entry_points(group='console_scripts')
+               if ep.module.startswith('hill_muscle_ros.nodes.')}
+    assert sorted(scripts) == sorted(NODE_SCRIPTS)
+    for name, ep in scripts.items():
+        entry = ep.load()
+        assert ep.attr == 'process_main', name
+        assert entry.__doc__ == f'Console script: {ep.module}.main(), then exit_process.', name

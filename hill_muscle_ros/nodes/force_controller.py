@@ -21,7 +21,6 @@ Run: ``ros2 run hill_muscle_ros force_controller`` or ``hill-muscle controller``
 from __future__ import annotations
 
 import dataclasses
-import sys
 
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
@@ -35,7 +34,8 @@ from ..timebase import NS_PER_S
 from ._common import (FINAL_ACK_TIMEOUT_S, OUTPUT_QOS, RELIABLE_QOS, BadInputWarner,
                       DiagnosticReport, NodeDiagnostics, StartupError, declare_checked,
                       declare_spec_fields, field_descriptor, overridable_publisher,
-                      overridable_subscription, publish_last, reject_unknown_overrides, run_node)
+                      overridable_subscription, publish_last, reject_unknown_overrides, run_node,
+                      process_entry)
 
 NODE_NAME = 'force_controller'
 #: Longest time step, in control periods, that one update integrates over.
@@ -280,5 +280,9 @@ def main(args: list[str] | None = None) -> int:
     return run_node(ForceControllerNode, args)
 
 
+#: The console script (setup.py): main(), then the process ends at once.
+process_main = process_entry(main)
+
+
 if __name__ == '__main__':
-    sys.exit(main())
+    process_main()

@@ -23,7 +23,6 @@ config/knee.yaml`` or ``hill-muscle joint-controller --ros-args ...``.
 from __future__ import annotations
 
 import dataclasses
-import sys
 
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
@@ -37,7 +36,7 @@ from ._common import (FINAL_ACK_TIMEOUT_S, OUTPUT_QOS, QOS_OVERRIDES_PREFIX, REL
                       BadInputWarner, DiagnosticReport, NodeDiagnostics, StartupError,
                       check_qos_overrides, declare_plant, declare_spec_fields,
                       overridable_publisher, overridable_subscription, parameter_overrides,
-                      plant_values, publish_last, run_node)
+                      plant_values, publish_last, run_node, process_entry)
 from .limb import LIMB_NODE_PARAMETERS   # a shared plant file carries them
 
 NODE_NAME = 'joint_controller'
@@ -249,5 +248,9 @@ def main(args: list[str] | None = None) -> int:
     return run_node(JointControllerNode, args)
 
 
+#: The console script (setup.py): main(), then the process ends at once.
+process_main = process_entry(main)
+
+
 if __name__ == '__main__':
-    sys.exit(main())
+    process_main()

@@ -48,7 +48,6 @@ config/knee.yaml`` or ``hill-muscle limb --ros-args ...``.
 from __future__ import annotations
 
 import math
-import sys
 
 import rclpy
 from geometry_msgs.msg import WrenchStamped
@@ -69,7 +68,7 @@ from ._common import (OUTPUT_QOS, QOS_OVERRIDES_PREFIX, RELIABLE_QOS, BadInputWa
                       DiagnosticReport, NodeDiagnostics, StartupError, StepSchedule,
                       check_qos_overrides, declare_checked, declare_plant, load_engine,
                       number_descriptor, overridable_publisher, overridable_subscription,
-                      parameter_overrides, plant_values, run_node)
+                      parameter_overrides, plant_values, run_node, process_entry)
 from .simulator import (DEFAULT_INPUT_TIMEOUT_S, DEFAULT_RATE_HZ, DEFAULT_REAL_TIME_FACTOR,
                         ERROR_BEHIND_S, INPUT_TIMEOUT_RANGE_S, MAX_CATCH_UP_S,
                         MIN_TICK_PERIOD_S, RATE_HZ_RANGE,
@@ -405,5 +404,9 @@ def main(args: list[str] | None = None) -> int:
     return run_node(LimbNode, args)
 
 
+#: The console script (setup.py): main(), then the process ends at once.
+process_main = process_entry(main)
+
+
 if __name__ == '__main__':
-    sys.exit(main())
+    process_main()

@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import sys
 
 import numpy as np
 from geometry_msgs.msg import PointStamped
@@ -50,7 +49,7 @@ from ..timebase import NS_PER_S
 from ._common import (EXIT_FAILURE, EXIT_SUCCESS, OUTPUT_QOS, DiagnosticReport,
                       NodeDiagnostics, overridable_publisher,
                       StartupError, declare_checked, field_descriptor,
-                      number_descriptor, reject_unknown_overrides, run_node)
+                      number_descriptor, reject_unknown_overrides, run_node, process_entry)
 
 NODE_NAME = 'protocol_player'
 
@@ -329,5 +328,9 @@ def main(args: list[str] | None = None) -> int:
     return run_node(ProtocolPlayer, args)
 
 
+#: The console script (setup.py): main(), then the process ends at once.
+process_main = process_entry(main)
+
+
 if __name__ == '__main__':
-    sys.exit(main())
+    process_main()

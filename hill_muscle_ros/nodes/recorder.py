@@ -44,7 +44,6 @@ import datetime as _dt
 import importlib
 import signal
 import struct
-import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -62,7 +61,8 @@ from ..timebase import NS_PER_S
 from ._common import (DIAGNOSTICS_TOPIC, EXIT_FAILURE, EXIT_SUCCESS, DiagnosticReport,
                       NodeDiagnostics, StartupError, TeardownGuard, check_qos_overrides,
                       init_ros,
-                      overridable_subscription, parameter_overrides, qos_overrides_of)
+                      overridable_subscription, parameter_overrides, qos_overrides_of,
+                      process_entry)
 
 NODE_NAME = 'recorder'
 
@@ -665,5 +665,9 @@ def main(args: list[str] | None = None) -> int:
     return status
 
 
+#: The console script (setup.py): main(), then the process ends at once.
+process_main = process_entry(main)
+
+
 if __name__ == '__main__':
-    sys.exit(main())
+    process_main()

@@ -58,7 +58,6 @@ or ``hill-muscle simulator --ros-args ...``.
 from __future__ import annotations
 
 import math
-import sys
 
 import numpy as np
 import rclpy
@@ -82,7 +81,7 @@ from ._common import (LIVE_RESETS, OUTPUT_HISTORY_DEPTH, OUTPUT_QOS, RELIABLE_QO
                       overridable_publisher, overridable_subscription,
                       StartupError, StepSchedule, declare_checked,
                       declare_muscle_parameters, load_engine, number_descriptor,
-                      reject_unknown_overrides, run_node)
+                      reject_unknown_overrides, run_node, process_entry)
 
 NODE_NAME = 'simulator'
 
@@ -762,5 +761,9 @@ def main(args: list[str] | None = None) -> int:
     return run_node(Simulator, args)
 
 
+#: The console script (setup.py): main(), then the process ends at once.
+process_main = process_entry(main)
+
+
 if __name__ == '__main__':
-    sys.exit(main())
+    process_main()
