@@ -13,6 +13,7 @@ import pytest
 import yaml
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import WrenchStamped
+from rclpy.qos import QoSProfile
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
@@ -38,6 +39,11 @@ REST_STEPS = 100
 SAME_MODEL_TOL_RAD = 1e-9
 #: [rad] "hanging": the quadriceps' passive force lifts the shank by a fraction of a degree.
 HANGING_TOL_RAD = math.radians(1.0)
+#: The probe's reader of the joint states: the tests count every step's message,
+#: and a reader of the default depth (10, 50 ms at RATE_HZ) drops messages while
+#: the test process is descheduled (once in a run of the node files here). 25 s
+#: of steps: more than this module's life.
+JOINT_QOS = QoSProfile(depth=5000)
 #: [s] 300 us, inside the stimulator's range: offline it extends the knee to ~70 deg.
 EXTENDING_PW_S = 0.0003
 EXTENDED_RAD = math.radians(30.0)
@@ -69,7 +75,7 @@ def shared(tmp_path_factory):
     tmp = tmp_path_factory.mktemp('limb')
     with ProcessGroup(tmp) as procs, Probe() as probe:
         node = procs.start('limb', _limb_command(tmp, NS))
-        recs = {'joint': probe.record(f'{NS}/joint_states', JointState),
+        recs = {'joint': probe.record(f'{NS}/joint_states', JointState, JOINT_QOS),
                 'force': probe.record(f'{NS}/quadriceps/force', Float64),
                 'wrench': probe.record(f'{NS}/quadriceps/wrench', WrenchStamped),
                 'diag': probe.record('/diagnostics', DiagnosticArray)}
