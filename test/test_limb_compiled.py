@@ -13,7 +13,7 @@ import yaml
 from hypothesis import HealthCheck, given, settings, strategies as st
 
 from hill_muscle_ros.model import engine, limb_kernels
-from hill_muscle_ros.model.limb import LimbPlant, LimbProtocol, simulate_limb
+from hill_muscle_ros.model.limb import LimbPlant, LimbProtocol, LimbResult, simulate_limb
 
 #: [rad], [rad/s], [m], [N]: agreement asked of every column.
 TOL = 1e-9
@@ -218,3 +218,31 @@ def test_engines_agree_while_the_released_quadriceps_is_quasi_static(kernels, mo
     ref = _python(plant, protocol, monkeypatch)
     assert quasi_static_calls, 'the release never made a CE quasi-static'
     _assert_same(ref, limb_kernels.simulate_limb_compiled(plant, protocol, 1000.0, kernels))
+
+
+def test_a_resting_muscle_is_stepped_without_planning_and_as_the_reference(kernels,
+                                                                           monkeypatch):
+    """The quadriceps stimulated twice with a rest between, the hamstrings never:
+    a muscle that recruits nothing in a step (limb_kernels.resting: its
+    activation 0, or falling from below half a unit) gets plan's piece and
+    end without planning, also between the two bursts, and the run agrees
+    with the Python limb to 1e-9; at the end both muscles rest."""
+    plant = PLANTS['knee']
+    burst = [[0.1, 0.0], [0.1, 0.6], [0.3, 0.6], [0.3, 0.0],
+             [0.9, 0.0], [0.9, 0.5], [1.1, 0.5], [1.1, 0.0]]
+    protocol = LimbProtocol.from_mapping({'name': 'two bursts', 'duration_s': 1.6,
+                                          'muscles': {'quadriceps': {'recruitment': burst}}})
+    ref = _python(plant, protocol, monkeypatch)
+    arrays = limb_kernels.LimbArrays(plant, 1e-3)
+    u = np.asarray(protocol.commands(ref.t_s, plant), dtype=float)
+    rows = limb_kernels.run_limb(arrays, u, np.zeros(len(ref.t_s)), 1e-3, kernels)
+    rows[:, 0] = ref.t_s
+    got = LimbResult(ref.t_s, dict(zip(ref.columns, rows.T)))
+    _assert_same(ref, got)
+    # The quadriceps fell below half a unit between the bursts and after them.
+    recruitment = ref['quadriceps_recruitment']
+
+    def at(t_s):
+        return recruitment[int(np.argmin(np.abs(ref.t_s - t_s)))]
+    assert at(0.2) > 0.0 and 0.0 < at(0.85) < 0.5 / 1000 and at(1.0) > 0.0
+    assert list(arrays.W[limb_kernels.W_REST, :2]) == [1.0, 1.0]

@@ -39,7 +39,10 @@ from .muscle import DL_MT_LIMIT_M
 from .fes_kernels import (A_END, DELAY_FULL, OK, H_FS, H_IP, I_INITIAL, P_K_PE, P_K_SE,
                           P_L_REST, S_CMD, S_DL, S_L, S_R, S_T, FesBundle, apply, begin_interval, eff_f_iso,
                           end_interval, give_command, hdr, peak_rate, plan, quasi_force, rate_at,
-                          settle_now, velocity, H_FP, H_JS, H_EVT, J_NEV)
+                          settle_now, velocity, H_FP, H_JS, H_EVT, J_NEV, I_MULTI, I_N, J_DCOUNT,
+                          J_NREC, S_UD, set_piece, tau_for)
+from .memory import recruited_units
+from .stimulus import activation_at
 
 # Entries of the limb's float array ``L``: the joint, its state, then per muscle
 # (from L_MUSCLES, L_PER_MUSCLE each) its action sign, moment arm and reference angle.
@@ -48,11 +51,13 @@ from .fes_kernels import (A_END, DELAY_FULL, OK, H_FS, H_IP, I_INITIAL, P_K_PE, 
 M_SIGN, M_ARM, M_REF = range(3)
 L_PER_MUSCLE = 3
 # Rows of the stage scratch ``W`` (rows of muscles): CE lengths of the four
-# stages, CE velocities of the four stages, free flags, quasi-static flags, and
-# F0 at the step's start, middle and end where it does not depend on l_CE.
+# stages, CE velocities of the four stages, free flags, quasi-static flags,
+# F0 at the step's start, middle and end where it does not depend on l_CE,
+# resting flags (:func:`resting`) and a resting muscle's activation at the
+# step's end.
 (W_L1, W_L2, W_L3, W_L4, W_V1, W_V2, W_V3, W_V4, W_FREE, W_QUASI, W_F0A, W_F0M,
- W_F0B) = range(13)
-N_W = 13
+ W_F0B, W_REST, W_A_END) = range(15)
+N_W = 15
 #: Status of a limb step beyond fes_kernels' OK and DELAY_FULL: muscle i is
 #: stretched out of range at the step's end (status DL_OUT_OF_RANGE + i).
 DL_OUT_OF_RANGE = 2
@@ -76,6 +81,25 @@ def length_free(I, i):
     """True if muscle ``i``'s F0 does not depend on l_CE (``length: initial``):
     a step then takes it once per stage instant (W_F0A, W_F0M, W_F0B)."""
     return I[hdr(I, i, H_IP) + I_INITIAL] != 0
+
+
+def resting(F, I, i):
+    """True if the multi muscle ``i`` recruits nothing over the coming step: no
+    unit recruited, a delayed command of 0 with nothing queued behind it, and
+    an activation of 0 or falling (``tau_deact_s`` > 0) from below half a unit.
+
+    :func:`~.fes_kernels.plan` would give it no recruitment event then, only
+    its piece from the step's start and its activation at the end, and its
+    F0 is 0 throughout: :func:`limb_step` sets those two without planning, and
+    :func:`limb_integrate` takes F0 = 0 without asking the pool. The knee's
+    hamstrings rest so through the whole knee extension, the quadriceps before
+    the stimulation and once its activation has fallen below half a unit.
+    """
+    fs, js, ip = hdr(I, i, H_FS), hdr(I, i, H_JS), hdr(I, i, H_IP)
+    a = F[fs + S_R]
+    return (I[ip + I_MULTI] != 0 and I[js + J_NREC] == 0 and F[fs + S_UD] == 0.0
+            and I[js + J_DCOUNT] == 0 and recruited_units(a, I[ip + I_N]) == 0
+            and (a == 0.0 or tau_for(F, I, i, a, 0.0) > 0.0))
 
 
 def stage_f0(F, I, W, i, l, stage, t):
@@ -187,6 +211,13 @@ def limb_integrate(F, I, L, W, nm, s0, s1):
     for i in range(nm):
         fs = hdr(I, i, H_FS)
         l, dl = F[fs + S_L], F[fs + S_DL]
+        if W[W_REST, i] != 0.0:
+            # Nothing recruited in the step: F0 = 0, rate 0, as the pool would say.
+            W[W_F0A, i] = 0.0
+            W[W_F0M, i] = 0.0
+            W[W_F0B, i] = 0.0
+            W[W_QUASI, i] = 0.0
+            continue
         if length_free(I, i):
             # peak_rate's three instants are those of a single RK4 step over [s0, s1].
             stage_f0s(F, I, W, i, l, s0, mid, s1)
@@ -225,6 +256,16 @@ def limb_step(F, I, L, W, TT, TI, nm, us, tau, dt, dl_limit):
         F[fs + S_T] = t0
         if not give_command(F, I, i, us[i]):
             return DELAY_FULL
+        if resting(F, I, i):
+            # What plan's two events (a piece from t0, the activation at t1)
+            # would do, without planning or ordering them: nothing else happens.
+            a = F[fs + S_R]
+            tau = tau_for(F, I, i, a, 0.0) if a != 0.0 else 0.0
+            set_piece(F, I, i, t0, a, 0.0, tau)
+            W[W_A_END, i] = a if tau == 0.0 else activation_at(a, 0.0, tau, t1 - t0)
+            W[W_REST, i] = 1.0
+            continue
+        W[W_REST, i] = 0.0
         plan(F, I, i, t0, t1)
         evt = hdr(I, i, H_EVT)
         for e in range(I[hdr(I, i, H_JS) + J_NEV]):
@@ -254,7 +295,10 @@ def limb_step(F, I, L, W, TT, TI, nm, us, tau, dt, dl_limit):
     limb_integrate(F, I, L, W, nm, s, t1)
     L[L_T] = t1
     for i in range(nm):
-        F[hdr(I, i, H_FS) + S_T] = t1
+        fs = hdr(I, i, H_FS)
+        F[fs + S_T] = t1
+        if W[W_REST, i] != 0.0:
+            F[fs + S_R] = W[W_A_END, i]   # plan's end of the step (A_END)
         settle_now(F, I, i)
     for i in range(nm):
         if not abs(dl_mt(L, i, L[L_THETA])) <= dl_limit:
@@ -449,7 +493,7 @@ RUN_MIN_MUSCLE_STEPS = 10_000
 
 #: The joint's equations (model/limb.py), compiled over this module's scope.
 _EQUATIONS = ('mtu_length_change', 'joint_acceleration')
-_KERNELS = ('muscle_slot', 'dl_mt', 'length_free', 'stage_f0', 'stage_f0s', 'forces',
+_KERNELS = ('muscle_slot', 'dl_mt', 'length_free', 'resting', 'stage_f0', 'stage_f0s', 'forces',
             'limb_rk4', 'limb_integrate', 'limb_step', 'limb_give', 'limb_record', 'limb_hold',
             'limb_run', 'limb_entry')
 #: Compiled into :func:`limb_entry` by numba's own inlining (each has one call
@@ -477,6 +521,7 @@ def compiled() -> types.SimpleNamespace:
     from . import engine
     scope = fes_kernels.scope_calling(
         globals(), ('apply', 'begin_interval', 'eff_f_iso', 'end_interval', 'give_command',
+                    'set_piece', 'tau_for', 'recruited_units', 'activation_at',
                     'hdr', 'plan', 'settle_now', 'peak_rate', 'quasi_force', 'rate_at',
                     'substep_count',
                     'velocity', 'series_force', 'parallel_force', 'rk4_update'))
@@ -484,7 +529,8 @@ def compiled() -> types.SimpleNamespace:
     body = {'error_model': 'numpy'}
     options = {name: body for name in _KERNELS}
     options.update({name: leaf for name in _EQUATIONS + ('muscle_slot', 'dl_mt', 'length_free',
-                                                         'stage_f0', 'stage_f0s') + _INTO_ENTRY})
+                                                         'resting', 'stage_f0', 'stage_f0s')
+                    + _INTO_ENTRY})
 
     # The one entry point, with its signature: compiled (or loaded) here, never
     # at a first step.
