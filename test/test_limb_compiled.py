@@ -220,12 +220,12 @@ def test_engines_agree_while_the_released_quadriceps_is_quasi_static(kernels, mo
     _assert_same(ref, limb_kernels.simulate_limb_compiled(plant, protocol, 1000.0, kernels))
 
 
-def test_a_resting_muscle_is_stepped_without_planning_and_as_the_reference(kernels,
-                                                                           monkeypatch):
+def test_steady_and_resting_muscles_are_stepped_without_planning_and_as_the_reference(
+        kernels, monkeypatch):
     """The quadriceps stimulated twice with a rest between, the hamstrings never:
-    a muscle that recruits nothing in a step (limb_kernels.resting: its
-    activation 0, or falling from below half a unit) gets plan's piece and
-    end without planning, also between the two bursts, and the run agrees
+    a muscle in whose step no unit joins or leaves (limb_kernels.plan_steady:
+    at rest, its activation 0 or falling from below half a unit; or holding a
+    command) gets plan's piece and end without planning, and the run agrees
     with the Python limb to 1e-9; at the end both muscles rest."""
     plant = PLANTS['knee']
     burst = [[0.1, 0.0], [0.1, 0.6], [0.3, 0.6], [0.3, 0.0],
@@ -245,4 +245,5 @@ def test_a_resting_muscle_is_stepped_without_planning_and_as_the_reference(kerne
     def at(t_s):
         return recruitment[int(np.argmin(np.abs(ref.t_s - t_s)))]
     assert at(0.2) > 0.0 and 0.0 < at(0.85) < 0.5 / 1000 and at(1.0) > 0.0
+    assert list(arrays.W[limb_kernels.W_STEADY, :2]) == [1.0, 1.0]
     assert list(arrays.W[limb_kernels.W_REST, :2]) == [1.0, 1.0]

@@ -40,7 +40,7 @@ from .fes_kernels import (A_END, DELAY_FULL, OK, H_FS, H_IP, I_INITIAL, P_K_PE, 
                           P_L_REST, S_CMD, S_DL, S_L, S_R, S_T, FesBundle, apply, begin_interval, eff_f_iso,
                           end_interval, give_command, hdr, peak_rate, plan, quasi_force, rate_at,
                           settle_now, velocity, H_FP, H_JS, H_EVT, J_NEV, I_MULTI, I_N, J_DCOUNT,
-                          J_NREC, S_UD, set_piece, tau_for)
+                          J_DHEAD, J_NREC, H_DQT, S_UD, TIME_TOL_S, set_piece, tau_for)
 from .memory import recruited_units
 from .stimulus import activation_at
 
@@ -53,11 +53,11 @@ L_PER_MUSCLE = 3
 # Rows of the stage scratch ``W`` (rows of muscles): CE lengths of the four
 # stages, CE velocities of the four stages, free flags, quasi-static flags,
 # F0 at the step's start, middle and end where it does not depend on l_CE,
-# resting flags (:func:`resting`) and a resting muscle's activation at the
-# step's end.
+# steady flags (:func:`plan_steady`), resting flags (steady with no unit
+# recruited: F0 = 0) and a steady muscle's activation at the step's end.
 (W_L1, W_L2, W_L3, W_L4, W_V1, W_V2, W_V3, W_V4, W_FREE, W_QUASI, W_F0A, W_F0M,
- W_F0B, W_REST, W_A_END) = range(15)
-N_W = 15
+ W_F0B, W_STEADY, W_REST, W_A_END) = range(16)
+N_W = 16
 #: Status of a limb step beyond fes_kernels' OK and DELAY_FULL: muscle i is
 #: stretched out of range at the step's end (status DL_OUT_OF_RANGE + i).
 DL_OUT_OF_RANGE = 2
@@ -83,23 +83,47 @@ def length_free(I, i):
     return I[hdr(I, i, H_IP) + I_INITIAL] != 0
 
 
-def resting(F, I, i):
-    """True if the multi muscle ``i`` recruits nothing over the coming step: no
-    unit recruited, a delayed command of 0 with nothing queued behind it, and
-    an activation of 0 or falling (``tau_deact_s`` > 0) from below half a unit.
+def plan_steady(F, I, W, i, t0, t1):
+    """Plan the multi muscle ``i``'s step [t0, t1] without its event table if
+    no unit joins or leaves in it; return whether it did.
 
-    :func:`~.fes_kernels.plan` would give it no recruitment event then, only
-    its piece from the step's start and its activation at the end, and its
-    F0 is 0 throughout: :func:`limb_step` sets those two without planning, and
-    :func:`limb_integrate` takes F0 = 0 without asking the pool. The knee's
-    hamstrings rest so through the whole knee extension, the quadriceps before
-    the stimulation and once its activation has fallen below half a unit.
+    Steady: no delayed command switches before ``t1``, and the activation (a
+    monotone piece) rounds to the units recruited now at ``t1`` too (the test
+    :func:`~.fes_kernels.plan_events` makes). :func:`~.fes_kernels.plan`
+    would then give only the activation's piece from ``t0`` and its value at
+    ``t1``: the piece is set here, the value kept in ``W`` for the step's end
+    (:func:`limb_step`). With no unit recruited the muscle rests (``W_REST``)
+    and :func:`limb_integrate` takes F0 = 0 without asking the pool. In the
+    knee extension the hamstrings rest throughout, and the quadriceps is
+    steady except while units join or leave.
     """
     fs, js, ip = hdr(I, i, H_FS), hdr(I, i, H_JS), hdr(I, i, H_IP)
-    a = F[fs + S_R]
-    return (I[ip + I_MULTI] != 0 and I[js + J_NREC] == 0 and F[fs + S_UD] == 0.0
-            and I[js + J_DCOUNT] == 0 and recruited_units(a, I[ip + I_N]) == 0
-            and (a == 0.0 or tau_for(F, I, i, a, 0.0) > 0.0))
+    if I[ip + I_MULTI] == 0:
+        return False
+    if I[js + J_DCOUNT] > 0 and F[hdr(I, i, H_DQT) + I[js + J_DHEAD]] < t1 - TIME_TOL_S:
+        return False   # plan would take the switch
+    a, u_d = F[fs + S_R], F[fs + S_UD]
+    tau = tau_for(F, I, i, a, u_d) if u_d != a else 0.0
+    if tau == 0.0:
+        if u_d != a:
+            return False   # a jump
+        a_end = a
+    else:
+        a_end = activation_at(a, u_d, tau, t1 - t0)
+        if recruited_units(a_end, I[ip + I_N]) != I[js + J_NREC]:
+            return False
+    set_piece(F, I, i, t0, a, u_d, tau)
+    W[W_A_END, i] = a_end
+    W[W_STEADY, i] = 1.0
+    W[W_REST, i] = 1.0 if I[js + J_NREC] == 0 else 0.0
+    return True
+
+
+def settle_ce(F, I, i, t):
+    """After an event of muscle ``i`` at ``t``: a CE without F0 is free (limb_step)."""
+    fs = hdr(I, i, H_FS)
+    if eff_f_iso(F, I, i, F[fs + S_L], t) == 0.0:
+        F[fs + S_L] = F[hdr(I, i, H_FP) + P_L_REST] + F[fs + S_DL]
 
 
 def stage_f0(F, I, W, i, l, stage, t):
@@ -256,15 +280,10 @@ def limb_step(F, I, L, W, TT, TI, nm, us, tau, dt, dl_limit):
         F[fs + S_T] = t0
         if not give_command(F, I, i, us[i]):
             return DELAY_FULL
-        if resting(F, I, i):
-            # What plan's two events (a piece from t0, the activation at t1)
-            # would do, without planning or ordering them: nothing else happens.
-            a = F[fs + S_R]
-            tau = tau_for(F, I, i, a, 0.0) if a != 0.0 else 0.0
-            set_piece(F, I, i, t0, a, 0.0, tau)
-            W[W_A_END, i] = a if tau == 0.0 else activation_at(a, 0.0, tau, t1 - t0)
-            W[W_REST, i] = 1.0
+        if plan_steady(F, I, W, i, t0, t1):
+            settle_ce(F, I, i, t0)   # what applying plan's piece at t0 would be followed by
             continue
+        W[W_STEADY, i] = 0.0
         W[W_REST, i] = 0.0
         plan(F, I, i, t0, t1)
         evt = hdr(I, i, H_EVT)
@@ -287,18 +306,16 @@ def limb_step(F, I, L, W, TT, TI, nm, us, tau, dt, dl_limit):
         i = TI[0, k]
         limb_integrate(F, I, L, W, nm, s, instant)
         apply(F, I, i, TI[1, k], instant)
-        fs = hdr(I, i, H_FS)
-        if eff_f_iso(F, I, i, F[fs + S_L], instant) == 0.0:
-            # Released: the CE is free now.
-            F[fs + S_L] = F[hdr(I, i, H_FP) + P_L_REST] + F[fs + S_DL]
+        settle_ce(F, I, i, instant)   # released: the CE is free now
         s = max(s, instant)
     limb_integrate(F, I, L, W, nm, s, t1)
     L[L_T] = t1
     for i in range(nm):
         fs = hdr(I, i, H_FS)
+        if W[W_STEADY, i] != 0.0:
+            F[fs + S_R] = W[W_A_END, i]   # plan's end of the step (A_END) and what follows it
+            settle_ce(F, I, i, t1)
         F[fs + S_T] = t1
-        if W[W_REST, i] != 0.0:
-            F[fs + S_R] = W[W_A_END, i]   # plan's end of the step (A_END)
         settle_now(F, I, i)
     for i in range(nm):
         if not abs(dl_mt(L, i, L[L_THETA])) <= dl_limit:
@@ -493,7 +510,8 @@ RUN_MIN_MUSCLE_STEPS = 10_000
 
 #: The joint's equations (model/limb.py), compiled over this module's scope.
 _EQUATIONS = ('mtu_length_change', 'joint_acceleration')
-_KERNELS = ('muscle_slot', 'dl_mt', 'length_free', 'resting', 'stage_f0', 'stage_f0s', 'forces',
+_KERNELS = ('muscle_slot', 'dl_mt', 'length_free', 'plan_steady', 'settle_ce', 'stage_f0',
+            'stage_f0s', 'forces',
             'limb_rk4', 'limb_integrate', 'limb_step', 'limb_give', 'limb_record', 'limb_hold',
             'limb_run', 'limb_entry')
 #: Compiled into :func:`limb_entry` by numba's own inlining (each has one call
@@ -529,7 +547,8 @@ def compiled() -> types.SimpleNamespace:
     body = {'error_model': 'numpy'}
     options = {name: body for name in _KERNELS}
     options.update({name: leaf for name in _EQUATIONS + ('muscle_slot', 'dl_mt', 'length_free',
-                                                         'resting', 'stage_f0', 'stage_f0s')
+                                                         'plan_steady', 'settle_ce', 'stage_f0',
+                                                         'stage_f0s')
                     + _INTO_ENTRY})
 
     # The one entry point, with its signature: compiled (or loaded) here, never
