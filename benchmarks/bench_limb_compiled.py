@@ -188,14 +188,17 @@ def write_section(add, m: dict) -> None:
     add('')
     add(f'- Goal: the two-muscle knee at least {TARGET_RTF:g}x real time compiled: '
         f'**{rtf["compiled"]:.4g}x** wall — '
-        f'**{"met" if rtf["compiled"] >= TARGET_RTF else "not met"}**. The quarter second '
-        'after the stimulation stops still costs most per step: as the last units of the '
-        'quadriceps leave, `fv_scaling: relative` shrinks the Hill constants with F0 and the '
-        'CE\'s relaxation rate grows as 1 / F0; below 1e5 /s RK4 takes up to 200 steps a '
-        'millisecond (h lambda <= 0.5), above it the CE is quasi-static (doc/model.md 7.6). '
-        'The rows above show the run with and without that release. The rest is the '
-        'step\'s fixed work: the recruitment plan, delay line and events of each muscle, '
-        'and the joint\'s RK4.')
+        f'**{"met" if rtf["compiled"] >= TARGET_RTF else "not met"}**. What is left is '
+        'the step\'s fixed work, spread over many compiled functions (a perf profile: the '
+        'RK4 stages\' forces 18 %, limb_rk4 11 %, F0 of the unit pool 15 %, exp 7 %, sin 5 %, '
+        'each muscle\'s delay line and command 9 %): every call between them passes each '
+        'array as its fields. A muscle in whose step no unit joins or leaves is not planned '
+        '(limb_kernels.plan_steady; doc/model.md section 4). The quarter second after the '
+        'stimulation stops costs more per step: as the last units of the quadriceps leave, '
+        '`fv_scaling: relative` shrinks the Hill constants with F0 and the CE\'s relaxation '
+        'rate grows as 1 / F0; below 1e5 /s RK4 takes up to 200 steps a millisecond '
+        '(h lambda <= 0.5), above it the CE is quasi-static (doc/model.md 7.6). The rows '
+        'above show the run with and without that release.')
     add(f'- Start of the compiled kernels (`limb_kernels.compiled()`, muscle kernels included) '
         f'in a fresh process: cold (empty `NUMBA_CACHE_DIR`) {start["cold"].fmt()} s, '
         f'warm (cache filled) {start["warm"].fmt()} s.')
