@@ -262,9 +262,13 @@ def limb_integrate(F, I, L, W, nm, s0, s1):
         end_interval(F, I, i, s1)
 
 
-def limb_step(F, I, L, W, TT, TI, nm, us, tau, dt, dl_limit):
+def limb_step(F, I, L, W, TT, TI, nm, us, tau, dt, dl_limit, give):
     """One step with each muscle's command ``us[i]`` and the external torque held
     (Limb.step, inputs already checked).
+
+    :param give: False if the commands ``us`` were given at this instant already
+        (:func:`limb_give`, or the step before with the same commands): giving
+        a muscle its own command again at the same instant changes nothing
 
     :param TT: [s] timeline instants, room for every muscle's events
     :param TI: (2, len(TT)) int64 timeline muscle and event indices
@@ -278,7 +282,7 @@ def limb_step(F, I, L, W, TT, TI, nm, us, tau, dt, dl_limit):
     for i in range(nm):
         fs = hdr(I, i, H_FS)
         F[fs + S_T] = t0
-        if not give_command(F, I, i, us[i]):
+        if give and not give_command(F, I, i, us[i]):
             return DELAY_FULL
         if plan_steady(F, I, W, i, t0, t1):
             settle_ce(F, I, i, t0)   # what applying plan's piece at t0 would be followed by
@@ -367,7 +371,7 @@ def limb_hold(F, I, L, W, TT, TI, nm, us, tau, dt, dl_limit, n, target, acc, row
     sq = 0.0
     status = OK
     for k in range(n):
-        status = limb_step(F, I, L, W, TT, TI, nm, us, tau, dt, dl_limit)
+        status = limb_step(F, I, L, W, TT, TI, nm, us, tau, dt, dl_limit, k == 0)
         if status != OK:
             break
         d = L[L_THETA] - target
@@ -391,7 +395,7 @@ def limb_run(F, I, L, W, TT, TI, nm, u, tau, dt, dl_limit, rows):
             return -DELAY_FULL
     limb_record(F, I, L, nm, rows[0])
     for k in range(u.shape[0] - 1):
-        status = limb_step(F, I, L, W, TT, TI, nm, u[k], tau[k], dt, dl_limit)
+        status = limb_step(F, I, L, W, TT, TI, nm, u[k], tau[k], dt, dl_limit, False)
         if status != OK:
             return -(k * STATUS_BASE + status)
         for i in range(nm):
@@ -565,9 +569,17 @@ def compiled() -> types.SimpleNamespace:
         f8, i8 = numba.float64, numba.int64
         return f8(f8[::1], i8[::1], f8[::1], f8[:, ::1], i8, f8, f8, i8, f8, i8)
 
+    # limb_step is called with a constant ``give`` (limb_run) and a computed one
+    # (limb_hold): without a signature numba would compile it for each.
+    def step_signature(numba):
+        f8, i8 = numba.float64, numba.int64
+        c1, c2 = f8[::1], f8[:, ::1]
+        return i8(c1, i8[::1], c1, c2, c1, i8[:, ::1], i8, c1, f8, f8, f8, numba.boolean)
+
     _compiled = engine.compile_functions(
         scope, _EQUATIONS + _KERNELS, digest_of=_DIGEST_OF + (sys.modules[__name__],),
-        signatures={'limb_entry': entry_signature, 'forces': forces_signature},
+        signatures={'limb_entry': entry_signature, 'forces': forces_signature,
+                    'limb_step': step_signature},
         options=options)
     return _compiled
 
