@@ -246,4 +246,5 @@ def test_steady_and_resting_muscles_are_stepped_without_planning_and_as_the_refe
         return recruitment[int(np.argmin(np.abs(ref.t_s - t_s)))]
     assert at(0.2) > 0.0 and 0.0 < at(0.85) < 0.5 / 1000 and at(1.0) > 0.0
     assert list(arrays.W[limb_kernels.W_STEADY, :2]) == [1.0, 1.0]
-    assert list(arrays.W[limb_kernels.W_REST, :2]) == [1.0, 1.0]
+    assert all(limb_kernels.resting(arrays.bundle.F, arrays.bundle.I, arrays.W, i)
+               for i in range(2))

@@ -53,11 +53,11 @@ L_PER_MUSCLE = 3
 # Rows of the stage scratch ``W`` (rows of muscles): CE lengths of the four
 # stages, CE velocities of the four stages, free flags, quasi-static flags,
 # F0 at the step's start, middle and end where it does not depend on l_CE,
-# steady flags (:func:`plan_steady`), resting flags (steady with no unit
-# recruited: F0 = 0) and a steady muscle's activation at the step's end.
+# steady flags (:func:`plan_steady`) and a steady muscle's activation at the
+# step's end.
 (W_L1, W_L2, W_L3, W_L4, W_V1, W_V2, W_V3, W_V4, W_FREE, W_QUASI, W_F0A, W_F0M,
- W_F0B, W_STEADY, W_REST, W_A_END) = range(16)
-N_W = 16
+ W_F0B, W_STEADY, W_A_END) = range(15)
+N_W = 15
 #: Status of a limb step beyond fes_kernels' OK and DELAY_FULL: muscle i is
 #: stretched out of range at the step's end (status DL_OUT_OF_RANGE + i).
 DL_OUT_OF_RANGE = 2
@@ -92,7 +92,7 @@ def plan_steady(F, I, W, i, t0, t1):
     :func:`~.fes_kernels.plan_events` makes). :func:`~.fes_kernels.plan`
     would then give only the activation's piece from ``t0`` and its value at
     ``t1``: the piece is set here, the value kept in ``W`` for the step's end
-    (:func:`limb_step`). With no unit recruited the muscle rests (``W_REST``)
+    (:func:`limb_step`). With no unit recruited the muscle rests (:func:`resting`)
     and :func:`limb_integrate` takes F0 = 0 without asking the pool. In the
     knee extension the hamstrings rest throughout, and the quadriceps is
     steady except while units join or leave.
@@ -115,8 +115,13 @@ def plan_steady(F, I, W, i, t0, t1):
     set_piece(F, I, i, t0, a, u_d, tau)
     W[W_A_END, i] = a_end
     W[W_STEADY, i] = 1.0
-    W[W_REST, i] = 1.0 if I[js + J_NREC] == 0 else 0.0
     return True
+
+
+def resting(F, I, W, i):
+    """True if muscle ``i`` is steady in this step (:func:`plan_steady`) with no
+    unit recruited: its F0 is 0 throughout the step."""
+    return W[W_STEADY, i] != 0.0 and I[hdr(I, i, H_JS) + J_NREC] == 0
 
 
 def settle_ce(F, I, i, t):
@@ -235,7 +240,7 @@ def limb_integrate(F, I, L, W, nm, s0, s1):
     for i in range(nm):
         fs = hdr(I, i, H_FS)
         l, dl = F[fs + S_L], F[fs + S_DL]
-        if W[W_REST, i] != 0.0:
+        if resting(F, I, W, i):
             # Nothing recruited in the step: F0 = 0, rate 0, as the pool would say.
             W[W_F0A, i] = 0.0
             W[W_F0M, i] = 0.0
@@ -288,7 +293,6 @@ def limb_step(F, I, L, W, TT, TI, nm, us, tau, dt, dl_limit, give):
             settle_ce(F, I, i, t0)   # what applying plan's piece at t0 would be followed by
             continue
         W[W_STEADY, i] = 0.0
-        W[W_REST, i] = 0.0
         plan(F, I, i, t0, t1)
         evt = hdr(I, i, H_EVT)
         for e in range(I[hdr(I, i, H_JS) + J_NEV]):
@@ -514,10 +518,9 @@ RUN_MIN_MUSCLE_STEPS = 10_000
 
 #: The joint's equations (model/limb.py), compiled over this module's scope.
 _EQUATIONS = ('mtu_length_change', 'joint_acceleration')
-_KERNELS = ('muscle_slot', 'dl_mt', 'length_free', 'plan_steady', 'settle_ce', 'stage_f0',
-            'stage_f0s', 'forces',
-            'limb_rk4', 'limb_integrate', 'limb_step', 'limb_give', 'limb_record', 'limb_hold',
-            'limb_run', 'limb_entry')
+_KERNELS = ('muscle_slot', 'dl_mt', 'length_free', 'plan_steady', 'resting', 'settle_ce',
+            'stage_f0', 'stage_f0s', 'forces', 'limb_rk4', 'limb_integrate', 'limb_step',
+            'limb_give', 'limb_record', 'limb_hold', 'limb_run', 'limb_entry')
 #: Compiled into :func:`limb_entry` by numba's own inlining (each has one call
 #: site there), so that they are no compiled functions of their own each
 #: holding the muscle's code again.
@@ -551,7 +554,8 @@ def compiled() -> types.SimpleNamespace:
     body = {'error_model': 'numpy'}
     options = {name: body for name in _KERNELS}
     options.update({name: leaf for name in _EQUATIONS + ('muscle_slot', 'dl_mt', 'length_free',
-                                                         'plan_steady', 'settle_ce', 'stage_f0',
+                                                         'plan_steady', 'resting', 'settle_ce',
+                                                         'stage_f0',
                                                          'stage_f0s')
                     + _INTO_ENTRY})
 
