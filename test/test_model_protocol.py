@@ -7,7 +7,7 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hill_muscle_ros.model import MuscleParams, Protocol, ProtocolError
+from hill_muscle_ros.model import Knots, MuscleParams, Protocol, ProtocolError
 from hill_muscle_ros.model.protocol import ALLOWED_KEYS
 
 GOOD = {
@@ -174,3 +174,30 @@ def test_stimulation_command_on_each_output():
     assert Protocol.from_mapping(own).stimulation_command(0.0, 'pulse_width', 5e-4) == 2e-3
     with pytest.raises(ValueError, match="`output` must be one of pulse_width, recruitment"):
         p.stimulation_command(0.0, 'current', 5e-4)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.tuples(st.integers(0, 20), st.floats(-1.0, 1.0)), min_size=1, max_size=8))
+def test_knots_with_repeated_times_are_linear_pieces_joined_by_right_continuous_steps(knots):
+    """The signal by its definition, knot by knot: at a knot time the last knot of
+    that time, just before it the limit along the piece from the knot before, and
+    between knots the straight line; the first and last values outside."""
+    knots = sorted(knots, key=lambda k: k[0])   # stable: the given order within a time
+    times = np.array([t * 0.25 for t, _ in knots])
+    values = np.array([v for _, v in knots])
+    signal = Knots(times, values)
+    tol = 1e-12
+    for t in np.unique(times):
+        assert signal(t) == values[times == t][-1]
+    assert signal(times[0] - 1.0) == values[0] and signal(times[-1] + 1.0) == values[-1]
+    for k in range(len(times) - 1):
+        t0, t1 = times[k], times[k + 1]
+        if t1 == t0:
+            continue
+        # the piece from the last knot at t0 to the first knot at t1
+        v0, v1 = values[k], values[k + 1]
+        for frac in (0.25, 0.5, 0.999999):
+            t = t0 + frac * (t1 - t0)
+            assert abs(signal(t) - (v0 + (t - t0) / (t1 - t0) * (v1 - v0))) <= tol
+        np.testing.assert_allclose(signal(np.array([t0 + 0.5 * (t1 - t0)])),
+                                   [v0 + 0.5 * (v1 - v0)], rtol=0, atol=tol)

@@ -595,7 +595,9 @@ def _run(arrays: LimbArrays, u: np.ndarray, tau: np.ndarray, dt_s: float, kernel
     nm = arrays.nm
     u = np.ascontiguousarray(u, dtype=float).reshape(len(tau), nm)
     tau = np.ascontiguousarray(tau, dtype=float)
-    rows = np.zeros((len(tau), 3 + 5 * nm))
+    # Every row is written (limb_record's every column) unless the run fails,
+    # and the rows of a failed run are not returned.
+    rows = np.empty((len(tau), 3 + 5 * nm))
     b = arrays.bundle
     entry = (kernels or sys.modules[__name__]).limb_entry
     done = entry(b.F, b.I, arrays.L, arrays.W, arrays.TT, arrays.TI, nm, MODE_RUN, u, tau,
