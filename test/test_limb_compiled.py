@@ -248,3 +248,60 @@ def test_steady_and_resting_muscles_are_stepped_without_planning_and_as_the_refe
     assert list(arrays.W[limb_kernels.W_STEADY, :2]) == [1.0, 1.0]
     assert all(limb_kernels.resting(arrays.bundle.F, arrays.bundle.I, arrays.W, i)
                for i in range(2))
+
+
+def _other_knee():
+    """The knee with other quadriceps and hamstrings numbers but their layout:
+    a run of it can take the arrays of a run of the knee."""
+    import dataclasses
+    knee = PLANTS['knee']
+    quad, ham = knee.muscles
+    return dataclasses.replace(knee, muscles=(
+        dataclasses.replace(quad, params=dataclasses.replace(quad.params, f_iso_max_n=900.0,
+                                                             tau_act_s=0.04)),
+        dataclasses.replace(ham, params=dataclasses.replace(ham.params, k_se_n_per_m=2e5))))
+
+
+def _rest_stimulate_rest(duration_s=1.2):
+    return LimbProtocol.from_mapping({
+        'name': 'pool', 'duration_s': duration_s,
+        'muscles': {'quadriceps': {'recruitment': [[0.1, 0.0], [0.1, 0.7], [0.7, 0.7],
+                                                   [0.7, 0.0]]},
+                    'hamstrings': {'recruitment': [[0.4, 0.0], [0.4, 0.3], [0.9, 0.3],
+                                                   [0.9, 0.0]]}},
+        'external_torque_n_m': [[0.0, 0.0]]})
+
+
+def test_a_run_in_the_arrays_of_the_run_before_starts_from_rest_like_a_new_one(kernels,
+                                                                             monkeypatch):
+    """simulate_limb_compiled takes the arrays the previous run of its thread
+    handed back (the same layout): knee, other knee, knee again give each the
+    reference's result, and the third run exactly the first's."""
+    protocol = _rest_stimulate_rest()
+    knee, other = PLANTS['knee'], _other_knee()
+    first = limb_kernels.simulate_limb_compiled(knee, protocol, 1000.0, kernels)
+    handed_back = {id(a) for a in limb_kernels._POOL._free.values()}
+    assert handed_back, 'the run handed no arrays back'
+    second = limb_kernels.simulate_limb_compiled(other, protocol, 1000.0, kernels)
+    assert {id(a) for a in limb_kernels._POOL._free.values()} == handed_back, \
+        'the second run did not take the first run\'s arrays'
+    third = limb_kernels.simulate_limb_compiled(knee, protocol, 1000.0, kernels)
+    _assert_same(_python(knee, protocol, monkeypatch), first)
+    _assert_same(_python(other, protocol, monkeypatch), second)
+    assert not np.array_equal(first['quadriceps_force_n'], second['quadriceps_force_n'])
+    for name in first.columns:
+        np.testing.assert_array_equal(third[name], first[name], err_msg=name)
+
+
+def test_runs_in_threads_at_once_each_use_arrays_of_their_own(kernels):
+    """Threads running limbs at once (a sweep's) give what each run gives alone."""
+    from concurrent.futures import ThreadPoolExecutor
+    protocol = _rest_stimulate_rest(0.6)
+    plants = [PLANTS['knee'], _other_knee()] * 3
+    alone = [limb_kernels.simulate_limb_compiled(p, protocol, 1000.0, kernels) for p in plants]
+    with ThreadPoolExecutor(max_workers=3) as threads:
+        together = list(threads.map(
+            lambda p: limb_kernels.simulate_limb_compiled(p, protocol, 1000.0, kernels), plants))
+    for a, b in zip(alone, together):
+        for name in a.columns:
+            np.testing.assert_array_equal(b[name], a[name], err_msg=name)

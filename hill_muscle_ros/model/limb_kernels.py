@@ -40,6 +40,7 @@ from .fes_kernels import (A_END, DELAY_FULL, OK, H_FS, H_IP, I_INITIAL, P_K_PE, 
                           P_L_REST, S_CMD, S_DL, S_L, S_R, S_T, FesBundle, apply, begin_interval, eff_f_iso,
                           end_interval, give_command, hdr, peak_rate, plan, quasi_force, rate_at,
                           settle_now, velocity, H_FP, H_JS, H_EVT, J_NEV, I_MULTI, I_N, J_DCOUNT,
+                          ScratchPool,
                           J_DHEAD, J_NREC, H_DQT, S_UD, TIME_TOL_S, set_piece, tau_for)
 from .memory import recruited_units
 from .stimulus import activation_at
@@ -448,12 +449,15 @@ class LimbArrays:
 
     :param plant: the joint and its muscles
     :param dt_s: [s] the step the delay lines are sized for
+    :param pool: where a run's arrays come from and go back to (:meth:`give_back`),
+        or None for arrays of their own
     """
 
-    def __init__(self, plant, dt_s: float) -> None:
+    def __init__(self, plant, dt_s: float, pool: ScratchPool | None = None) -> None:
         self.plant = plant
         self.nm = nm = len(plant.muscles)
-        self.bundle = FesBundle([m.params for m in plant.muscles], dt_s)
+        self._pool = pool
+        self.bundle = FesBundle([m.params for m in plant.muscles], dt_s, pool)
         self.L = np.zeros(L_MUSCLES + L_PER_MUSCLE * max(nm, 1))
         j = plant.joint
         self.L[[L_INERTIA, L_MASS, L_GRAVITY, L_COM, L_STIFFNESS, L_EQUILIBRIUM,
@@ -473,8 +477,15 @@ class LimbArrays:
     def _size_timeline(self) -> None:
         total = sum(int(self.bundle.I[i * fes_kernels.N_HDR + fes_kernels.H_CAPEV])
                     for i in range(self.nm))
-        self.TT = np.zeros(max(total, 1))
-        self.TI = np.zeros((2, max(total, 1)), dtype=np.int64)
+        zeros = np.zeros if self._pool is None else self._pool.zeros
+        self.TT = zeros((max(total, 1),))
+        self.TI = zeros((2, max(total, 1)), dtype=np.int64)
+
+    def give_back(self) -> None:
+        """Hand the run's large arrays back to the pool; these arrays are not
+        used after this."""
+        if self._pool is not None:
+            self._pool.give_back(self.bundle.F, self.bundle.I, self.TT, self.TI)
 
     def reset(self) -> None:
         """Limb.reset: theta_0, at rest, each CE at l_rest + dl_MT(theta_0)."""
@@ -504,6 +515,11 @@ class LimbArrays:
             self._size_timeline()
 
 
+#: The arrays of the runs of :func:`simulate_limb_compiled` and :func:`run_limb_batch`
+#: (each thread its own): one run's, reused by the next of the same layout.
+_POOL = ScratchPool()
+
+
 # -- compiling ------------------------------------------------------------------------------
 
 #: [-] muscle-steps (steps times muscles) of one run from which ``simulate_limb``
@@ -521,6 +537,14 @@ _EQUATIONS = ('mtu_length_change', 'joint_acceleration')
 _KERNELS = ('muscle_slot', 'dl_mt', 'length_free', 'plan_steady', 'resting', 'settle_ce',
             'stage_f0', 'stage_f0s', 'forces', 'limb_rk4', 'limb_integrate', 'limb_step',
             'limb_give', 'limb_record', 'limb_hold', 'limb_run', 'limb_entry')
+#: Compiled into their one caller by numba's own inlining: :func:`forces` into
+#: the four stages of :func:`limb_rk4`, and that into :func:`limb_integrate`.
+#: A call between compiled functions passes each array as its fields, seven
+#: words apiece, and these are the step's innermost calls. The knee extension
+#: compiled: 3.58-3.61 -> 3.17-3.20 ms a run (by hand, alternating, median of
+#: 61 each); a cold compile of the limb 17.3 -> 17.6 s. Inlining limb_integrate
+#: into limb_step as well gained 1 % more for 9 s more of compiling.
+_INTO_STEP = ('forces', 'limb_rk4')
 #: Compiled into :func:`limb_entry` by numba's own inlining (each has one call
 #: site there), so that they are no compiled functions of their own each
 #: holding the muscle's code again.
@@ -555,9 +579,8 @@ def compiled() -> types.SimpleNamespace:
     options = {name: body for name in _KERNELS}
     options.update({name: leaf for name in _EQUATIONS + ('muscle_slot', 'dl_mt', 'length_free',
                                                          'plan_steady', 'resting', 'settle_ce',
-                                                         'stage_f0',
-                                                         'stage_f0s')
-                    + _INTO_ENTRY})
+                                                         'stage_f0', 'stage_f0s')
+                    + _INTO_STEP + _INTO_ENTRY})
 
     # The one entry point, with its signature: compiled (or loaded) here, never
     # at a first step.
@@ -565,13 +588,6 @@ def compiled() -> types.SimpleNamespace:
         f8, i8 = numba.float64, numba.int64
         c1, c2 = f8[::1], f8[:, ::1]
         return i8(c1, i8[::1], c1, c2, c1, i8[:, ::1], i8, i8, c2, c1, f8, f8, i8, f8, c1, c2)
-
-    # forces is called with constant row numbers, for which numba would compile
-    # it once per call site (its argument types carry the literal values):
-    # one signature, one compile.
-    def forces_signature(numba):
-        f8, i8 = numba.float64, numba.int64
-        return f8(f8[::1], i8[::1], f8[::1], f8[:, ::1], i8, f8, f8, i8, f8, i8)
 
     # limb_step is called with a constant ``give`` (limb_run) and a computed one
     # (limb_hold): without a signature numba would compile it for each.
@@ -582,8 +598,7 @@ def compiled() -> types.SimpleNamespace:
 
     _compiled = engine.compile_functions(
         scope, _EQUATIONS + _KERNELS, digest_of=_DIGEST_OF + (sys.modules[__name__],),
-        signatures={'limb_entry': entry_signature, 'forces': forces_signature,
-                    'limb_step': step_signature},
+        signatures={'limb_entry': entry_signature, 'limb_step': step_signature},
         options=options)
     return _compiled
 
@@ -646,7 +661,11 @@ def run_limb_batch(plants, u: np.ndarray, tau: np.ndarray, dt_s: float,
     force = np.empty((len(plants), nm, len(idx)))
     failures = []
     for k, plant in enumerate(plants):
-        rows, failure = _run(LimbArrays(plant, dt_s), u[:, k, :], tau, dt_s, kernels)
+        arrays = LimbArrays(plant, dt_s, _POOL)
+        try:
+            rows, failure = _run(arrays, u[:, k, :], tau, dt_s, kernels)
+        finally:
+            arrays.give_back()
         if failure is not None:
             failures.append((failure[0], k, failure[1]))
             continue
@@ -675,8 +694,11 @@ def simulate_limb_compiled(plant, protocol, rate_hz: float = 1000.0, kernels=Non
     if not (np.all((u >= 0.0) & (u <= 1.0)) and np.all(np.abs(tau) <= TORQUE_LIMIT_N_M)):
         return None
     dt = 1.0 / rate_hz
-    rows = run_limb(LimbArrays(plant, dt), u, tau, dt,
-                    compiled() if kernels is None else kernels)
+    arrays = LimbArrays(plant, dt, _POOL)
+    try:
+        rows = run_limb(arrays, u, tau, dt, compiled() if kernels is None else kernels)
+    finally:
+        arrays.give_back()
     rows[:, 0] = t
     return LimbResult(t, dict(zip(limb_columns(plant), rows.T)))
 
