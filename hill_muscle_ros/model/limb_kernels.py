@@ -477,9 +477,11 @@ class LimbArrays:
     def _size_timeline(self) -> None:
         total = sum(int(self.bundle.I[i * fes_kernels.N_HDR + fes_kernels.H_CAPEV])
                     for i in range(self.nm))
-        zeros = np.zeros if self._pool is None else self._pool.zeros
-        self.TT = zeros((max(total, 1),))
-        self.TI = zeros((2, max(total, 1)), dtype=np.int64)
+        # limb_step writes a step's timeline (entries 0 .. n_events - 1) before
+        # it reads it: a handed-back one needs no zeros.
+        empty = np.zeros if self._pool is None else self._pool.empty
+        self.TT = empty((max(total, 1),))
+        self.TI = empty((2, max(total, 1)), dtype=np.int64)
 
     def give_back(self) -> None:
         """Hand the run's large arrays back to the pool; these arrays are not
