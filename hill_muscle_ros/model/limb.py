@@ -43,7 +43,7 @@ from .muscle import DL_MT_LIMIT_M, check_recruitment
 from .params import _FLOAT_MAX, MuscleParams, _float, _spec, finite_float
 from .protocol import (Knots, ProtocolError, _parse_knots, check_protocol_keys,
                        commands_from_pulse_widths, safe_load_yaml)
-from .simulate import sample_times
+from .simulate import sample_times, step_count
 
 ACTIONS = {'extensor': 1.0, 'flexor': -1.0}
 #: [rad] Largest |angle| parameter: two turns; a larger one is a unit error
@@ -617,7 +617,7 @@ def simulate_limb(plant: LimbPlant, protocol: LimbProtocol,
     ``HILL_MUSCLE_ENGINE=compiled`` always, ``python`` never (:mod:`.engine`).
     """
     from . import engine, limb_kernels
-    work = (len(sample_times(protocol.duration_s, rate_hz)) - 1) * len(plant.muscles)
+    work = step_count(protocol.duration_s, rate_hz) * len(plant.muscles)
     if engine.use_compiled(work, limb_kernels.RUN_MIN_MUSCLE_STEPS, limb_kernels.loaded()):
         result = limb_kernels.simulate_limb_compiled(plant, protocol, rate_hz)
         if result is not None:

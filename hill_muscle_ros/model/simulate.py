@@ -74,16 +74,23 @@ class SimulationResult:
         return i - 1 if t_s - t[i - 1] <= t[i] - t_s else i
 
 
+def step_count(duration_s: float, rate_hz: float) -> int:
+    """[-] steps of a run: round(duration * rate); :func:`sample_times` has one more.
+
+    :raises ValueError: if ``rate_hz`` is not positive and finite
+    """
+    if not (math.isfinite(rate_hz) and rate_hz > 0):
+        raise ValueError(f'`rate_hz` must be positive and finite, got {rate_hz!r}')
+    return int(round(duration_s * rate_hz))
+
+
 def sample_times(duration_s: float, rate_hz: float) -> np.ndarray:
     """[s] sample instants k / rate for k = 0..round(duration * rate), inclusive.
 
     Dividing the integer index (rather than accumulating dt) makes whole
     seconds exact, so protocol steps fall exactly on a sample.
     """
-    if not (math.isfinite(rate_hz) and rate_hz > 0):
-        raise ValueError(f'`rate_hz` must be positive and finite, got {rate_hz!r}')
-    n_steps = int(round(duration_s * rate_hz))
-    return np.arange(n_steps + 1) / rate_hz
+    return np.arange(step_count(duration_s, rate_hz) + 1) / rate_hz
 
 
 def simulate(protocol: Protocol, params: MuscleParams | None = None,
