@@ -22,7 +22,8 @@ from std_msgs.msg import Float64
 
 from hill_muscle_ros.model import Protocol
 from hill_muscle_ros.nodes import recorder as recorder_mod
-from hill_muscle_ros.nodes._common import DIAGNOSTICS_PERIOD_S, DiagnosticReport
+from hill_muscle_ros.nodes._common import (DIAGNOSTICS_PERIOD_PARAMETER, DIAGNOSTICS_PERIOD_S,
+                                           DiagnosticReport)
 from hill_muscle_ros.qos import QUEUE_DEPTH
 from hill_muscle_ros.recording.reader import read_bag
 from ros_helpers import Probe, ProcessGroup, node_command
@@ -51,6 +52,10 @@ SIM_RATE_HZ = 1000.0
 #: before the first tick, with the catch-up of the ticks before the stop
 #: (a run alone saw such a status, its longest gap 8.7 ms, in 2 of 7).
 STALL_CATCH_UP_FRACTION = 0.4
+#: [s] the report period of the tests whose statuses do not measure a period
+#: (states, counts): five reports a second instead of one.
+FAST_PERIOD_S = 0.2
+FAST = {DIAGNOSTICS_PERIOD_PARAMETER: FAST_PERIOD_S}
 
 
 def unique_namespace() -> str:
@@ -68,13 +73,17 @@ class Statuses:
     def __init__(self, probe: Probe, name: str) -> None:
         self.name = name
         self.list: list[DiagnosticStatus] = []
+        #: [s] header stamps of the arrays that carried them
+        self.stamps: list[float] = []
         rec = probe.record('/diagnostics', DiagnosticArray)
         for msg in rec.messages:
             self._on_array(msg)
         rec.add_listener(self._on_array)
 
     def _on_array(self, msg: DiagnosticArray) -> None:
-        self.list.extend(s for s in msg.status if s.name == self.name)
+        mine = [s for s in msg.status if s.name == self.name]
+        self.list.extend(mine)
+        self.stamps.extend([msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec] * len(mine))
 
     def first(self, predicate, start: int = 0):
         """The first status from index ``start`` with ``predicate(status)``, or None."""
@@ -111,7 +120,7 @@ def test_simulator_watchdog_trip_is_a_warning(tmp_path):
     ns = unique_namespace()
     with ProcessGroup(tmp_path) as procs, Probe('diag_probe') as probe:
         sim = procs.start('sim', node_command('simulator', ns=ns, params={
-            'rate_hz': QUIET_RATE_HZ, 'input_timeout_s': 0.2}))
+            'rate_hz': QUIET_RATE_HZ, 'input_timeout_s': 0.2, **FAST}))
         st = Statuses(probe, f'{ns}/simulator: muscle simulation')
         probe.publish_when_matched(f'{ns}/recruitment', Float64(data=0.5), procs=[sim])
         status = wait_status(probe, st, lambda s: values(s)['watchdog_tripped'] == 'true',
@@ -181,7 +190,7 @@ def test_simulator_stall_is_an_error_then_a_catch_up_warning(tmp_path):
 def test_controller_without_target_reports_idle_ok(tmp_path):
     ns = unique_namespace()
     with ProcessGroup(tmp_path) as procs, Probe('diag_probe') as probe:
-        ctrl = procs.start('ctrl', node_command('force_controller', ns=ns))
+        ctrl = procs.start('ctrl', node_command('force_controller', ns=ns, params=FAST))
         st = Statuses(probe, f'{ns}/force_controller: force control')
         status = wait_status(probe, st, lambda s: True, 'a status', [ctrl])
     v = values(status)
@@ -195,7 +204,7 @@ def test_controller_without_target_reports_idle_ok(tmp_path):
 def test_controller_with_a_target_but_no_feedback_warns(tmp_path):
     ns = unique_namespace()
     with ProcessGroup(tmp_path) as procs, Probe('diag_probe') as probe:
-        ctrl = procs.start('ctrl', node_command('force_controller', ns=ns))
+        ctrl = procs.start('ctrl', node_command('force_controller', ns=ns, params=FAST))
         st = Statuses(probe, f'{ns}/force_controller: force control')
         probe.publish_when_matched(f'{ns}/force_target', Float64(data=10.0), procs=[ctrl])
         status = wait_status(probe, st, lambda s: values(s)['target_received'] == 'true',
@@ -211,7 +220,7 @@ def test_controller_stale_feedback_warns_with_its_age(tmp_path):
     timeout_s = 0.2
     with ProcessGroup(tmp_path) as procs, Probe('diag_probe') as probe:
         ctrl = procs.start('ctrl', node_command('force_controller', ns=ns, params={
-            'feedback_timeout_s': timeout_s}))
+            'feedback_timeout_s': timeout_s, **FAST}))
         st = Statuses(probe, f'{ns}/force_controller: force control')
         probe.publish_when_matched(f'{ns}/force_target', Float64(data=10.0), procs=[ctrl])
         probe.publish_when_matched(f'{ns}/force', Float64(data=1.0), procs=[ctrl])
@@ -229,7 +238,7 @@ def test_controller_in_the_loop_reports_ok_and_stimulating(tmp_path):
     with ProcessGroup(tmp_path) as procs, Probe('diag_probe') as probe:
         sim = procs.start('sim', node_command('simulator', ns=ns,
                                               params={'rate_hz': QUIET_RATE_HZ}))
-        ctrl = procs.start('ctrl', node_command('force_controller', ns=ns))
+        ctrl = procs.start('ctrl', node_command('force_controller', ns=ns, params=FAST))
         st = Statuses(probe, f'{ns}/force_controller: force control')
         probe.publish_when_matched(f'{ns}/force_target', Float64(data=10.0),
                                    procs=[sim, ctrl])
@@ -309,7 +318,7 @@ def test_player_reports_waiting_then_progress_then_done(tmp_path):
     duration_s = Protocol.from_yaml(path).duration_s
     with ProcessGroup(tmp_path) as procs, Probe('diag_probe') as probe:
         player = procs.start('player', node_command('protocol_player', ns=ns, params={
-            'protocol': str(path), 'rate_hz': 100.0, 'wait_for_subscribers_s': 60.0}))
+            'protocol': str(path), 'rate_hz': 100.0, 'wait_for_subscribers_s': 60.0, **FAST}))
         st = Statuses(probe, f'{ns}/protocol_player: protocol playback')
         waiting = wait_status(probe, st, lambda s: True, 'a status', [player])
         probe.record(f'{ns}/pulse_width', Float64)
@@ -325,6 +334,32 @@ def test_player_reports_waiting_then_progress_then_done(tmp_path):
     assert playing.level == OK and 0.0 <= t_s < duration_s
     assert float(v['progress']) == pytest.approx(t_s / duration_s, abs=1e-5)
     assert done.level == OK and values(done)['progress'] == '1'
+
+
+# -- the period ---------------------------------------------------------------------
+
+
+def test_diagnostic_updater_period_sets_the_time_between_reports(tmp_path):
+    """``diagnostic_updater.period`` (diagnostic_updater's name) 0.2 s: reports come
+    about five a second, where the default period gives one."""
+    ns = unique_namespace()
+    with ProcessGroup(tmp_path) as procs, Probe('diag_probe') as probe:
+        ctrl = procs.start('ctrl', node_command('force_controller', ns=ns, params=FAST))
+        st = Statuses(probe, f'{ns}/force_controller: force control')
+        probe.spin_until(lambda: len(st.list) >= 6, '6 statuses', procs=[ctrl])
+    gaps = sorted(b - a for a, b in zip(st.stamps, st.stamps[1:]))
+    median = gaps[len(gaps) // 2]
+    assert 0.5 * FAST_PERIOD_S < median < 0.5 * (FAST_PERIOD_S + DIAGNOSTICS_PERIOD_S), gaps
+
+
+@pytest.mark.parametrize('period', [0.0, 1e5])
+def test_diagnostic_updater_period_out_of_range_stops_start_up_naming_it(tmp_path, period):
+    with ProcessGroup(tmp_path) as procs:
+        ctrl = procs.start('ctrl', node_command('force_controller', ns=unique_namespace(),
+                                                params={DIAGNOSTICS_PERIOD_PARAMETER: period}))
+        status = ctrl.wait()
+    assert status != 0
+    assert f'parameter `{DIAGNOSTICS_PERIOD_PARAMETER}` = {period!r} rejected' in ctrl.output()
 
 
 # -- the report itself ------------------------------------------------------------------

@@ -599,7 +599,8 @@ def reject_unknown_overrides(node: Node) -> None:
     known = (set(declared)
              | set(MuscleParams.field_names())
              | {f.name for f in dataclasses.fields(ControllerParams)}
-             | OTHER_NODE_PARAMETERS)
+             | OTHER_NODE_PARAMETERS
+             | {DIAGNOSTICS_PERIOD_PARAMETER})   # NodeDiagnostics declares it
     overrides = parameter_overrides(node)
     unknown = sorted(set(overrides) - known)
     # QoS overrides are declared with the publishers, after this check: their
@@ -746,6 +747,14 @@ class StepSchedule:
 DIAGNOSTICS_TOPIC = '/diagnostics'
 #: [s] one DiagnosticArray per node per second, diagnostic_updater's default period.
 DIAGNOSTICS_PERIOD_S = 1.0
+#: The parameter that sets the period, named as diagnostic_updater names it
+#: (``diagnostic_updater.period``, C++ and Python), so that one params file
+#: sets it for nodes of either kind.
+DIAGNOSTICS_PERIOD_PARAMETER = 'diagnostic_updater.period'
+#: [s] the range accepted for it: at most 20 reports a second, since each is a
+#: DiagnosticArray per node on one shared topic (and a report period shorter
+#: than a few steps says little about a step rate); at least one an hour.
+DIAGNOSTICS_PERIOD_RANGE_S = (0.05, 3600.0)
 #: Reliable, volatile, keep-last 10: 10 s of a node's reports at 1 Hz, so a
 #: recorder or aggregator that is descheduled for a moment still gets each one.
 DIAGNOSTICS_HISTORY_DEPTH = 10
@@ -971,11 +980,21 @@ class NodeDiagnostics:
     :param node: the node reported on
     :param function: what the node does, e.g. ``muscle simulation``
     :param check: fills the report
-    :param period_s: [s] reporting period
+    :param period_s: [s] reporting period; None: the node's parameter
+        :data:`DIAGNOSTICS_PERIOD_PARAMETER` (declared here, default
+        :data:`DIAGNOSTICS_PERIOD_S`)
+    :raises StartupError: if that parameter is out of range or not a float
     """
 
     def __init__(self, node: Node, function: str, check: Callable[[DiagnosticReport], None],
-                 period_s: float = DIAGNOSTICS_PERIOD_S) -> None:
+                 period_s: float | None = None) -> None:
+        if period_s is None:
+            period_s = declare_checked(node, DIAGNOSTICS_PERIOD_PARAMETER, DIAGNOSTICS_PERIOD_S,
+                                       number_descriptor(
+                                           f'period of this node\'s status on '
+                                           f'{DIAGNOSTICS_TOPIC}', 's',
+                                           *DIAGNOSTICS_PERIOD_RANGE_S, read_only=True))
+        self.period_s = period_s
         self._node = node
         self._check = check
         fqn = node.get_fully_qualified_name()
