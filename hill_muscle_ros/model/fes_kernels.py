@@ -1070,9 +1070,11 @@ class ScratchPool(threading.local):
     of the heap to the system. A knee's run takes about 1.1 MB of such state
     (its bundle's ``F`` and ``I``, the timeline), and its page faults were
     0.2-0.4 ms of a 3.2 ms compiled run (by hand: the same process with
-    glibc's thresholds raised ran in 2.75 ms). Runs of the same layout (a fit,
-    a sweep, a gym's resets) then write into memory already mapped. One array
-    per shape and dtype is kept, per thread (a sweep's threads run at once).
+    glibc's thresholds raised ran in 2.75 ms). Runs of the same layout
+    (``simulate_limb`` again, a fit's or a sweep's runs of one plant's
+    muscles) then write into memory already mapped; a step-by-step limb
+    (``CompiledLimb``) keeps arrays of its own. One array per shape and dtype
+    is kept, per thread (a sweep's threads run at once).
     """
 
     def __init__(self) -> None:
