@@ -55,11 +55,9 @@ def commands_from_pulse_widths(pulse_widths_s, params, name: str = 'pulse_width_
     counts = np.empty_like(starts)
     counts[:-1] = starts[1:] - starts[:-1]
     counts[-1] = flat.size - starts[-1]
-    commands: dict[float, float] = {}
-    u = [commands[w] if w in commands else
-         commands.setdefault(w, command_from_pulse_width(w, params, name))
-         for w in flat[starts].tolist()]
-    return np.repeat(np.array(u), counts).reshape(values.shape)
+    widths = flat[starts].tolist()
+    commands = {w: command_from_pulse_width(w, params, name) for w in dict.fromkeys(widths)}
+    return np.repeat(np.array([commands[w] for w in widths]), counts).reshape(values.shape)
 
 
 def safe_load_yaml(text: str):

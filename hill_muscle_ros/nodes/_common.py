@@ -994,7 +994,6 @@ class NodeDiagnostics:
                                            f'period of this node\'s status on '
                                            f'{DIAGNOSTICS_TOPIC}', 's',
                                            *DIAGNOSTICS_PERIOD_RANGE_S, read_only=True))
-        self.period_s = period_s
         self._node = node
         self._check = check
         fqn = node.get_fully_qualified_name()
