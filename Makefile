@@ -17,12 +17,12 @@ $(STAMP): setup.py setup.cfg package.xml requirements-dev.txt requirements-ros.t
 	$(BIN)/python -m pip install --disable-pip-version-check -q --no-deps -e .
 	touch $(STAMP)
 
-# Serial. `pytest -n 2 --dist loadgroup` runs the offline tests beside the ROS
-# tests at idle priority in a session of their own (test/conftest.py); not the
-# default: the simulator's 20 ms tick-gap bound under tool churn failed beside
-# them on a fresh clone.
+# Four pytest workers on two pools (test/conftest.py): two run the ROS tests
+# side by side (a module marked `alone` runs with no other ROS module beside
+# it), two run the offline tests at idle CPU priority. `pytest` alone runs
+# everything serially.
 test: $(STAMP)
-	$(BIN)/python -m pytest -q --durations=15
+	$(BIN)/python -m pytest -q -n 4 --dist loadgroup --durations=15
 
 # The live demo: simulator, protocol player and recorder as three ROS 2
 # processes on a DDS domain of their own; the bag is read back, plotted

@@ -7,19 +7,20 @@ two concurrent runs on one machine never draw the same one. Subprocesses
 inherit these variables. Under pytest-xdist each worker claims a domain of
 its own.
 
-Two workers, opt-in (``pytest -n 2 --dist loadgroup``; ``make test`` runs
-serially: the simulator's 20 ms tick-gap bound under tool churn failed beside
-the offline worker on a fresh clone). The tests that
-start ROS processes or DDS participants are timing claims about a 1 kHz loop
-on 2 cores, so they run as before: one at a time, in file order, in one worker
-(work unit :data:`SERIAL_GROUP`), at normal priority. The others (the model,
-the offline CLI and bags, the figures, the clean install: :func:`is_offline_module`)
-run in the other worker at the kernel's idle priority (``SCHED_IDLE``, and
+Workers (``make test`` runs ``pytest -n 4 --dist loadgroup``): two pools,
+:func:`pytest_xdist_make_scheduler`. Half the workers run the modules that
+start ROS processes or DDS participants, at normal priority, two side by
+side; a module with an ``alone`` test (a timing claim that needs the machine:
+the simulator's 20 ms tick gap under tool churn failed all three runs beside
+another ROS module) runs while no other ROS module does (:func:`_ros_turns`).
+The other half run the offline modules (the model, the offline CLI and
+bags, the figures, the clean install: :func:`is_offline_module`)
+at the kernel's idle priority (``SCHED_IDLE``, and
 the idle I/O class): they get a CPU only when no ordinary process wants it, a
 ROS process that wakes takes the CPU back at once, so they use the CPU time
 the ROS tests leave idle without delaying them. With the kernel's autogroups
-that holds only across sessions too: the offline worker runs in a session of
-its own at the weakest autogroup nice (:func:`_leave_the_ros_tests_autogroup`).
+that holds only across sessions too: the offline workers run in sessions of
+their own at the weakest autogroup nice (:func:`_leave_the_ros_tests_autogroup`).
 """
 import ctypes
 import os
@@ -28,7 +29,10 @@ import sys
 import time
 from pathlib import Path
 
+import fcntl
+
 import pytest
+from hypothesis import settings
 
 from hill_muscle_ros.dds_transport import use_udp_transport
 from hill_muscle_ros.domain_lock import lock_free_domain
@@ -59,12 +63,25 @@ def _claim_domain() -> int:
                        f'another test run')
 
 
+# No per-example deadline: how fast the code runs is make bench's business, and
+# beside the ROS tests an example at idle CPU priority waited 374 ms for a CPU.
+settings.register_profile('hill_muscle_ros', deadline=None)
+settings.load_profile('hill_muscle_ros')
+
 #: Set in the environment when this run (not its caller) claimed the domain, so
 #: that xdist workers, which inherit the environment, claim their own.
 _CLAIMED_ENV = 'HILL_MUSCLE_TEST_DOMAIN_CLAIMED'
 
 
+#: The lock files through which the ROS workers take turns (:func:`_ros_turns`),
+#: made by the controller, inherited by the workers.
+_TURNS_ENV = 'HILL_MUSCLE_TEST_ROS_TURNS'
+
+
 def pytest_configure(config):
+    if 'PYTEST_XDIST_WORKER' not in os.environ and _runs_workers(config):
+        import tempfile
+        os.environ[_TURNS_ENV] = tempfile.mkdtemp(prefix='hill_muscle_ros_turns_')
     inherited_claim = os.environ.get(_CLAIMED_ENV) == '1'
     if 'HILL_MUSCLE_TEST_DOMAIN' not in os.environ or (
             inherited_claim and 'PYTEST_XDIST_WORKER' in os.environ):
@@ -115,6 +132,12 @@ def protocol_paths():
     return {'I': PROTOCOLS / 'protocol_I.yaml', 'II': PROTOCOLS / 'protocol_II.yaml'}
 
 
+def _runs_workers(config) -> bool:
+    """Whether this pytest process hands the tests to xdist workers."""
+    return bool(getattr(config.option, 'numprocesses', None)) and \
+        getattr(config.option, 'dist', 'no') != 'no'
+
+
 def pytest_sessionstart(session):
     """Load the compiled limb and the compiled FES muscle once, before any test,
     when the limb and simulator nodes would run them (numba importable,
@@ -122,10 +145,11 @@ def pytest_sessionstart(session):
     them from numba's disk cache (about 1 s) instead of compiling them (about
     30 s, the tests' whole start-up deadline). The offline tests compile these
     kernels anyway, so the run compiles nothing more. Under xdist the controller
-    does it before it starts its workers, which then load from the cache."""
+    does it, for every kernel set, before it starts its workers, which then
+    load from the cache."""
     if 'PYTEST_XDIST_WORKER' in os.environ:
         return
-    from hill_muscle_ros.model import engine, fes_kernels, limb_kernels
+    from hill_muscle_ros.model import engine, fes_batch_kernels, fes_kernels, kernels, limb_kernels
     try:
         if engine.choice() != engine.COMPILED:
             return
@@ -135,9 +159,15 @@ def pytest_sessionstart(session):
     started = time.monotonic()
     fes_kernels.compiled()   # the simulator node's FES muscle (compiled_muscle)
     limb_kernels.compiled()
+    if _runs_workers(session.config):
+        # The workers' own kernel sets too: two offline workers would otherwise
+        # compile the same ones at once, each in full (about 2 s more here).
+        kernels.compiled()
+        kernels.compiled_run()
+        fes_batch_kernels.compiled()
     if reporter is not None:
         reporter.write_line(
-            f'compiled limb and FES muscle loaded for the node tests in '
+            f'compiled kernels loaded for the tests in '
             f'{time.monotonic() - started:.1f} s ({engine.compile_seconds():.1f} s of it '
             'compiling)')
 
@@ -212,29 +242,84 @@ _SYS_IOPRIO_SET = 251
 _WEAKEST_NICE = 19
 
 
+#: [s] the modules that take longest (a fresh clone under ``-n 4 --dist
+#: loadgroup``, rounded; idle-priority offline modules wait for CPUs too):
+#: each pool hands them out first. The rest follow in collection order.
+LONG_MODULES = {
+    'test_fit_limb': 95, 'test_install_clean': 70, 'test_batch_compiled': 60,
+    'test_fit': 50, 'test_batch_fes_compiled': 45, 'test_cli': 30, 'test_figures': 20,
+    'test_demo': 20, 'test_recorder_node': 29, 'test_joint_closed_loop': 28,
+    'test_node_diagnostics': 25, 'test_demo_knee': 20, 'test_faults_garbage': 19,
+    'test_node_player': 19, 'test_faults_recorder_stop': 18,
+    'test_controller_closed_loop': 17}
+
+
 def is_offline_module(name: str) -> bool:
     """Whether the test module ``name`` (``test_model_curves``) is an offline one."""
     return name.startswith(OFFLINE_PREFIXES) or name in OFFLINE_MODULES
 
 
+def ros_workers(n_workers: int) -> int:
+    """How many of ``n_workers`` xdist workers run the ROS tests: half (at
+    least one); the rest run the offline ones."""
+    return max(1, n_workers // 2)
+
+
 def pytest_xdist_make_scheduler(config, log):
-    """``--dist loadgroup``: two work units, :data:`SERIAL_GROUP` and
-    :data:`OFFLINE_GROUP`, each to one worker, each in collection order.
+    """``--dist loadgroup``: two pools of workers, one for the tests that start
+    ROS processes or DDS participants (:data:`SERIAL_GROUP`), one for the
+    offline tests (:data:`OFFLINE_GROUP`): a worker only ever runs modules of
+    its own pool, a whole module at a time, in collection order
+    (:func:`ros_workers` says how many are ROS workers).
 
     pytest-xdist's own loadgroup (the ``xdist_group`` mark) renames the test
-    ids, which pytest 9.2 no longer lets it do, so the two units are made here
-    by module name (the controller has the test ids only).
+    ids, which pytest 9.2 no longer lets it do, and pins a group to one
+    worker; the pools are made here by module name (the controller has the
+    test ids only).
     """
     if config.getvalue('dist') != 'loadgroup':
         return None
     from xdist.scheduler import LoadScopeScheduling
 
-    class TwoGroupScheduling(LoadScopeScheduling):
-        def _split_scope(self, nodeid: str) -> str:
-            module = Path(nodeid.split('::', 1)[0]).stem
-            return OFFLINE_GROUP if is_offline_module(module) else SERIAL_GROUP
+    def pool_of_scope(scope: str) -> str:
+        return OFFLINE_GROUP if is_offline_module(Path(scope).stem) else SERIAL_GROUP
 
-    return TwoGroupScheduling(config, log)
+    class PoolScheduling(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            return nodeid.split('::', 1)[0]
+
+        def _pool_of_node(self, node) -> str:
+            # Workers are gw0, gw1, ...: the first ros_workers() run the ROS tests.
+            index = int(node.gateway.id.removeprefix('gw'))
+            return SERIAL_GROUP if index < ros_workers(self.numnodes) else OFFLINE_GROUP
+
+        def _next_scope(self, node) -> str | None:
+            pool = self._pool_of_node(node)
+            scopes = [s for s in self.workqueue if pool_of_scope(s) == pool]
+            # The longest modules first, so that a pool's workers end together.
+            return min(scopes, key=lambda s: -LONG_MODULES.get(Path(s).stem, 0), default=None)
+
+        def _assign_work_unit(self, node) -> None:
+            scope = self._next_scope(node)
+            if scope is None:
+                return
+            work_unit = self.workqueue.pop(scope)
+            self.assigned_work.setdefault(node, {})[scope] = work_unit
+            collection = self.registered_collections[node]
+            node.send_runtest_some([collection.index(nodeid)
+                                    for nodeid, done in work_unit.items() if not done])
+
+        def _reschedule(self, node) -> None:
+            if node.shutting_down:
+                return
+            if self._next_scope(node) is None:
+                node.shutdown()   # after the tests it has; its pool has no more
+                return
+            if self._pending_of(self.assigned_work[node]) > 2:
+                return
+            self._assign_work_unit(node)
+
+    return PoolScheduling(config, log)
 
 
 def _set_io_class(tid: int, io_class: int) -> None:
@@ -308,7 +393,33 @@ def _priority_by_group(request):
     policy = os.SCHED_IDLE if idle else os.SCHED_OTHER
     if os.sched_getscheduler(0) != policy:
         if idle:
-            # Once per worker: a worker runs one group only (TwoGroupScheduling).
+            # Once per worker: a worker runs one pool only (PoolScheduling).
             _leave_the_ros_tests_autogroup()
         _set_priority(policy, _IOPRIO_CLASS_IDLE if idle else _IOPRIO_CLASS_NONE)
     yield
+
+
+@pytest.fixture(scope='module', autouse=True)
+def _ros_turns(request):
+    """Under xdist, the ROS workers take turns by module: a module with an
+    ``alone`` test runs while no other ROS module does; the others run side
+    by side. A readers-writer lock between the worker processes (``flock``):
+    everyone queues at a turnstile first, so a waiting ``alone`` module is
+    not overtaken by the modules that start after it asked."""
+    folder = os.environ.get(_TURNS_ENV)
+    name = request.module.__name__.rsplit('.', 1)[-1]
+    if 'PYTEST_XDIST_WORKER' not in os.environ or folder is None or is_offline_module(name):
+        yield
+        return
+    alone = any(item.get_closest_marker('alone') for item in request.session.items
+                if item.module is request.module)
+    turnstile = os.open(os.path.join(folder, 'turnstile'), os.O_RDWR | os.O_CREAT)
+    turn = os.open(os.path.join(folder, 'turn'), os.O_RDWR | os.O_CREAT)
+    try:
+        fcntl.flock(turnstile, fcntl.LOCK_EX)
+        fcntl.flock(turn, fcntl.LOCK_EX if alone else fcntl.LOCK_SH)
+        fcntl.flock(turnstile, fcntl.LOCK_UN)
+        yield
+    finally:
+        os.close(turn)        # closing releases the lock
+        os.close(turnstile)

@@ -416,6 +416,7 @@ def test_gap_breakdown_tells_the_machine_from_the_simulator():
 
 @pytest.mark.ros
 @pytest.mark.slow
+@pytest.mark.alone
 def test_simulator_tick_never_pauses_while_cli_tools_join_and_leave(tmp_path):
     for attempt in range(1, MAX_ATTEMPTS + 1):
         run = _one_run(tmp_path / f'attempt{attempt}')
