@@ -86,6 +86,16 @@ WATCH_PERIOD_S = 0.001
 WATCHER_LATE_S = 0.005
 #: Runs in all, at most, when each failed one had an external stall measured.
 MAX_ATTEMPTS = 3
+#: [s] the longest a tool may take to leave once its work is done: far above
+#: the 0.1-0.5 s a participant's teardown takes here. A tool still tearing
+#: down then is deadlocked in Fast DDS (seen once, with four pytest workers on
+#: the machine: the tool's main thread spinning in ``set_listener`` inside
+#: ``destroy_participant`` while a discovery thread waited in
+#: ``onWriterDiscovery`` for a mutex the main thread held; gdb stacks): the
+#: launcher kills it and the test names it.
+TEARDOWN_LIMIT_S = 5.0
+#: [s] how often the launcher looks at its tools.
+LAUNCHER_POLL_S = 0.05
 #: [s] poll period of the daemon-like participant (ros2cli's daemon answers
 #: every ``ros2`` command from its graph cache).
 DAEMON_POLL_S = 0.1
@@ -183,23 +193,28 @@ for name in (f'{ns}/simulator', f'{ns}/force_controller'):
     print(f'{name} rate_hz {got.result().values[0].double_value}', flush=True)
     if name.endswith('/simulator') and got.result().values[0].double_value != rate_hz:
         sys.exit(f'tool {index}: {name} rate_hz is {got.result().values[0]}, not {rate_hz}')
+print('TEARDOWN', flush=True)   # the work is done: the launcher times the rest
 node.destroy_node()
 rclpy.shutdown()
 '''
 
-#: The launcher: argv = tool count, tools at once, log directory, then the
-#: tool's argv after the index. Imports what the tools import (rclpy, not
+#: The launcher: argv = tool count, tools at once, log directory, teardown
+#: limit [s], poll period [s], then the tool's argv after the index. Imports what the tools import (rclpy, not
 #: initialised: no context, no participant, no thread of rclpy's yet), then forks
 #: the tools, at most ``tools at once`` alive, each writing ``tool<i>.log``, and
-#: prints ``EXIT <index> <status>`` as each ends. Exits 0 once all have ended.
+#: prints ``EXIT <index> <status>`` as each ends. A tool still alive the teardown
+#: limit after it printed ``TEARDOWN`` is killed, with ``STUCK <index> <s>``
+#: (:data:`TEARDOWN_LIMIT_S`). Exits 0 once all have ended.
 _LAUNCHER = r'''
 import os, sys, time, traceback
 import rclpy
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from std_msgs.msg import Float64
+import signal
 code = compile(sys.argv[1], 'tool', 'exec')
-tools, at_once, log_dir, tool_args = int(sys.argv[2]), int(sys.argv[3]), sys.argv[4], sys.argv[5:]
+tools, at_once, log_dir, teardown_s = int(sys.argv[2]), int(sys.argv[3]), sys.argv[4], float(sys.argv[5])
+poll_s, tool_args = float(sys.argv[6]), sys.argv[7:]
 
 def run_tool(index):
     fd = os.open(os.path.join(log_dir, f'tool{index}.log'), os.O_WRONLY | os.O_CREAT | os.O_TRUNC)
@@ -222,7 +237,15 @@ def run_tool(index):
     sys.stderr.flush()
     os._exit(status)
 
+def tearing_down(index):
+    try:
+        with open(os.path.join(log_dir, f'tool{index}.log'), errors='replace') as log:
+            return 'TEARDOWN' in log.read()
+    except FileNotFoundError:   # the tool has not opened its log yet
+        return False
+
 running = {}
+teardown_seen = {}
 next_index = 0
 while next_index < tools or running:
     while next_index < tools and len(running) < at_once:
@@ -232,8 +255,20 @@ while next_index < tools or running:
             run_tool(next_index)
         running[pid] = next_index
         next_index += 1
-    pid, status = os.wait()
-    print(f'EXIT {running.pop(pid)} {os.waitstatus_to_exitcode(status)}', flush=True)
+    pid, status = os.waitpid(-1, os.WNOHANG)
+    if pid:
+        print(f'EXIT {running.pop(pid)} {os.waitstatus_to_exitcode(status)}', flush=True)
+        teardown_seen.pop(pid, None)
+        continue
+    now = time.monotonic()
+    for pid, index in running.items():
+        if pid not in teardown_seen and tearing_down(index):
+            teardown_seen[pid] = now
+        elif pid in teardown_seen and now - teardown_seen[pid] > teardown_s:
+            os.kill(pid, signal.SIGKILL)
+            print(f'STUCK {index} {now - teardown_seen[pid]:.1f}', flush=True)
+            teardown_seen[pid] = float('inf')   # killed once; its EXIT follows
+    time.sleep(poll_s)
 '''
 
 #: A participant like ros2cli's daemon: it polls the graph until stopped.
@@ -279,13 +314,23 @@ def _run_tools(procs, ns, watch):
     start_s = time.monotonic()
     launcher = procs.start('launcher', [
         sys.executable, '-c', _LAUNCHER, _TOOL, str(TOOLS), str(TOOLS_AT_ONCE),
-        str(procs.log_dir), ns, repr(TARGET_N), repr(RATE_HZ), repr(DEFAULT_TIMEOUT_S)],
+        str(procs.log_dir), repr(TEARDOWN_LIMIT_S), repr(LAUNCHER_POLL_S),
+        ns, repr(TARGET_N), repr(RATE_HZ), repr(DEFAULT_TIMEOUT_S)],
         preexec_fn=_lower_priority)
     procs.wait_until(lambda: launcher.returncode is not None, 'the tools to finish',
                      timeout_s=TOOLS * DEFAULT_TIMEOUT_S, watch=watch)
     tools_s = time.monotonic() - start_s
-    exits = dict(line.split()[1:] for line in launcher.output().splitlines()
-                 if line.startswith('EXIT '))
+    lines = launcher.output().splitlines()
+    stuck = [line.split()[1:] for line in lines if line.startswith('STUCK ')]
+    for index, waited in stuck:
+        print(f'\nMEASURED: tool {index} had done its work but was still in its participant '
+              f'teardown {waited} s later: killed. That is the deadlock of Fast DDS 2.14 / '
+              f'rmw_fastrtps (destroy_participant holds a lock and spins until an in-flight '
+              f'onWriterDiscovery ends, which waits for that lock), in the tool, not in the '
+              f'simulator; its exit counts as the end of its work.')
+    exits = {index: ('0' if any(index == s[0] for s in stuck) else status)
+             for index, status in (line.split()[1:] for line in lines
+                                   if line.startswith('EXIT '))}
     failed = {index: status for index, status in exits.items() if status != '0'}
     logs = '\n'.join(f'--- tool{index} (exit {status}):\n'
                      f'{(procs.log_dir / f"tool{index}.log").read_text()[-1000:]}'
