@@ -56,18 +56,23 @@ def reference_step(m: Muscle, r: float, dl1: float, dt: float):
     m.set_recruitment(r)
     f0 = m.eff_f_iso()
 
-    def rate(l_ce, dl_mt):
+    def rate(l_ce, f_se):
         f0_l = f0 if initial else m.eff_f_iso(l_ce)
-        return force_velocity_inverse(series_force(p.k_se_n_per_m, dl_mt, l_ce, p.l_rest_m),
-                                      f0_l, *hill)
+        return force_velocity_inverse(f_se, f0_l, *hill)
 
+    k_se = p.k_se_n_per_m
     dl0, l0 = m.dl_mt_m, m.l_ce_m
     if f0 > 0.0:
         dlm = 0.5 * (dl0 + dl1)
-        k1 = rate(l0, dl0)
-        k2 = rate(l0 + 0.5 * dt * k1, dlm)
-        k3 = rate(l0 + 0.5 * dt * k2, dlm)
-        k4 = rate(l0 + dt * k3, dl1)
+        h = 0.5 * dt
+        # A stage's SE force k_SE (dl - (l0 + h k - l_rest)) rounded as the
+        # engines round it: k_SE (dl - (l0 - l_rest)) - k_SE h k (negative when
+        # slack, which Eq. 3 inverted takes as series_force's 0).
+        f_mid, f_end = k_se * (dlm - (l0 - p.l_rest_m)), k_se * (dl1 - (l0 - p.l_rest_m))
+        k1 = rate(l0, series_force(k_se, dl0, l0, p.l_rest_m))
+        k2 = rate(l0 + h * k1, f_mid - k_se * h * k1)
+        k3 = rate(l0 + h * k2, f_mid - k_se * h * k2)
+        k4 = rate(l0 + dt * k3, f_end - k_se * dt * k3)
         l1 = l0 + dt / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)   # h / 6 first, as the engines
     else:
         l1 = p.l_rest_m + dl1

@@ -19,7 +19,7 @@ import sys
 import pytest
 
 from hill_muscle_ros import demo_knee
-from hill_muscle_ros.supervisor import Process, StopSignals
+from hill_muscle_ros.supervisor import Process, StopSignals, wait_until
 
 #: [s] grace of the sleeping child's stop (SIGINT ends it at once).
 GRACE_S = 10.0
@@ -100,10 +100,19 @@ class SignalAfterAcquire:
         self.release()
 
 
+#: What the sleeper prints once Python is up: a SIGINT before that may end it
+#: with exit 1 (Python still starting), not by the signal.
+SLEEPING = 'sleeping'
+
+
 @pytest.fixture
 def sleeper(tmp_path):
-    proc = Process('sleeper', [sys.executable, '-c', 'import time; time.sleep(60)'],
+    proc = Process('sleeper', [sys.executable, '-c',
+                               f'import time; print({SLEEPING!r}, flush=True); time.sleep(60)'],
                    tmp_path / 'sleeper.log', env={})
+    # A test run beside others on a loaded machine: signalled still starting,
+    # the sleeper exited 1 instead of by SIGINT.
+    wait_until(lambda: SLEEPING in proc.output(), 'the sleeper to start', GRACE_S, watch=[proc])
     yield proc
     proc.kill()
 

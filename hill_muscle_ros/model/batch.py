@@ -405,8 +405,13 @@ class MuscleBatch:
             f0 = self._eff_f_iso(l_ce)
         f_se = np.subtract(l_ce, self._l_rest)
         np.subtract(dl_mt, f_se, out=f_se)
-        np.maximum(f_se, 0.0, out=f_se)
         f_se *= self._k_se
+        return self._velocity_at_force(f_se, f0)
+
+    def _velocity_at_force(self, f_se: np.ndarray, f0: np.ndarray) -> np.ndarray:
+        """[m/s] FV_inv at SE force ``f_se`` (clipped at 0 here, in place: the
+        SE is slack below) and Eff.f_iso ``f0`` (see :meth:`_velocity`)."""
+        np.maximum(f_se, 0.0, out=f_se)
         # Concentric: b (F - F0) / (F + a) with F clipped to [0, F0].
         f = np.minimum(f_se, f0)
         v = np.subtract(f, f0)
@@ -452,9 +457,18 @@ class MuscleBatch:
         k1 = self._v_ce if self._v_is_k1 else self._velocity(l0, dl0, f0)
         half_dt = 0.5 * dt
         dl_mid = 0.5 * (dl0 + dl1)
-        k2 = self._velocity(l0 + half_dt * k1, dl_mid, f0 if initial else None)
-        k3 = self._velocity(l0 + half_dt * k2, dl_mid, f0 if initial else None)
-        k4 = self._velocity(l0 + dt * k3, dl1, f0 if initial else None)
+        # The stages' SE forces as k_SE (dl - (l0 - l_rest)) - k_SE h k, as
+        # every engine writes them (kernels.step_one says why).
+        from_rest = l0 - self._l_rest
+        f_mid = self._k_se * (dl_mid - from_rest)
+        f_end = self._k_se * (dl1 - from_rest)
+        c_half, c_full = self._k_se * half_dt, self._k_se * dt
+        k2 = self._velocity_at_force(f_mid - c_half * k1, f0 if initial else
+                                     self._eff_f_iso(l0 + half_dt * k1))
+        k3 = self._velocity_at_force(f_mid - c_half * k2, f0 if initial else
+                                     self._eff_f_iso(l0 + half_dt * k2))
+        k4 = self._velocity_at_force(f_end - c_full * k3, f0 if initial else
+                                     self._eff_f_iso(l0 + dt * k3))
         l_rk4 = l0 + dt / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
         l_free = self._l_rest + dl1
         l1 = np.where(f0 > 0.0, l_rk4, l_free)

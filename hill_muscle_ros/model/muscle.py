@@ -356,7 +356,10 @@ def _hot_loop(muscle: Muscle) -> Callable[..., MuscleOutputs]:
     def velocity_at_f0(l_ce: float, dl_mt: float, f0: float) -> float:
         """[m/s] d l_ce / dt = FV_inv(f_SE, F0) for a given Eff.f_iso ``f0``;
         the springs and Eq. 3 inlined (the SE spring never pushes: f <= 0 is slack)."""
-        f = k_se * (dl_mt - (l_ce - l_rest))
+        return fv_inverse(k_se * (dl_mt - (l_ce - l_rest)), f0)
+
+    def fv_inverse(f: float, f0: float) -> float:
+        """[m/s] FV_inv(f, F0): Eq. 3 inverted at SE force ``f`` (slack at or below 0)."""
         if f <= 0.0:
             return -f0 * b / a
         if f <= f0:
@@ -383,6 +386,7 @@ def _hot_loop(muscle: Muscle) -> Callable[..., MuscleOutputs]:
             columns: Sequence[list] | None) -> MuscleOutputs:
         """:meth:`Muscle.run` of the muscle this loop was built for (``dt`` [s])."""
         half_dt = 0.5 * dt
+        c_half, c_full = k_se * half_dt, k_se * dt
         if r_end is None:
             r_end = r_start
         if columns is not None:
@@ -417,10 +421,19 @@ def _hot_loop(muscle: Muscle) -> Callable[..., MuscleOutputs]:
                 if f0 > 0.0:
                     v = velocity(l, dl0, gain)
             if f0 > 0.0:
-                dl_mid = 0.5 * (dl0 + dl1)
-                k2 = velocity(l + half_dt * v, dl_mid, gain)
-                k3 = velocity(l + half_dt * k2, dl_mid, gain)
-                k4 = velocity(l + dt * k3, dl1, gain)
+                # The stages' SE forces as k_SE (dl - (l - l_rest)) - k_SE h k,
+                # as every engine writes them (kernels.step_one says why).
+                from_rest = l - l_rest
+                f_mid = k_se * (0.5 * (dl0 + dl1) - from_rest)
+                f_end = k_se * (dl1 - from_rest)
+                if initial:
+                    k2 = fv_inverse(f_mid - c_half * v, gain)
+                    k3 = fv_inverse(f_mid - c_half * k2, gain)
+                    k4 = fv_inverse(f_end - c_full * k3, gain)
+                else:
+                    k2 = fv_inverse(f_mid - c_half * v, f0_at(l + half_dt * v, gain))
+                    k3 = fv_inverse(f_mid - c_half * k2, f0_at(l + half_dt * k2, gain))
+                    k4 = fv_inverse(f_end - c_full * k3, f0_at(l + dt * k3, gain))
                 l = l + dt / 6.0 * (v + 2.0 * k2 + 2.0 * k3 + k4)
             else:
                 l = l_rest + dl1
@@ -448,7 +461,7 @@ def _hot_loop(muscle: Muscle) -> Callable[..., MuscleOutputs]:
                     # at once, so the sample shows f_SE = 0 (doc/model.md 4).
                     l = l_rest + dl1
                     f0 = f0_at(l, gain)   # as above: read off the state
-            v = velocity(l, dl1, gain) if f0 > 0.0 else v_free
+            v = fv_inverse(k_se * (dl1 - (l - l_rest)), f0) if f0 > 0.0 else v_free
             if columns is not None:
                 stretch = dl1 - (l - l_rest)
                 f_se = k_se * stretch if stretch > 0.0 else 0.0
