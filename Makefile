@@ -18,8 +18,8 @@ $(STAMP): setup.py setup.cfg package.xml requirements-dev.txt requirements-ros.t
 	touch $(STAMP)
 
 # Four pytest workers on two pools (test/conftest.py): two run the ROS tests
-# side by side (a module marked `alone` runs with no other ROS module beside
-# it), two run the offline tests at idle CPU priority. `pytest` alone runs
+# side by side (a timing claim, marked `alone` or taking the stall watcher, runs
+# with no other ROS module beside it), two run the offline tests at idle CPU priority. `pytest` alone runs
 # everything serially.
 test: $(STAMP)
 	$(BIN)/python -m pytest -q -n 4 --dist loadgroup --durations=15
