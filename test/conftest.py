@@ -262,6 +262,18 @@ LONG_MODULES = {
     'test_controller_closed_loop': 17}
 
 
+#: The ROS modules with a timing claim that needs the machine: an ``alone``
+#: test, or a test that takes :func:`stall_watcher`. Under xdist each runs while
+#: no other ROS module does (:func:`_ros_turns`), and they are handed out
+#: first, one after the other, so that the other ROS worker waits for them
+#: once rather than at every turn. :func:`_ros_turns` fails a module that
+#: should be listed here and is not.
+ALONE_MODULES = frozenset({
+    'test_sim_tool_churn', 'test_faults_garbage', 'test_fit_live',
+    'test_controller_closed_loop', 'test_joint_closed_loop', 'test_faults_limb',
+    'test_faults_controller_kill', 'test_recorder_simulation'})
+
+
 def is_offline_module(name: str) -> bool:
     """Whether the test module ``name`` (``test_model_curves``) is an offline one."""
     return name.startswith(OFFLINE_PREFIXES) or name in OFFLINE_MODULES
@@ -304,8 +316,10 @@ def pytest_xdist_make_scheduler(config, log):
         def _next_scope(self, node) -> str | None:
             pool = self._pool_of_node(node)
             scopes = [s for s in self.workqueue if pool_of_scope(s) == pool]
-            # The longest modules first, so that a pool's workers end together.
-            return min(scopes, key=lambda s: -LONG_MODULES.get(Path(s).stem, 0), default=None)
+            # The modules that run alone first, then the longest, so that a
+            # pool's workers end together.
+            return min(scopes, key=lambda s: (Path(s).stem not in ALONE_MODULES,
+                                              -LONG_MODULES.get(Path(s).stem, 0)), default=None)
 
         def _assign_work_unit(self, node) -> None:
             scope = self._next_scope(node)
@@ -409,9 +423,9 @@ def _priority_by_group(request):
 
 @pytest.fixture(scope='module', autouse=True)
 def _ros_turns(request):
-    """Under xdist, the ROS workers take turns by module: a module with an
-    ``alone`` test, or one that takes :func:`stall_watcher`, runs while no
-    other ROS module does; the others run side by side. A readers-writer lock between the worker processes (``flock``):
+    """Under xdist, the ROS workers take turns by module: a module of
+    :data:`ALONE_MODULES` runs while no other ROS module does; the others run
+    side by side. A readers-writer lock between the worker processes (``flock``):
     everyone queues at a turnstile first, so a waiting ``alone`` module is
     not overtaken by the modules that start after it asked."""
     folder = os.environ.get(_TURNS_ENV)
@@ -422,8 +436,12 @@ def _ros_turns(request):
     # A test that takes the stall watcher repeats a run only on a measured
     # stall: a timing claim too (the 15 N stretch test failed all three runs
     # beside another ROS module, its controller waiting up to 511 ms for a CPU).
-    alone = any(item.get_closest_marker('alone') or 'stall_watcher' in item.fixturenames
-                for item in request.session.items if item.module is request.module)
+    claims = any(item.get_closest_marker('alone') or 'stall_watcher' in item.fixturenames
+                 for item in request.session.items if item.module is request.module)
+    alone = name in ALONE_MODULES
+    if claims and not alone:
+        pytest.fail(f'{name} has an `alone` test or takes the stall watcher: add it to '
+                    f'ALONE_MODULES in conftest.py')
     turnstile = os.open(os.path.join(folder, 'turnstile'), os.O_RDWR | os.O_CREAT)
     turn = os.open(os.path.join(folder, 'turn'), os.O_RDWR | os.O_CREAT)
     try:
