@@ -128,8 +128,10 @@ def write_section(add, m: dict) -> None:
         f'Every kernel set compiled once, cold, in one process: '
         f'**{statistics.median(totals):.1f} s** — '
         f'{"met" if ok else "**not met**"} by this measure. `make test` prints its '
-        'process\'s figure at its end ("numba compiling in this process"; with `-n 2`, '
-        'the sum over the pytest processes); a test that runs the engine in a subprocess on an unwritable cache compiles the run once more there.')
+        'figure at its end ("numba compiling in the pytest processes": its four workers '
+        'load what the controller and one process beside it compiled before they started); '
+        'a test that runs the engine in a subprocess on an unwritable cache compiles the '
+        'run once more there.')
     add('')
 
 

@@ -27,6 +27,7 @@ import ctypes
 import fcntl
 import os
 import random
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -138,6 +139,16 @@ def _runs_workers(config) -> bool:
         getattr(config.option, 'dist', 'no') != 'no'
 
 
+#: Compiles the paper's muscle's kernel sets (which share no code with the FES
+#: ones), then prints its compiling seconds (:func:`pytest_sessionstart`).
+_COMPILE_THE_PAPERS = (
+    'from hill_muscle_ros.model import engine, kernels\n'
+    'kernels.compiled(); kernels.compiled_run()\n'
+    'print(engine.compile_seconds())')
+#: [s] what that process compiled (empty if it did not run).
+_sidecar_compile_s: list[float] = []
+
+
 def pytest_sessionstart(session):
     """Load the compiled limb and the compiled FES muscle once, before any test,
     when the limb and simulator nodes would run them (numba importable,
@@ -145,11 +156,12 @@ def pytest_sessionstart(session):
     them from numba's disk cache (about 1 s) instead of compiling them (about
     30 s, the tests' whole start-up deadline). The offline tests compile these
     kernels anyway, so the run compiles nothing more. Under xdist the controller
-    does it, for every kernel set, before it starts its workers, which then
-    load from the cache."""
+    does it, for every kernel set (the paper's muscle's in a second process at
+    the same time), before it starts its workers, which then load from the
+    cache."""
     if 'PYTEST_XDIST_WORKER' in os.environ:
         return
-    from hill_muscle_ros.model import engine, fes_batch_kernels, fes_kernels, kernels, limb_kernels
+    from hill_muscle_ros.model import engine, fes_batch_kernels, fes_kernels, limb_kernels
     try:
         if engine.choice() != engine.COMPILED:
             return
@@ -157,19 +169,28 @@ def pytest_sessionstart(session):
         return   # the node falls back to Python then; test_node_limb says whether it should
     reporter = session.config.pluginmanager.get_plugin('terminalreporter')
     started = time.monotonic()
+    # Under xdist, the workers' kernel sets too (two offline workers would
+    # otherwise compile the same ones at once, each in full); the paper's
+    # muscle's in a second process on the second core meanwhile: nothing else
+    # runs until the workers start.
+    workers = _runs_workers(session.config)
+    sidecar = subprocess.Popen([sys.executable, '-c', _COMPILE_THE_PAPERS],
+                               stdout=subprocess.PIPE, text=True) if workers else None
     fes_kernels.compiled()   # the simulator node's FES muscle (compiled_muscle)
     limb_kernels.compiled()
-    if _runs_workers(session.config):
-        # The workers' own kernel sets too: two offline workers would otherwise
-        # compile the same ones at once, each in full (about 2 s more here).
-        kernels.compiled()
-        kernels.compiled_run()
-        fes_batch_kernels.compiled()
+    if workers:
+        fes_batch_kernels.compiled()   # on top of fes_kernels: in this process
+    if sidecar is not None:
+        out, _ = sidecar.communicate()
+        # A failure is said on its stderr; the workers compile what it did not.
+        _sidecar_compile_s.append(float(out.split()[-1]) if sidecar.returncode == 0 and
+                                  out.split() else 0.0)
     if reporter is not None:
         reporter.write_line(
             f'compiled kernels loaded for the tests in '
             f'{time.monotonic() - started:.1f} s ({engine.compile_seconds():.1f} s of it '
-            'compiling)')
+            f'compiling here' + (f', {_sidecar_compile_s[0]:.1f} s in a second process)'
+                                 if _sidecar_compile_s else ')'))
 
 
 #: Key of a worker's compiling seconds in xdist's ``workeroutput``.
@@ -216,9 +237,12 @@ def pytest_terminal_summary(terminalreporter):
             f'numba compiling in this process: {own:.1f} s (subprocesses not counted)')
         return
     workers = ', '.join(f'{s:.1f}' for s in _workers_compile_s)
+    sidecar = sum(_sidecar_compile_s)
     terminalreporter.write_line(
-        f'numba compiling in the pytest processes: {own + sum(_workers_compile_s):.1f} s '
-        f'(this one {own:.1f} s, workers {workers} s; their subprocesses not counted)')
+        f'numba compiling in the pytest processes: '
+        f'{own + sidecar + sum(_workers_compile_s):.1f} s (this one {own:.1f} s, its '
+        f'compiling process {sidecar:.1f} s, workers {workers} s; the tests\' subprocesses '
+        f'not counted)')
 
 
 # --------------------------------------------------------------------------- two workers
@@ -340,6 +364,21 @@ def pytest_xdist_make_scheduler(config, log):
             if self._pending_of(self.assigned_work[node]) > 2:
                 return
             self._assign_work_unit(node)
+
+        def schedule(self) -> None:
+            # The base class shuts down the workers that exceed the number of
+            # modules, whichever pool they serve (a run of two offline
+            # modules lost both offline workers that way); here each worker
+            # stops only when its own pool has nothing left (_reschedule).
+            if self.collection is None:
+                if not self._check_nodes_have_same_collection():
+                    self.log('**Different tests collected, aborting run**')
+                    return
+                self.collection = list(next(iter(self.registered_collections.values())))
+                for nodeid in self.collection:
+                    self.workqueue.setdefault(self._split_scope(nodeid), {})[nodeid] = False
+            for node in self.nodes:
+                self._reschedule(node)
 
     return PoolScheduling(config, log)
 
