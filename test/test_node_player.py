@@ -93,7 +93,11 @@ def test_player_replays_protocol_then_sends_zero(tmp_path, output, pw_max_s, sca
         player = procs.start('player', node_command('protocol_player', ns=ns, params={
             'protocol': str(path), 'output': output, 'rate_hz': 100.0, 'pw_max_s': pw_max_s}))
         probe.spin_until(lambda: player.returncode is not None, 'the player to exit')
-        probe.spin_for(0.2)  # messages already acknowledged may still be in our queue
+        # Its exit says nothing of what the probe has taken yet: wait for the
+        # final zero and the protocol's last length.
+        final_length_m = protocol.dl_mt(protocol.duration_s)
+        probe.spin_until(lambda: _ends_with(stim, 0.0) and _ends_with(length, final_length_m),
+                         'the final zero stimulation and the final length')
     assert player.returncode == 0, player.describe()
     values = np.array([m.data for m in stim.messages])
     assert values[0] == pytest.approx(protocol.recruitment(0.0, pw_max_s) * scale)
@@ -166,7 +170,7 @@ def test_the_protocol_starts_only_once_every_subscriber_has_its_first_sample(
         acked_at_s = time.monotonic()
         acked.set()
         probe.spin_until(player.done.done, 'the player to finish')
-        probe.spin_for(0.2)  # messages already acknowledged may still be in our queue
+        probe.spin_until(lambda: _ends_with(stim, 0.0), 'the final zero stimulation')
     assert player.done.result() == 0
     assert len(stim.messages) > 2
     assert stim.times_s[1] >= acked_at_s
@@ -194,6 +198,14 @@ def test_protocol_ii_through_dds_matches_offline_simulation(tmp_path):
         probe.spin_until(lambda: player.returncode is not None, 'the player to finish',
                          timeout_s=60.0, procs=[sim])
         assert player.returncode == 0, player.describe()
+        # The player's exit says nothing of what the probe has taken yet: on a
+        # busy machine it lagged 0.35 s behind the simulator (a fresh clone's
+        # run under four pytest workers had read up to 5.55 s of the 6 s). The
+        # simulator keeps stepping, so wait until its stamps pass the last
+        # sample instant.
+        last_s = E2E_TIMES_S[-1] + SAMPLE_WINDOW_S
+        probe.spin_until(lambda: _protocol_time_of_last_s(wrench, offline.t_s[1]) >= last_s,
+                         f'wrench stamps past {last_s} s of the protocol', procs=[sim])
     stamps_s = np.array([_sec(w.header.stamp) for w in wrench.messages])
     f_ros = np.array([w.wrench.force.x for w in wrench.messages])
     first = int(np.argmax(f_ros > 0.0))
@@ -240,8 +252,12 @@ def test_player_on_sim_time_follows_published_clock(tmp_path):
             'use_sim_time': True}, extra_ros_args=remap))
         probe.spin_until(lambda: player.returncode is not None, 'the player to finish',
                          procs=[sim])
-        probe.spin_for(0.2)
         assert player.returncode == 0, player.describe()
+        # The player's exit says nothing of what the probe has taken yet: wait
+        # until the force has fallen to the parallel spring's alone.
+        probe.spin_until(lambda: _sim_span(wrench, final_pe_force_n) is not None,
+                         'the force to fall to the parallel spring\'s after the final zero',
+                         procs=[sim])
     clock_s = np.array([_sec(m.clock) for m in clock.messages])
     stamps_s = np.array([_sec(w.header.stamp) for w in wrench.messages])
     f = np.array([w.wrench.force.x for w in wrench.messages])
@@ -252,10 +268,7 @@ def test_player_on_sim_time_follows_published_clock(tmp_path):
     # /clock (the probe may lose some of either when the machine is busy).
     assert np.isin(stamps_s, clock_s).any()
     assert 0.0 < stamps_s.min() and stamps_s.max() <= RTF * (time.monotonic() - started_s)
-    start = int(np.argmax(f > 0.0))
-    active = start + int(np.argmax(f[start:] > ACTIVE_FORCE_N))
-    end = active + int(np.argmax(np.abs(f[active:] - final_pe_force_n) < FORCE_TOL_N))
-    assert end > active, 'the final zero stimulation never reached the simulator'
+    start, end = _sim_span(wrench, final_pe_force_n)
     # Latency and stalls of the player add a little sim time (x RTF); the
     # bound halfway to the wall-clock span keeps the two cases apart.
     span_s = stamps_s[end] - stamps_s[start]
@@ -265,6 +278,41 @@ def test_player_on_sim_time_follows_published_clock(tmp_path):
 
 def _sec(stamp):
     return stamp.sec + stamp.nanosec * 1e-9
+
+
+def _ends_with(rec, value):
+    """Whether the last message of ``rec`` carries ``value`` (as pytest.approx
+    would say: to 1e-6 relative, 1e-12 absolute)."""
+    return bool(rec.messages) and math.isclose(rec.messages[-1].data, value,
+                                               rel_tol=1e-6, abs_tol=1e-12)
+
+
+def _protocol_time_of_last_s(wrench, t_first_s):
+    """[s] the protocol time of the last wrench received, time zero put where
+    the first force is at ``t_first_s``; -inf before any force."""
+    f = np.array([w.wrench.force.x for w in wrench.messages])
+    if not np.any(f > 0.0):
+        return -math.inf
+    first = int(np.argmax(f > 0.0))
+    return (_sec(wrench.messages[-1].header.stamp) - _sec(wrench.messages[first].header.stamp)
+            + t_first_s)
+
+
+def _sim_span(wrench, final_pe_force_n):
+    """Indices of the first force and of the step where, after a clearly
+    active force, it has fallen to the parallel spring's alone; None until
+    both were received."""
+    f = np.array([w.wrench.force.x for w in wrench.messages])
+    if not np.any(f > 0.0):
+        return None
+    start = int(np.argmax(f > 0.0))
+    if not np.any(f[start:] > ACTIVE_FORCE_N):
+        return None
+    active = start + int(np.argmax(f[start:] > ACTIVE_FORCE_N))
+    fallen = np.abs(f[active:] - final_pe_force_n) < FORCE_TOL_N
+    if not np.any(fallen):
+        return None
+    return start, active + int(np.argmax(fallen))
 
 
 
@@ -289,7 +337,12 @@ def test_player_with_lookahead_sends_the_protocol_length_ahead_as_stamped_knots(
             'protocol': str(path), 'output': 'recruitment', 'rate_hz': PLAYER_RATE_HZ,
             'lookahead_s': LOOKAHEAD_S}))
         probe.spin_until(lambda: player.returncode is not None, 'the player to exit')
-        probe.spin_for(0.2)
+        # Its exit says nothing of what the probe has taken yet: wait for the
+        # knot at the protocol's end.
+        probe.spin_until(lambda: len(knots.messages) > 1 and (
+            _stamp_ns(knots.messages[-1].header.stamp)
+            - _stamp_ns(knots.messages[0].header.stamp)) / 1e9 >= protocol.duration_s - 1e-9,
+            "the knot at the protocol's end")
     assert player.returncode == 0, player.describe()
     assert not plain.messages
     stamps = np.array([_stamp_ns(m.header.stamp) for m in knots.messages])
