@@ -19,9 +19,12 @@ bags, the figures, the clean install: :func:`is_offline_module`)
 at the kernel's idle priority (``SCHED_IDLE``, and
 the idle I/O class): they get a CPU only when no ordinary process wants it, a
 ROS process that wakes takes the CPU back at once, so they use the CPU time
-the ROS tests leave idle without delaying them. With the kernel's autogroups
-that holds only across sessions too: the offline workers run in sessions of
-their own at the weakest autogroup nice (:func:`_leave_the_ros_tests_autogroup`).
+the ROS tests leave idle without delaying them. That holds across sessions
+only if what they start cannot escape it: the offline workers join a CPU
+cgroup marked idle, which their subprocesses cannot leave by starting a
+session (:func:`_join_idle_cgroup`); where the cgroup tree is not writable,
+they run in sessions of their own at the weakest autogroup nice
+(:func:`_leave_the_ros_tests_autogroup`).
 """
 import ctypes
 import fcntl
@@ -206,11 +209,13 @@ def _compile_seconds() -> float:
 
 
 def pytest_unconfigure(config):
-    """The controller removes the ROS workers' lock files (:func:`_ros_turns`)."""
+    """The controller removes the ROS workers' lock files (:func:`_ros_turns`)
+    and the offline workers' CPU cgroup (:func:`_join_idle_cgroup`)."""
     folder = os.environ.get(_TURNS_ENV)
     if folder is not None and 'PYTEST_XDIST_WORKER' not in os.environ:
         import shutil
         shutil.rmtree(folder, ignore_errors=True)
+        _remove_idle_cgroup()
 
 
 def pytest_sessionfinish(session):
@@ -272,6 +277,11 @@ _IOPRIO_CLASS_SHIFT = 13
 _SYS_IOPRIO_SET = 251
 #: The weakest nice value: an autogroup at 19 weighs 15 against a default 1024.
 _WEAKEST_NICE = 19
+#: Where a CPU cgroup hierarchy may be mounted: cgroup v1's cpu controller,
+#: then a cgroup v2 tree. A mount point counts only if it has ``cgroup.procs``.
+_CPU_CGROUP_ROOTS = (Path('/sys/fs/cgroup/cpu'), Path('/sys/fs/cgroup'))
+#: The CPU cgroup of the offline workers and all they start (``cpu.idle``).
+_IDLE_CGROUP = 'hill_muscle_ros_offline_tests'
 
 
 #: [s] the modules that took longest in a run under ``-n 4 --dist loadgroup``
@@ -391,6 +401,44 @@ def _set_io_class(tid: int, io_class: int) -> None:
     libc.syscall(_SYS_IOPRIO_SET, _IOPRIO_WHO_PROCESS, tid, io_class << _IOPRIO_CLASS_SHIFT)
 
 
+def _join_idle_cgroup() -> bool:
+    """Move this process into a CPU cgroup whose ``cpu.idle`` is 1 (Linux 5.15
+    on), made if absent; return whether it did (it takes write access to the
+    cgroup tree: root, or a delegated tree).
+
+    The whole cgroup then weighs as an idle task against the rest of the
+    machine, and what this process starts stays in it, sessions of its own
+    included. Without it, an offline test's subprocess that starts its own
+    session (a sweep's Dask scheduler and workers, the supervisor's
+    processes) had an autogroup of its own at the default weight, and took
+    the CPUs from the ROS tests as an equal (a fresh clone's run: the garbage
+    test's simulator overloaded and dropped bad values, the churn test saw a
+    machine stall in all three runs).
+    """
+    for root in _CPU_CGROUP_ROOTS:
+        if not (root / 'cgroup.procs').is_file():
+            continue
+        group = root / _IDLE_CGROUP
+        try:
+            group.mkdir(exist_ok=True)
+            (group / 'cpu.idle').write_text('1')
+            (group / 'cgroup.procs').write_text(str(os.getpid()))
+        except OSError:
+            continue
+        return True
+    return False
+
+
+def _remove_idle_cgroup() -> None:
+    """Remove :data:`_IDLE_CGROUP` once empty (another run's workers may still
+    be in it: then it stays, and is used again)."""
+    for root in _CPU_CGROUP_ROOTS:
+        try:
+            (root / _IDLE_CGROUP).rmdir()
+        except OSError:
+            pass
+
+
 def _leave_the_ros_tests_autogroup() -> None:
     """Move this process into a session of its own and give its autogroup the
     weakest nice value (Linux ``sched_autogroup``).
@@ -453,8 +501,9 @@ def _priority_by_group(request):
                     f'off OFFLINE_PREFIXES / OFFLINE_MODULES')
     policy = os.SCHED_IDLE if idle else os.SCHED_OTHER
     if os.sched_getscheduler(0) != policy:
-        if idle:
+        if idle and not _join_idle_cgroup():
             # Once per worker: a worker runs one pool only (PoolScheduling).
+            # Autogroups do not apply inside a cgroup, so only without one.
             _leave_the_ros_tests_autogroup()
         _set_priority(policy, _IOPRIO_CLASS_IDLE if idle else _IOPRIO_CLASS_NONE)
     yield

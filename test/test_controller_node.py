@@ -157,6 +157,8 @@ def test_a_stale_target_stops_stimulation_when_target_timeout_is_set(tmp_path):
 #: [s] a plant stall shorter than the feedback timeout (0.5 s), as long as the
 #: simulator stalls that a loop must ride through.
 PLANT_STALL_S = 0.3
+#: [s] read on after the zero of a stopped controller, for anything it sent later
+AFTER_EXIT_S = 0.5
 #: Pulse widths at the end of the stall that must all be the held one: the
 #: first one or two of the stall were still computed from the last samples.
 HELD_PERIODS = 20
@@ -215,10 +217,14 @@ def test_stop_signal_publishes_zero_stimulation_last(ctrl, sig):
     keep_fresh = probe.node.create_timer(
         0.02, lambda: ctrl['force_pub'].publish(Float64(data=0.0)))
     probe.wait_for_value(pw, lambda v: v > 0.0, 'stimulation', mark=pw.mark(), procs=[proc])
+    signalled = pw.mark()
     proc.popen.send_signal(sig)
     probe.spin_until(lambda: proc.returncode is not None, 'the controller to exit')
     keep_fresh.cancel()
-    probe.spin_for(0.5)
+    # The exit says nothing of what the probe has taken yet (it may lag on a
+    # busy machine): wait for the zero, then read on for anything sent after it.
+    probe.wait_for_value(pw, lambda v: v == 0.0, 'the zero stimulation', mark=signalled)
+    probe.spin_for(AFTER_EXIT_S)
     assert pw.messages[-1].data == 0.0
 
 

@@ -72,7 +72,7 @@ GARBAGE_TICKS = 3
 #: this much later at most: a period, the DDS hop and scheduling on a loaded
 #: 2-core machine. Not a latency claim, a "drops soon after" bound.
 STALE_LATE_S = 0.5
-#: [s] after the controller exited: any later message would have arrived.
+#: [s] read on after a stopped controller's zeros, for anything it sent later
 AFTER_EXIT_S = 0.5
 
 
@@ -399,9 +399,16 @@ def test_a_stop_signal_leaves_zero_as_every_muscles_last_pulse_width(fresh, sig,
     c.send_target(target, acked=False)
     c.feed(0.0)
     c.wait_stimulating(muscle)
+    signalled = {m: c.pw[m].mark() for m in MUSCLES}
     c.proc.popen.send_signal(sig)
     c.probe.spin_until(lambda: c.proc.returncode is not None, 'the controller to exit')
     c.stop_feed()
+    # The exit says nothing of what the probe has taken yet (it may lag on a
+    # busy machine): wait for each muscle's zero, then read on for anything
+    # sent after it.
+    for m in MUSCLES:
+        c.probe.wait_for_value(c.pw[m], lambda v: v == 0.0, 'the zero pulse width',
+                               mark=signalled[m])
     c.probe.spin_for(AFTER_EXIT_S)
     assert c.proc.returncode == 0, c.proc.output()
     for m in MUSCLES:
