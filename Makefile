@@ -6,7 +6,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: test demo figures clean venv
+.PHONY: test test-workers demo figures clean venv
 
 venv: $(STAMP)
 
@@ -17,11 +17,14 @@ $(STAMP): setup.py setup.cfg package.xml requirements-dev.txt requirements-ros.t
 	$(BIN)/python -m pip install --disable-pip-version-check -q --no-deps -e .
 	touch $(STAMP)
 
-# Four pytest workers on two pools (test/conftest.py): two run the ROS tests
-# side by side (a timing claim, marked `alone` or taking the stall watcher, runs
-# with no other ROS module beside it), two run the offline tests at idle CPU priority. `pytest` alone runs
-# everything serially.
+# Serially: every DDS test has the machine to itself. `make test-workers` runs
+# four pytest workers on two pools (test/conftest.py): faster, but a timing
+# claim (the churn test's 20 ms tick gap, the garbage counts) still fails in
+# some runs there, so it is not the test command.
 test: $(STAMP)
+	$(BIN)/python -m pytest -q --durations=15
+
+test-workers: $(STAMP)
 	$(BIN)/python -m pytest -q -n 4 --dist loadgroup --durations=15
 
 # The live demo: simulator, protocol player and recorder as three ROS 2

@@ -128,8 +128,9 @@ def write_section(add, m: dict) -> None:
         f'Every kernel set compiled once, cold, in one process: '
         f'**{statistics.median(totals):.1f} s** — '
         f'{"met" if ok else "**not met**"} by this measure. `make test` prints its '
-        'figure at its end ("numba compiling in the pytest processes": its four workers '
-        'load what the controller and one process beside it compiled before they started); '
+        'figure at its end ("numba compiling in this process"; `make test-workers`: '
+        '"numba compiling in the pytest processes", its four workers loading what the '
+        'controller and one process beside it compiled before they started); '
         'a test that runs the engine in a subprocess on an unwritable cache compiles the '
         'run once more there.')
     add('')

@@ -7,7 +7,7 @@ two concurrent runs on one machine never draw the same one. Subprocesses
 inherit these variables. Under pytest-xdist each worker claims a domain of
 its own.
 
-Workers (``make test`` runs ``pytest -n 4 --dist loadgroup``): two pools,
+Workers (``make test-workers`` runs ``pytest -n 4 --dist loadgroup``; ``make test`` runs serially): two pools,
 :func:`pytest_xdist_make_scheduler`. Half the workers run the modules that
 start ROS processes or DDS participants, at normal priority, two side by
 side; a module with an ``alone`` test or one that takes the stall watcher (a
@@ -485,14 +485,18 @@ def _set_priority(policy: int, io_class: int) -> None:
             pass   # the thread ended meanwhile
 
 
-@pytest.fixture(autouse=True)
-def _priority_by_group(request):
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_setup(item):
     """Under xdist: offline tests (and what they start) at idle CPU and I/O
-    priority, the ROS tests at normal priority (see the module docstring)."""
+    priority, the ROS tests at normal priority (see the module docstring).
+
+    A hook that runs before any fixture of the test is set up: as an autouse
+    fixture it came after the module's own fixtures, so the clean install's
+    venv and pip (a module fixture, 20-30 s) ran at normal priority in the
+    ROS tests' cgroup."""
     if 'PYTEST_XDIST_WORKER' not in os.environ or not hasattr(os, 'SCHED_IDLE'):
-        yield
         return
-    module = request.node.module
+    module = item.module
     idle = is_offline_module(module.__name__.rsplit('.', 1)[-1])
     uses_ros = sorted(ROS_NAMES & set(vars(module)))
     if idle and uses_ros:
@@ -506,7 +510,6 @@ def _priority_by_group(request):
             # Autogroups do not apply inside a cgroup, so only without one.
             _leave_the_ros_tests_autogroup()
         _set_priority(policy, _IOPRIO_CLASS_IDLE if idle else _IOPRIO_CLASS_NONE)
-    yield
 
 
 @pytest.fixture(scope='module', autouse=True)
