@@ -322,14 +322,6 @@ def test_garbage_on_every_input_is_warned_about_and_the_last_good_inputs_kept(sh
             c.target_pub.publish(Float64(data=target))
             wanted.append(f'ignoring {c.ns}/angle_target = {target!r}')
 
-        # Silent for a few periods after the garbage (the same writer as the
-        # feed, so it arrives before the next good state), then fed again
-        # before the warning is looked for: waiting for the node's log while
-        # silent could outlast feedback_timeout_s on a slow machine (a fresh
-        # clone's run saw the stale-feedback zero here).
-        c.wait_periods(GARBAGE_TICKS)
-        c.paused = False
-
         def warned():
             new = c.proc.output()[log_from:]
             return all(w in new for w in wanted) and new
@@ -337,6 +329,8 @@ def test_garbage_on_every_input_is_warned_about_and_the_last_good_inputs_kept(sh
         warned_s = time.monotonic()
         line = next(ln for ln in new.splitlines() if wanted[0] in ln)
         assert quote in line, line
+        c.wait_periods(GARBAGE_TICKS)
+        c.paused = False
         c.probe.spin_until(lambda: time.monotonic() >= warned_s + THROTTLE_S,
                            'the warning throttle period', procs=c.procs)
     c.wait_periods()
