@@ -401,6 +401,12 @@ def _set_io_class(tid: int, io_class: int) -> None:
     libc.syscall(_SYS_IOPRIO_SET, _IOPRIO_WHO_PROCESS, tid, io_class << _IOPRIO_CLASS_SHIFT)
 
 
+def _cpu_cgroup_roots():
+    """The mount points of :data:`_CPU_CGROUP_ROOTS` that are cgroup trees
+    (a plain directory there, tmpfs for one, is not)."""
+    return [root for root in _CPU_CGROUP_ROOTS if (root / 'cgroup.procs').is_file()]
+
+
 def _join_idle_cgroup() -> bool:
     """Move this process into a CPU cgroup whose ``cpu.idle`` is 1 (Linux 5.15
     on), made if absent; return whether it did (it takes write access to the
@@ -415,9 +421,7 @@ def _join_idle_cgroup() -> bool:
     test's simulator overloaded and dropped bad values, the churn test saw a
     machine stall in all three runs).
     """
-    for root in _CPU_CGROUP_ROOTS:
-        if not (root / 'cgroup.procs').is_file():
-            continue
+    for root in _cpu_cgroup_roots():
         group = root / _IDLE_CGROUP
         try:
             group.mkdir(exist_ok=True)
@@ -432,7 +436,7 @@ def _join_idle_cgroup() -> bool:
 def _remove_idle_cgroup() -> None:
     """Remove :data:`_IDLE_CGROUP` once empty (another run's workers may still
     be in it: then it stays, and is used again)."""
-    for root in _CPU_CGROUP_ROOTS:
+    for root in _cpu_cgroup_roots():
         try:
             (root / _IDLE_CGROUP).rmdir()
         except OSError:
