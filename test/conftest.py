@@ -28,6 +28,7 @@ they run in sessions of their own at the weakest autogroup nice
 """
 import ctypes
 import fcntl
+import gc
 import os
 import random
 import subprocess
@@ -232,10 +233,52 @@ def pytest_testnodedown(node, error):
         _workers_compile_s.append(seconds)
 
 
+class GcPauses:
+    """The garbage collector's pauses in this process, with the test that ran
+    meanwhile: the probe of a DDS test lives here, and while a full collection
+    of the whole suite's heap runs it neither publishes nor receives (a stall
+    the nodes under test see as silence)."""
+
+    #: [s] pauses at least this long are listed by test
+    LONG_S = 0.1
+
+    def __init__(self) -> None:
+        self.count, self.total_s = 0, 0.0
+        self.long: list[tuple[float, int, str]] = []   # (seconds, generation, test)
+        self._started = None
+        gc.callbacks.append(self._on_gc)
+
+    def _on_gc(self, phase: str, info: dict) -> None:
+        if phase == 'start':
+            self._started = time.perf_counter()
+            return
+        if self._started is None:
+            return
+        pause_s = time.perf_counter() - self._started
+        self._started = None
+        self.count += 1
+        self.total_s += pause_s
+        if pause_s >= self.LONG_S:
+            test = os.environ.get('PYTEST_CURRENT_TEST', '(between tests)')
+            self.long.append((pause_s, info.get('generation', -1), test))
+
+    def summary(self) -> str:
+        worst = sorted(self.long, reverse=True)[:5]
+        return (f'garbage collector in this process: {self.count} collections, '
+                f'{self.total_s:.1f} s in all, {len(self.long)} of at least '
+                f'{self.LONG_S * 1e3:.0f} ms' + ''.join(
+                    f'\n  {s * 1e3:.0f} ms (generation {g}) in {t}' for s, g, t in worst))
+
+
+_gc_pauses = GcPauses()
+
+
 def pytest_terminal_summary(terminalreporter):
     """Say how long the pytest processes spent in numba's compiler: a clean
     clone compiles every kernel once (the budget is 60 s), a second run loads
-    them. Under xdist: this process and each worker, and their sum."""
+    them. Under xdist: this process and each worker, and their sum. And the
+    garbage collector's long pauses here (:class:`GcPauses`)."""
+    terminalreporter.write_line(_gc_pauses.summary())
     own = _compile_seconds()
     if not _workers_compile_s:
         terminalreporter.write_line(

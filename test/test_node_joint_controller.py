@@ -313,8 +313,11 @@ def test_garbage_on_every_input_is_warned_about_and_the_last_good_inputs_kept(sh
     c.send_target(TARGET_RAD)
     c.feed(TARGET_RAD)
     first = c.wait_stimulating()
+    t0 = c.pw[MUSCLES[0]].times_s[first]
+    events = []   # [s after the first stimulation] what the probe did when
     for target, state, quote in GARBAGE_ROUNDS:
         log_from = len(c.proc.output())
+        events.append((time.monotonic() - t0, f'paused, garbage {quote!r}'))
         wanted = [f'ignoring {c.ns}/joint_states: ']
         c.paused = True
         c.joint_pub.publish(state)
@@ -329,14 +332,22 @@ def test_garbage_on_every_input_is_warned_about_and_the_last_good_inputs_kept(sh
         warned_s = time.monotonic()
         line = next(ln for ln in new.splitlines() if wanted[0] in ln)
         assert quote in line, line
+        events.append((warned_s - t0, 'warned'))
         c.wait_periods(GARBAGE_TICKS)
         c.paused = False
+        events.append((time.monotonic() - t0, 'fed again'))
         c.probe.spin_until(lambda: time.monotonic() >= warned_s + THROTTLE_S,
                            'the warning throttle period', procs=c.procs)
     c.wait_periods()
     assert c.proc.returncode is None
     for m, w in zip(MUSCLES, expected):
-        assert set(c.pw[m].data_since(first)) == {w}, m
+        rec = c.pw[m]
+        off = [(f'{rec.times_s[i] - t0:.3f} s', rec.messages[i].data)
+               for i in range(first, len(rec.messages)) if rec.messages[i].data != w]
+        assert not off, (f'{m}: {len(off)} pulse width(s) other than {w!r} '
+                         f'(arrival, value): {off[:20]}; the probe: '
+                         f'{[(f"{t:.3f} s", e) for t, e in events]}; the node\'s log since '
+                         f'it started stimulating:\n{c.proc.output()[-3000:]}')
 
 
 # -- parameters -------------------------------------------------------------------
