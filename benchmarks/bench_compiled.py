@@ -53,6 +53,12 @@ DT_S = 1e-3
 RATE_HZ = 1000.0
 #: Back-to-back pairs per ratio (after one warm-up pair).
 PAIRS = 21
+#: Consecutive runs of one side timed as one sample of a pair: a compiled run
+#: of Protocol II lasts about 0.3 ms, and timed one by one its cost a step
+#: scattered from 0.037 to 0.061 us within one bench (2026-12-04, the timer,
+#: the caches the other side's run left, the clock); ten runs a sample
+#: average that out, on both sides alike.
+RUNS_PER_SAMPLE = 10
 #: [s] the triangle protocol: Protocol II's length, R 0 -> 1 -> 0 with period 2 s.
 TRIANGLE_PERIOD_S = 2.0
 #: Calls per timing of a single step (the node's case).
@@ -117,21 +123,24 @@ def python_runner(muscle: Muscle, r, dl):
     return run
 
 
-def paired(a, b, pairs: int = PAIRS) -> tuple:
+def paired(a, b, pairs: int = PAIRS, runs_per_sample: int = RUNS_PER_SAMPLE) -> tuple:
     """Times of ``a`` and ``b`` and the ratio a / b over back-to-back pairs.
 
     The order alternates from pair to pair, so that a load change on the
     shared machine does not always hit the same side; one warm-up pair first.
+    Each side of a pair is ``runs_per_sample`` consecutive calls.
 
-    :return: (Stats of a [s], Stats of b [s], Stats of a / b)
+    :return: (Stats of a [s], Stats of b [s], Stats of a / b), a call's time
+        (a sample's over ``runs_per_sample``)
     """
     ta, tb, ratios = [], [], []
     for i in range(pairs + 1):
         times = {}
         for name, fn in ((('a', a), ('b', b)) if i % 2 == 0 else (('b', b), ('a', a))):
             t0 = time.perf_counter()
-            fn()
-            times[name] = time.perf_counter() - t0
+            for _ in range(runs_per_sample):
+                fn()
+            times[name] = (time.perf_counter() - t0) / runs_per_sample
         if i > 0:
             ta.append(times['a'])
             tb.append(times['b'])
@@ -316,8 +325,10 @@ def write_section(add, m: dict) -> None:
         '(`model/kernels.py`, `run_muscle`, built from the same functions as the batch: '
         '`step_one`, `recruit_one`), as `simulate()` calls it; the paper\'s model, '
         'multi/initial, N = 1000, 1 ms steps. Each ratio is the median over '
-        f'{PAIRS} back-to-back pairs of runs (the order alternating), so load on the shared '
-        'machine hits both sides alike. MuJoCo: its muscle actuator stepped from Python '
+        f'{PAIRS} back-to-back pairs (the order alternating), so load on the shared '
+        f'machine hits both sides alike; each side of a pair is {RUNS_PER_SAMPLE} consecutive '
+        'runs (a compiled run of Protocol II lasts about 0.3 ms: timed one by one, its cost '
+        'scattered from 0.037 to 0.061 us a step within one bench). MuJoCo: its muscle actuator stepped from Python '
         f'(`benchmarks/peers.py`, mujoco {m["per_step"]["mujoco"]}). Python: `Muscle.run` with '
         'list columns, `simulate()`\'s plain loop.')
     add('')
