@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from timing import Stats, repeat
+from timing import RUNS_PER_SAMPLE, Stats, repeat
 
 from hill_muscle_ros import cli
 from hill_muscle_ros.model import (Muscle, MuscleOutputs, MuscleParams, Protocol, engine,
@@ -53,12 +53,6 @@ DT_S = 1e-3
 RATE_HZ = 1000.0
 #: Back-to-back pairs per ratio (after one warm-up pair).
 PAIRS = 21
-#: Consecutive runs of one side timed as one sample of a pair: a compiled run
-#: of Protocol II lasts about 0.3 ms, and timed one by one its cost a step
-#: scattered from 0.037 to 0.061 us within one bench (2026-12-04, the timer,
-#: the caches the other side's run left, the clock); ten runs a sample
-#: average that out, on both sides alike.
-RUNS_PER_SAMPLE = 10
 #: [s] the triangle protocol: Protocol II's length, R 0 -> 1 -> 0 with period 2 s.
 TRIANGLE_PERIOD_S = 2.0
 #: Calls per timing of a single step (the node's case).
