@@ -310,7 +310,7 @@ def _collect_between_modules(module) -> None:
     finally:
         _gc_pauses.asking = False
     gc.freeze()
-    if ROS_NAMES & set(vars(module)):
+    if _ros_names_in(module):
         gc.disable()
 
 
@@ -354,6 +354,14 @@ OFFLINE_MODULES = frozenset({
 #: join the graph: such a module cannot be an offline one.
 ROS_NAMES = frozenset({'rclpy', 'ros_helpers', 'Probe', 'ProcessGroup', 'node_command',
                        'supervisor', 'GraphProbe', 'StallWatcher'})
+
+
+def _ros_names_in(module) -> list[str]:
+    """The :data:`ROS_NAMES` in ``module``'s namespace, sorted (empty: it
+    starts no node and joins no graph)."""
+    return sorted(ROS_NAMES & set(vars(module)))
+
+
 #: ioprio_set(2): who = a process, the idle and the default class, the class
 #: field's shift, the syscall number on x86-64.
 _IOPRIO_WHO_PROCESS, _IOPRIO_CLASS_IDLE, _IOPRIO_CLASS_NONE = 1, 3, 0
@@ -590,7 +598,7 @@ def pytest_runtest_setup(item):
         return
     module = item.module
     idle = is_offline_module(module.__name__.rsplit('.', 1)[-1])
-    uses_ros = sorted(ROS_NAMES & set(vars(module)))
+    uses_ros = _ros_names_in(module)
     if idle and uses_ros:
         pytest.fail(f'{module.__name__} is listed as offline in conftest.py (it runs beside '
                     f'the ROS tests at idle priority) but uses {", ".join(uses_ros)}: take it '

@@ -346,8 +346,8 @@ def test_garbage_on_every_input_is_warned_about_and_the_last_good_inputs_kept(sh
                for i in range(first, len(rec.messages)) if rec.messages[i].data != w]
         assert not off, (f'{m}: {len(off)} pulse width(s) other than {w!r} '
                          f'(arrival, value): {off[:20]}; the probe: '
-                         f'{[(f"{t:.3f} s", e) for t, e in events]}; the node\'s log since '
-                         f'it started stimulating:\n{c.proc.output()[-3000:]}')
+                         f'{[(f"{t:.3f} s", e) for t, e in events]}; the node\'s log, its last '
+                         f'3000 characters:\n{c.proc.output()[-3000:]}')
 
 
 # -- parameters -------------------------------------------------------------------

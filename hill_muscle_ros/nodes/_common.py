@@ -22,8 +22,8 @@ from __future__ import annotations
 import atexit
 import copy
 import dataclasses
-import gc
 import faulthandler
+import gc
 import math
 import os
 import signal
