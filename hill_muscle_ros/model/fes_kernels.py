@@ -376,33 +376,46 @@ def pool_update(F, I, i, m, x_ce, t):
         pool_release(F, I, i, m, t)
 
 
+def pool_eff_f_iso_initial(F, I, i, t):
+    """[N] Eff.f_iso of the recruited units of a multi muscle with ``length:
+    initial`` (UnitPool.eff_f_iso), a function of the instant ``t`` alone:
+    from the cache (:func:`forget_eff_f_iso`) if it holds ``t``."""
+    js, ip, fs = hdr(I, i, H_JS), hdr(I, i, H_IP), hdr(I, i, H_FS)
+    top = I[js + J_RTOP]
+    if top == 0:
+        return 0.0   # nothing recruited: every sum below is exactly zero
+    c = fs + S_CACHE
+    for slot in range(3):
+        if F[c + slot] == t:
+            return F[c + 3 + slot]
+    k_types, fatigue = I[ip + I_K], I[ip + I_FATIGUE]
+    elapsed = t - F[fs + S_EPOCH]
+    f0 = 0.0
+    for k in range(k_types):
+        w = F[per_type(I, i, H_TP, T_MU_MIN, k)] if fatigue else 1.0
+        f0 += w * F[per_sum(I, i, H_RSTATIC, top, k, C_G)]
+    if fatigue:
+        for k in range(k_types):
+            f0 += F[per_sum(I, i, H_RDYN, top, k, C_G)] * math.exp(
+                -elapsed * F[per_type(I, i, H_TP, T_RATE_FAT, k)])
+    slot = int(F[c + 6])
+    F[c + slot] = t
+    F[c + 3 + slot] = f0
+    F[c + 6] = (slot + 1) % 3
+    return f0
+
+
 def pool_eff_f_iso(F, I, i, x_ce, t):
     """[N] Eff.f_iso of the recruited units (UnitPool.eff_f_iso)."""
     fp, js = hdr(I, i, H_FP), hdr(I, i, H_JS)
     ip, fs = hdr(I, i, H_IP), hdr(I, i, H_FS)
+    if I[ip + I_INITIAL]:
+        return pool_eff_f_iso_initial(F, I, i, t)
     top = I[js + J_RTOP]
     if top == 0:
         return 0.0   # nothing recruited: every sum below is exactly zero
     k_types, fatigue = I[ip + I_K], I[ip + I_FATIGUE]
     elapsed = t - F[fs + S_EPOCH]
-    if I[ip + I_INITIAL]:
-        c = fs + S_CACHE
-        for slot in range(3):
-            if F[c + slot] == t:
-                return F[c + 3 + slot]
-        f0 = 0.0
-        for k in range(k_types):
-            w = F[per_type(I, i, H_TP, T_MU_MIN, k)] if fatigue else 1.0
-            f0 += w * F[per_sum(I, i, H_RSTATIC, top, k, C_G)]
-        if fatigue:
-            for k in range(k_types):
-                f0 += F[per_sum(I, i, H_RDYN, top, k, C_G)] * math.exp(
-                    -elapsed * F[per_type(I, i, H_TP, T_RATE_FAT, k)])
-        slot = int(F[c + 6])
-        F[c + slot] = t
-        F[c + 3 + slot] = f0
-        F[c + 6] = (slot + 1) % 3
-        return f0
     s = F[fp + P_SPREAD]
     if s > 0.0 and not fl_clear(x_ce, s):
         return pool_eff_f_iso_clipped(F, I, i, x_ce, t)
@@ -497,6 +510,23 @@ def eff_f_iso(F, I, i, l, t):
     else:
         f = F[fp + P_F_ISO_MAX] * force_length(l / F[fp + P_L_OPT])
     return a * mu * f
+
+
+def eff_f_iso_inline(F, I, i, l, t):
+    """[N] :func:`eff_f_iso`, a multi muscle with ``length: initial`` compiled into
+    the caller (:func:`pool_eff_f_iso_initial`), any other muscle by a call.
+
+    Why: a limb's RK4 asks a multi/initial muscle's F0 at every step's three
+    instants, and a call between compiled functions passes ``F`` and ``I`` as
+    seven words each; compiled in place, the call goes (the knee extension:
+    see :data:`.limb_kernels._INTO_STEP`). Only this small path is inlined:
+    inlining the whole :func:`eff_f_iso` at each of its call sites made a cold
+    compile of the limb take 4 minutes instead of 26 s.
+    """
+    ip = hdr(I, i, H_IP)
+    if I[ip + I_MULTI] and I[ip + I_INITIAL]:
+        return pool_eff_f_iso_initial(F, I, i, t)
+    return eff_f_iso(F, I, i, l, t)
 
 
 def velocity(F, I, i, l, dl, f0):
@@ -1175,8 +1205,8 @@ _EQUATIONS = ('force_length', 'force_velocity', 'force_velocity_inverse', 'serie
 _KERNELS = ('hdr', 'scratch', 'forget_eff_f_iso', 'per_type', 'per_sum', 'moment',
             'delay_push', 'delay_settle', 'pool_static_row', 'pool_push_recruited',
             'pool_clocks', 'pool_advance_to', 'pool_recruit', 'pool_release', 'pool_update',
-            'pool_eff_f_iso_clipped', 'pool_eff_f_iso', 'pool_mean_fitness', 'eff_f_iso',
-            'velocity', 'rate_at', 'stiffness_rate', 'peak_rate', 'quasi_force',
+            'pool_eff_f_iso_clipped', 'pool_eff_f_iso_initial', 'pool_eff_f_iso',
+            'pool_mean_fitness', 'eff_f_iso', 'eff_f_iso_inline', 'velocity', 'rate_at', 'stiffness_rate', 'peak_rate', 'quasi_force',
             'single_fatigue', 'begin_interval',
             'end_interval', 'set_activation', 'tau_for', 'set_piece', 'settle_now',
             'give_command', 'add_event', 'group_target', 'plan_events', 'plan_piece', 'plan',
@@ -1217,7 +1247,8 @@ def compiled() -> types.SimpleNamespace:
     # event asks: one call less each (the knee extension compiled: 2.74-2.94 ->
     # 2.63-2.82 ms a run, by hand, alternating; a cold compile 0.8 s more).
     options.update({name: leaf for name in ('hdr', 'scratch', 'forget_eff_f_iso', 'per_type',
-                                            'per_sum', 'moment', 'pool_eff_f_iso')})
+                                            'per_sum', 'moment', 'pool_eff_f_iso_initial',
+                                            'pool_eff_f_iso', 'eff_f_iso_inline')})
 
     def run_signature(numba):
         f8, i8 = numba.float64, numba.int64

@@ -38,17 +38,23 @@ from .limb import joint_acceleration, mtu_length_change
 from .muscle import DL_MT_LIMIT_M
 from .fes_kernels import (A_END, DELAY_FULL, OK, H_FS, H_IP, I_INITIAL, P_K_PE, P_K_SE,
                           P_L_REST, S_CMD, S_DL, S_L, S_R, S_T, FesBundle, apply, begin_interval, eff_f_iso,
-                          end_interval, give_command, hdr, peak_rate, plan, quasi_force, rate_at,
+                          end_interval, eff_f_iso_inline, give_command, hdr, peak_rate, plan,
+                          quasi_force, rate_at,
                           settle_now, velocity, H_FP, H_JS, H_EVT, J_NEV, I_MULTI, I_N, J_DCOUNT,
                           ScratchPool,
                           J_DHEAD, J_NREC, H_DQT, S_UD, TIME_TOL_S, set_piece, tau_for)
 from .memory import recruited_units
 from .stimulus import activation_at
 
-# Entries of the limb's float array ``L``: the joint, its state, then per muscle
-# (from L_MUSCLES, L_PER_MUSCLE each) its action sign, moment arm and reference angle.
+# Entries of the limb's float array ``L``: the joint, its state, an RK4 step's
+# angular velocities and accelerations at its four stages (scratch of
+# limb_rk4), then per muscle (from L_MUSCLES, L_PER_MUSCLE each) its action
+# sign, moment arm and reference angle.
 (L_INERTIA, L_MASS, L_GRAVITY, L_COM, L_STIFFNESS, L_EQUILIBRIUM, L_DAMPING, L_THETA,
- L_OMEGA, L_T, L_TAU, L_MUSCLES) = range(12)
+ L_OMEGA, L_T, L_TAU) = range(11)
+L_STAGE_OMEGA = 11
+L_STAGE_ALPHA = L_STAGE_OMEGA + 4
+L_MUSCLES = L_STAGE_ALPHA + 4
 M_SIGN, M_ARM, M_REF = range(3)
 L_PER_MUSCLE = 3
 # Rows of the stage scratch ``W`` (rows of muscles): CE lengths of the four
@@ -128,7 +134,7 @@ def resting(F, I, W, i):
 def settle_ce(F, I, i, t):
     """After an event of muscle ``i`` at ``t``: a CE without F0 is free (limb_step)."""
     fs = hdr(I, i, H_FS)
-    if eff_f_iso(F, I, i, F[fs + S_L], t) == 0.0:
+    if eff_f_iso_inline(F, I, i, F[fs + S_L], t) == 0.0:
         F[fs + S_L] = F[hdr(I, i, H_FP) + P_L_REST] + F[fs + S_DL]
 
 
@@ -169,10 +175,11 @@ def forces(F, I, L, W, nm, theta, omega, stage, t, v_row):
 
 
 def stage_f0s(F, I, W, i, l, s0, mid, s1):
-    """F0 of a length-free muscle ``i`` at a step's start, middle and end into ``W``."""
-    W[W_F0A, i] = eff_f_iso(F, I, i, l, s0)
-    W[W_F0M, i] = eff_f_iso(F, I, i, l, mid)
-    W[W_F0B, i] = eff_f_iso(F, I, i, l, s1)
+    """F0 of a length-free muscle ``i`` at a step's start, middle and end into ``W``
+    (rows W_F0A, W_F0M, W_F0B: a loop, so that the F0 is compiled in once)."""
+    for j in range(3):
+        t = s0 if j == 0 else (mid if j == 1 else s1)
+        W[W_F0A + j, i] = eff_f_iso_inline(F, I, i, l, t)
 
 
 def limb_rk4(F, I, L, W, nm, s0, s1, have_f0):
@@ -195,22 +202,25 @@ def limb_rk4(F, I, L, W, nm, s0, s1, have_f0):
             free = eff_f_iso(F, I, i, l, s0) == 0.0 and eff_f_iso(F, I, i, l, s1) == 0.0
         W[W_FREE, i] = 1.0 if free else 0.0
     th, om = L[L_THETA], L[L_OMEGA]
-    a1 = forces(F, I, L, W, nm, th, om, W_L1, s0, W_V1)
-    th2, om2 = th + 0.5 * h * om, om + 0.5 * h * a1
-    for i in range(nm):
-        W[W_L2, i] = W[W_L1, i] + 0.5 * h * W[W_V1, i]
-    a2 = forces(F, I, L, W, nm, th2, om2, W_L2, mid, W_V2)
-    th3, om3 = th + 0.5 * h * om2, om + 0.5 * h * a2
-    for i in range(nm):
-        W[W_L3, i] = W[W_L1, i] + 0.5 * h * W[W_V2, i]
-    a3 = forces(F, I, L, W, nm, th3, om3, W_L3, mid, W_V3)
-    th4, om4 = th + h * om3, om + h * a3
-    for i in range(nm):
-        W[W_L4, i] = W[W_L1, i] + h * W[W_V3, i]
-    a4 = forces(F, I, L, W, nm, th4, om4, W_L4, s1, W_V4)
-    theta = rk4_update(th, h, om, om2, om3, om4)
+    # The four stages as a loop, so that forces (and the muscle's equations in
+    # it) is compiled in once rather than four times: the same arithmetic
+    # (stage k + 1 at th + c h omega_k, om + c h alpha_k, c = 1/2, 1/2, 1).
+    th_k, om_k = th, om
+    for k in range(4):
+        t = s0 if k == 0 else (mid if k < 3 else s1)
+        a_k = forces(F, I, L, W, nm, th_k, om_k, W_L1 + k, t, W_V1 + k)
+        L[L_STAGE_OMEGA + k] = om_k
+        L[L_STAGE_ALPHA + k] = a_k
+        if k < 3:
+            c_h = h if k == 2 else 0.5 * h
+            th_k, om_k = th + c_h * om_k, om + c_h * a_k
+            for i in range(nm):
+                W[W_L2 + k, i] = W[W_L1, i] + c_h * W[W_V1 + k, i]
+    theta = rk4_update(th, h, L[L_STAGE_OMEGA], L[L_STAGE_OMEGA + 1], L[L_STAGE_OMEGA + 2],
+                       L[L_STAGE_OMEGA + 3])
     L[L_THETA] = theta
-    L[L_OMEGA] = rk4_update(om, h, a1, a2, a3, a4)
+    L[L_OMEGA] = rk4_update(om, h, L[L_STAGE_ALPHA], L[L_STAGE_ALPHA + 1],
+                            L[L_STAGE_ALPHA + 2], L[L_STAGE_ALPHA + 3])
     for i in range(nm):
         fs = hdr(I, i, H_FS)
         dl = dl_mt(L, i, theta)
@@ -251,9 +261,9 @@ def limb_integrate(F, I, L, W, nm, s0, s1):
         if length_free(I, i):
             # peak_rate's three instants are those of a single RK4 step over [s0, s1].
             stage_f0s(F, I, W, i, l, s0, mid, s1)
-            rate = max(rate_at(F, I, i, l, dl, W[W_F0A, i]),
-                       max(rate_at(F, I, i, l, dl, W[W_F0M, i]),
-                           rate_at(F, I, i, l, dl, W[W_F0B, i])))
+            rate = rate_at(F, I, i, l, dl, W[W_F0A, i])
+            for j in (W_F0M, W_F0B):
+                rate = max(rate, rate_at(F, I, i, l, dl, W[j, i]))
         else:
             rate = peak_rate(F, I, i, l, dl, s0, s1)
         quasi = rate >= QUASI_STATIC_RATE_PER_S
@@ -540,12 +550,22 @@ _KERNELS = ('muscle_slot', 'dl_mt', 'length_free', 'plan_steady', 'resting', 'se
             'stage_f0', 'stage_f0s', 'forces', 'limb_rk4', 'limb_integrate', 'limb_step',
             'limb_give', 'limb_record', 'limb_hold', 'limb_run', 'limb_entry')
 #: Compiled into their one caller by numba's own inlining: :func:`forces` into
-#: the four stages of :func:`limb_rk4`, and that into :func:`limb_integrate`.
-#: A call between compiled functions passes each array as its fields, seven
-#: words apiece, and these are the step's innermost calls. The knee extension
-#: compiled: 3.58-3.61 -> 3.17-3.20 ms a run (by hand, alternating, median of
-#: 61 each); a cold compile of the limb 17.3 -> 17.6 s. Inlining limb_integrate
-#: into limb_step as well gained 1 % more for 9 s more of compiling.
+#: the loop over the stages of :func:`limb_rk4`, and that into
+#: :func:`limb_integrate`. A call between compiled functions passes each array
+#: as its fields, seven words apiece, and these are the step's innermost
+#: calls. The knee extension compiled: 3.58-3.61 -> 3.17-3.20 ms a run (by
+#: hand, alternating, median of 61 each); a cold compile of the limb 17.3 ->
+#: 17.6 s. Inlining limb_integrate into limb_step as well gained 1 % more for
+#: 9 s more of compiling.
+#:
+#: A multi/initial muscle's F0 is compiled into the step too
+#: (:func:`~.fes_kernels.eff_f_iso_inline`, in :func:`stage_f0s` and
+#: :func:`settle_ce`), and the stages and F0's three instants became loops so
+#: that each is compiled in once. By hand (the knee extension, the two
+#: alternating in separate processes, 20 runs a sample, median of 31 pair
+#: ratios): 3.18 -> 2.79 ms a run (0.877x); a cold compile of the limb 26.0 ->
+#: 26.7 s. With the four stages written out instead, the same gain cost 15 s
+#: more of compiling, and inlining the whole of eff_f_iso, minutes.
 _INTO_STEP = ('forces', 'limb_rk4')
 #: Compiled into :func:`limb_entry` by numba's own inlining (each has one call
 #: site there), so that they are no compiled functions of their own each
@@ -571,7 +591,8 @@ def compiled() -> types.SimpleNamespace:
         return _compiled
     from . import engine
     scope = fes_kernels.scope_calling(
-        globals(), ('apply', 'begin_interval', 'eff_f_iso', 'end_interval', 'give_command',
+        globals(), ('apply', 'begin_interval', 'eff_f_iso', 'eff_f_iso_inline', 'end_interval',
+                    'give_command',
                     'set_piece', 'tau_for', 'recruited_units', 'activation_at',
                     'hdr', 'plan', 'settle_now', 'peak_rate', 'quasi_force', 'rate_at',
                     'substep_count',
