@@ -34,7 +34,7 @@ import numpy as np
 from . import curves, fes_kernels, fes_muscle, limb, memory, stimulus, unit_pool, units
 from .curves import parallel_force, series_force
 from .fes_muscle import QUASI_STATIC_RATE_PER_S, rk4_update, substep_count
-from .limb import joint_acceleration, mtu_length_change
+from .limb import SINE_SERIES_MAX_RAD, joint_acceleration_sin, mtu_length_change, sine_near
 from .muscle import DL_MT_LIMIT_M
 from .fes_kernels import (A_END, DELAY_FULL, OK, H_FS, H_IP, I_INITIAL, P_K_PE, P_K_SE,
                           P_L_REST, S_CMD, S_DL, S_L, S_R, S_T, FesBundle, apply, begin_interval, eff_f_iso,
@@ -146,10 +146,11 @@ def stage_f0(F, I, W, i, l, stage, t):
     return eff_f_iso(F, I, i, l, t)
 
 
-def forces(F, I, L, W, nm, theta, omega, stage, t, v_row):
+def forces(F, I, L, W, nm, theta, sin_theta, omega, stage, t, v_row):
     """[rad/s^2] the joint's angular acceleration at one RK4 stage, and each CE's
     velocity into row ``v_row`` of ``W`` (Limb._forces).
 
+    :param sin_theta: sin ``theta``
     :param stage: row of ``W`` holding the stage's CE lengths
     """
     torque = 0.0
@@ -169,9 +170,9 @@ def forces(F, I, L, W, nm, theta, omega, stage, t, v_row):
             f_se = series_force(F[fp + P_K_SE], dl, l, F[fp + P_L_REST])
             W[v_row, i] = velocity(F, I, i, l, dl, stage_f0(F, I, W, i, l, stage, t))
         torque += s_r * (f_se + parallel_force(F[fp + P_K_PE], dl))
-    return joint_acceleration(torque, theta, omega, L[L_TAU], L[L_INERTIA], L[L_MASS],
-                              L[L_GRAVITY], L[L_COM], L[L_STIFFNESS], L[L_EQUILIBRIUM],
-                              L[L_DAMPING])
+    return joint_acceleration_sin(torque, theta, sin_theta, omega, L[L_TAU], L[L_INERTIA],
+                                  L[L_MASS], L[L_GRAVITY], L[L_COM], L[L_STIFFNESS],
+                                  L[L_EQUILIBRIUM], L[L_DAMPING])
 
 
 def stage_f0s(F, I, W, i, l, s0, mid, s1):
@@ -206,9 +207,14 @@ def limb_rk4(F, I, L, W, nm, s0, s1, have_f0):
     # it) is compiled in once rather than four times: the same arithmetic
     # (stage k + 1 at th + c h omega_k, om + c h alpha_k, c = 1/2, 1/2, 1).
     th_k, om_k = th, om
+    # The stages' sines from the step's first (sine_near), libm where a stage
+    # is farther than its series reaches.
+    sin_th, cos_th = math.sin(th), math.cos(th)
     for k in range(4):
         t = s0 if k == 0 else (mid if k < 3 else s1)
-        a_k = forces(F, I, L, W, nm, th_k, om_k, W_L1 + k, t, W_V1 + k)
+        d = th_k - th
+        sin_k = sine_near(sin_th, cos_th, d) if abs(d) <= SINE_SERIES_MAX_RAD else math.sin(th_k)
+        a_k = forces(F, I, L, W, nm, th_k, sin_k, om_k, W_L1 + k, t, W_V1 + k)
         L[L_STAGE_OMEGA + k] = om_k
         L[L_STAGE_ALPHA + k] = a_k
         if k < 3:
@@ -545,7 +551,7 @@ _POOL = ScratchPool()
 RUN_MIN_MUSCLE_STEPS = 10_000
 
 #: The joint's equations (model/limb.py), compiled over this module's scope.
-_EQUATIONS = ('mtu_length_change', 'joint_acceleration')
+_EQUATIONS = ('mtu_length_change', 'joint_acceleration_sin', 'sine_near')
 _KERNELS = ('muscle_slot', 'dl_mt', 'length_free', 'plan_steady', 'resting', 'settle_ce',
             'stage_f0', 'stage_f0s', 'forces', 'limb_rk4', 'limb_integrate', 'limb_step',
             'limb_give', 'limb_record', 'limb_hold', 'limb_run', 'limb_entry')
