@@ -36,13 +36,12 @@ from .curves import parallel_force, series_force
 from .fes_muscle import QUASI_STATIC_RATE_PER_S, rk4_update, substep_count
 from .limb import SINE_SERIES_MAX_RAD, joint_acceleration_sin, mtu_length_change, sine_near
 from .muscle import DL_MT_LIMIT_M
-from .fes_kernels import (A_END, DELAY_FULL, OK, H_FS, H_IP, I_INITIAL, P_K_PE, P_K_SE,
-                          P_L_REST, S_CMD, S_DL, S_L, S_R, S_T, FesBundle, apply, begin_interval, eff_f_iso,
-                          end_interval, eff_f_iso_inline, give_command, hdr, peak_rate, plan,
-                          quasi_force, rate_at,
-                          settle_now, velocity, H_FP, H_JS, H_EVT, J_NEV, I_MULTI, I_N, J_DCOUNT,
-                          ScratchPool,
-                          J_DHEAD, J_NREC, H_DQT, S_UD, TIME_TOL_S, set_piece, tau_for)
+from .fes_kernels import (A_END, DELAY_FULL, H_DQT, H_EVT, H_FP, H_FS, H_IP, H_JS, I_INITIAL,
+                          I_MULTI, I_N, J_DCOUNT, J_DHEAD, J_NEV, J_NREC, OK, P_K_PE, P_K_SE,
+                          P_L_REST, S_CMD, S_DL, S_L, S_R, S_T, S_UD, TIME_TOL_S, FesBundle,
+                          ScratchPool, apply, begin_interval, eff_f_iso, eff_f_iso_inline,
+                          end_interval, give_command, hdr, peak_rate, plan, quasi_force, rate_at,
+                          set_piece, settle_now, tau_for, velocity)
 from .memory import recruited_units
 from .stimulus import activation_at
 
