@@ -13,7 +13,8 @@ import yaml
 from hypothesis import HealthCheck, given, settings, strategies as st
 
 from hill_muscle_ros.model import engine, limb_kernels
-from hill_muscle_ros.model.limb import LimbPlant, LimbProtocol, LimbResult, simulate_limb
+from hill_muscle_ros.model.limb import (SINE_SERIES_MAX_RAD, LimbPlant, LimbProtocol, LimbResult,
+                                        simulate_limb)
 
 #: [rad], [rad/s], [m], [N]: agreement asked of every column.
 TOL = 1e-9
@@ -314,7 +315,6 @@ def test_a_joint_too_fast_for_the_stage_sine_series_agrees_with_the_reference(ke
     # for which sine_near's series is bounded to rounding, so the compiled step
     # takes libm's sin there and the series where the knee is slow; the whole
     # run agrees with the reference.
-    from hill_muscle_ros.model.limb import SINE_SERIES_MAX_RAD
     rate_hz = 100.0
     protocol = LimbProtocol.from_mapping({
         'name': 'push', 'duration_s': 1.0,

@@ -266,9 +266,9 @@ def limb_integrate(F, I, L, W, nm, s0, s1):
         if length_free(I, i):
             # peak_rate's three instants are those of a single RK4 step over [s0, s1].
             stage_f0s(F, I, W, i, l, s0, mid, s1)
-            rate = rate_at(F, I, i, l, dl, W[W_F0A, i])
-            for j in (W_F0M, W_F0B):
-                rate = max(rate, rate_at(F, I, i, l, dl, W[j, i]))
+            rate = max(rate_at(F, I, i, l, dl, W[W_F0A, i]),
+                       max(rate_at(F, I, i, l, dl, W[W_F0M, i]),
+                           rate_at(F, I, i, l, dl, W[W_F0B, i])))
         else:
             rate = peak_rate(F, I, i, l, dl, s0, s1)
         quasi = rate >= QUASI_STATIC_RATE_PER_S
