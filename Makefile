@@ -6,7 +6,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: test test-workers demo figures clean venv
+.PHONY: test test-workers demo figures clean venv bytecode
 
 venv: $(STAMP)
 
@@ -17,14 +17,23 @@ $(STAMP): setup.py setup.cfg package.xml requirements-dev.txt requirements-ros.t
 	$(BIN)/python -m pip install --disable-pip-version-check -q --no-deps -e .
 	touch $(STAMP)
 
+# The package's bytecode, as pip writes it when it installs a package: the
+# editable install compiles nothing ahead, and where PYTHONDONTWRITEBYTECODE is
+# set (as on this machine) every process then compiled every module it
+# imported from source, each node and CLI process the tests start included.
+# compileall rewrites only the files changed since; Python reads the .pyc whatever
+# that variable says, and ignores one older than its source.
+bytecode: $(STAMP)
+	$(BIN)/python -m compileall -q hill_muscle_ros
+
 # Serially: every DDS test has the machine to itself. `make test-workers` runs
 # four pytest workers on two pools (test/conftest.py): faster, but a timing
 # claim (the churn test's 20 ms tick gap, the garbage counts) still fails in
 # some runs there, so it is not the test command.
-test: $(STAMP)
+test: $(STAMP) bytecode
 	$(BIN)/python -m pytest -q --durations=15
 
-test-workers: $(STAMP)
+test-workers: $(STAMP) bytecode
 	$(BIN)/python -m pytest -q -n 4 --dist loadgroup --durations=15
 
 # The live demo: simulator, protocol player and recorder as three ROS 2
@@ -38,12 +47,12 @@ UNITS    ?=
 LENGTH   ?=
 RUNS_DIR ?= runs
 RTF      ?=
-demo: $(STAMP)
+demo: $(STAMP) bytecode
 	$(BIN)/python -m hill_muscle_ros.demo --protocol '$(PROTOCOL)' \
 	    --units '$(UNITS)' --length '$(LENGTH)' --runs-dir '$(RUNS_DIR)' \
 	    $(if $(RTF),--real-time-factor '$(RTF)')
 
-figures: $(STAMP)
+figures: $(STAMP) bytecode
 	$(BIN)/hill-muscle figures --out runs/figures
 
 # Benchmark (the performance targets in BENCHMARKS.md): installs the bench-only peers (pymuscle, MuJoCo,
@@ -57,7 +66,7 @@ $(BENCH_STAMP): $(STAMP) requirements-bench.txt
 	$(BIN)/python -m pip install --disable-pip-version-check -q -r requirements-bench.txt
 	touch $(BENCH_STAMP)
 
-bench: $(BENCH_STAMP)
+bench: $(BENCH_STAMP) bytecode
 	$(BIN)/python benchmarks/profile_simulate.py
 	$(BIN)/python benchmarks/run_all.py --out BENCHMARKS.md --runs 7
 
@@ -65,14 +74,14 @@ bench: $(BENCH_STAMP)
 # a target profile through controller, simulator and recorder; a bag and a plot.
 # PROFILE= a target-profile YAML (default config/target_profile.yaml), OUT= a new directory.
 .PHONY: demo-closed-loop
-demo-closed-loop: $(STAMP)
+demo-closed-loop: $(STAMP) bytecode
 	$(BIN)/python -m hill_muscle_ros.demo_closed_loop $(if $(PROFILE),--profile $(PROFILE)) $(if $(OUT),--out $(OUT))
 
 # The joint controller moves the simulated knee (README "Limb"): limb node, joint
 # controller and recorder on config/knee.yaml; angle steps and a sine; a bag, a plot
 # and a stick-figure GIF. KNEE_PROFILE=short (8.5 s) for a quick look, OUT= a new directory.
 .PHONY: demo-knee
-demo-knee: $(STAMP)
+demo-knee: $(STAMP) bytecode
 	$(BIN)/python -m hill_muscle_ros.demo_knee $(if $(KNEE_PROFILE),--profile $(KNEE_PROFILE)) $(if $(OUT),--out $(OUT))
 
 clean:
