@@ -153,48 +153,127 @@ _COMPILE_THE_PAPERS = (
 _sidecar_compile_s: list[float] = []
 
 
-def pytest_sessionstart(session):
-    """Load the compiled limb and the compiled FES muscle once, before any test,
-    when the limb and simulator nodes would run them (numba importable,
-    ``HILL_MUSCLE_ENGINE`` not ``python``): a node started by a test then loads
-    them from numba's disk cache (about 1 s) instead of compiling them (about
-    30 s, the tests' whole start-up deadline). The offline tests compile these
-    kernels anyway, so the run compiles nothing more. Under xdist the controller
-    does it, for every kernel set (the paper's muscle's in a second process at
-    the same time), before it starts its workers, which then load from the
-    cache."""
+#: Compiles the node's kernel sets (the FES muscle's and the limb's), then
+#: prints its compiling seconds (:func:`pytest_sessionstart`, serial runs).
+_COMPILE_THE_NODES = (
+    'from hill_muscle_ros.model import engine, fes_kernels, limb_kernels\n'
+    'fes_kernels.compiled(); limb_kernels.compiled()\n'
+    'print(engine.compile_seconds())')
+#: Test modules that a serial run takes first, while a second process compiles
+#: the nodes' kernels on the other core (:func:`pytest_sessionstart`): they
+#: start no node and load no compiled kernel, and claim no timing (the clean
+#: install, 20-25 s of pip and imports, takes most of the compiling's 30 s).
+FIRST_WHILE_COMPILING = ('test_install_clean', 'test_colcon_build',
+                         'test_repository_standalone', 'test_model_curves',
+                         'test_model_memory', 'test_control_pi')
+#: The serial run's compiling process while it runs (:func:`_await_the_nodes_kernels`).
+_nodes_compiling: list = []
+
+
+def _compiles_for_the_nodes(config) -> bool:
+    """Whether this run loads the nodes' compiled kernels before their tests:
+    the limb and simulator nodes would run them (numba importable,
+    ``HILL_MUSCLE_ENGINE`` not ``python``), and this is not an xdist worker."""
     if 'PYTEST_XDIST_WORKER' in os.environ:
+        return False
+    from hill_muscle_ros.model import engine
+    try:
+        return engine.choice() == engine.COMPILED
+    except (ValueError, ImportError):
+        return False   # the node falls back to Python then; test_node_limb says whether it should
+
+
+def pytest_sessionstart(session):
+    """Load the compiled limb and the compiled FES muscle before any test that
+    may start a node: a node started by a test then loads them from numba's
+    disk cache (about 1 s) instead of compiling them (about 30 s, the tests'
+    whole start-up deadline). The offline tests compile these kernels anyway,
+    so the run compiles nothing more.
+
+    Serially, a second process compiles them into the cache while the
+    :data:`FIRST_WHILE_COMPILING` modules run (:func:`pytest_collection_modifyitems`
+    puts them first): the run used one core, and waited 30 s for the compiler
+    before its first test. :func:`_await_the_nodes_kernels` waits for it
+    before any other module. Under xdist the controller compiles every kernel
+    set (the paper's muscle's in a second process at the same time), before
+    it starts its workers, which then load from the cache."""
+    if not _compiles_for_the_nodes(session.config):
+        return
+    workers = _runs_workers(session.config)
+    if not workers:
+        _nodes_compiling.append((subprocess.Popen([sys.executable, '-c', _COMPILE_THE_NODES],
+                                                  stdout=subprocess.PIPE, text=True),
+                                 time.monotonic()))
         return
     from hill_muscle_ros.model import engine, fes_batch_kernels, fes_kernels, limb_kernels
-    try:
-        if engine.choice() != engine.COMPILED:
-            return
-    except (ValueError, ImportError):
-        return   # the node falls back to Python then; test_node_limb says whether it should
     reporter = session.config.pluginmanager.get_plugin('terminalreporter')
     started = time.monotonic()
-    # Under xdist, the workers' kernel sets too (two offline workers would
-    # otherwise compile the same ones at once, each in full); the paper's
-    # muscle's in a second process on the second core meanwhile: nothing else
-    # runs until the workers start.
-    workers = _runs_workers(session.config)
+    # The workers' kernel sets too (two offline workers would otherwise
+    # compile the same ones at once, each in full); the paper's muscle's in a
+    # second process on the second core meanwhile: nothing else runs until
+    # the workers start.
     sidecar = subprocess.Popen([sys.executable, '-c', _COMPILE_THE_PAPERS],
-                               stdout=subprocess.PIPE, text=True) if workers else None
+                               stdout=subprocess.PIPE, text=True)
     fes_kernels.compiled()   # the simulator node's FES muscle (compiled_muscle)
     limb_kernels.compiled()
-    if workers:
-        fes_batch_kernels.compiled()   # on top of fes_kernels: in this process
-    if sidecar is not None:
-        out, _ = sidecar.communicate()
-        # A failure is said on its stderr; the workers compile what it did not.
-        _sidecar_compile_s.append(float(out.split()[-1]) if sidecar.returncode == 0 and
-                                  out.split() else 0.0)
+    fes_batch_kernels.compiled()   # on top of fes_kernels: in this process
+    _sidecar_compile_s.append(_compiled_seconds(sidecar))
     if reporter is not None:
         reporter.write_line(
             f'compiled kernels loaded for the tests in '
             f'{time.monotonic() - started:.1f} s ({engine.compile_seconds():.1f} s of it '
-            f'compiling here' + (f', {_sidecar_compile_s[0]:.1f} s in a second process)'
-                                 if _sidecar_compile_s else ')'))
+            f'compiling here, {_sidecar_compile_s[0]:.1f} s in a second process)')
+
+
+def _compiled_seconds(process: subprocess.Popen) -> float:
+    """[s] what a compiling process (:data:`_COMPILE_THE_PAPERS`,
+    :data:`_COMPILE_THE_NODES`) says it compiled, once it ends; 0 if it failed
+    (its stderr says why, and the tests compile what it did not)."""
+    out, _ = process.communicate()
+    return float(out.split()[-1]) if process.returncode == 0 and out.split() else 0.0
+
+
+def pytest_collection_modifyitems(session, config, items):
+    """A serial run takes the :data:`FIRST_WHILE_COMPILING` modules first
+    (:func:`pytest_sessionstart`); the rest keep their order."""
+    if _compiles_for_the_nodes(config) and not _runs_workers(config):
+        items.sort(key=lambda item: _module_name(item) not in FIRST_WHILE_COMPILING)
+
+
+def _module_name(item) -> str:
+    return item.module.__name__.rsplit('.', 1)[-1]
+
+
+def _await_the_nodes_kernels(item) -> None:
+    """Before the first test outside :data:`FIRST_WHILE_COMPILING`: wait for the
+    compiling process, then load its kernels here from the cache."""
+    if not _nodes_compiling or _module_name(item) in FIRST_WHILE_COMPILING:
+        return
+    process, started = _nodes_compiling.pop()
+    _sidecar_compile_s.append(_compiled_seconds(process))
+    from hill_muscle_ros.model import engine, fes_kernels, limb_kernels
+    waited = time.monotonic()
+    fes_kernels.compiled()   # the simulator node's FES muscle (compiled_muscle)
+    limb_kernels.compiled()
+    reporter = item.config.pluginmanager.get_plugin('terminalreporter')
+    capture = item.config.pluginmanager.get_plugin('capturemanager')
+    if reporter is not None and capture is not None:
+        with capture.global_and_fixture_disabled():   # a test's setup is captured
+            reporter.write_line(
+                f'\nthe nodes\' compiled kernels: {_sidecar_compile_s[-1]:.1f} s compiling in a '
+                f'second process, beside the first modules; {time.monotonic() - started:.1f} s '
+                f'from the start to loaded here, {time.monotonic() - waited:.1f} s loading '
+                f'({engine.compile_seconds():.1f} s of it compiling)')
+
+
+def _stop_compiling() -> None:
+    """A run that ends before it needs the nodes' kernels (``-k`` on the first
+    modules) stops their compiling: numba writes each cache file whole
+    (a temporary file renamed), so nothing half-written stays."""
+    while _nodes_compiling:
+        process, _ = _nodes_compiling.pop()
+        process.kill()
+        process.wait()
 
 
 #: Key of a worker's compiling seconds in xdist's ``workeroutput``.
@@ -211,7 +290,9 @@ def _compile_seconds() -> float:
 
 def pytest_unconfigure(config):
     """The controller removes the ROS workers' lock files (:func:`_ros_turns`)
-    and the offline workers' CPU cgroup (:func:`_join_idle_cgroup`)."""
+    and the offline workers' CPU cgroup (:func:`_join_idle_cgroup`); a serial
+    run stops a compiling process it did not wait for (:func:`_stop_compiling`)."""
+    _stop_compiling()
     folder = os.environ.get(_TURNS_ENV)
     if folder is not None and 'PYTEST_XDIST_WORKER' not in os.environ:
         import shutil
@@ -322,8 +403,11 @@ def pytest_terminal_summary(terminalreporter):
     terminalreporter.write_line(_gc_pauses.summary())
     own = _compile_seconds()
     if not _workers_compile_s:
+        sidecar = sum(_sidecar_compile_s)
         terminalreporter.write_line(
-            f'numba compiling in this process: {own:.1f} s (subprocesses not counted)')
+            f'numba compiling in the pytest processes: {own + sidecar:.1f} s (this one '
+            f'{own:.1f} s, its compiling process {sidecar:.1f} s; the tests\' subprocesses '
+            f'not counted)')
         return
     workers = ', '.join(f'{s:.1f}' for s in _workers_compile_s)
     sidecar = sum(_sidecar_compile_s)
@@ -592,8 +676,10 @@ def pytest_runtest_setup(item):
     ROS tests' cgroup.
 
     First, in every run, the garbage collector's turn
-    (:func:`_collect_between_modules`)."""
+    (:func:`_collect_between_modules`), and in a serial run the wait for the
+    nodes' kernels (:func:`_await_the_nodes_kernels`)."""
     _collect_between_modules(item.module)
+    _await_the_nodes_kernels(item)
     if 'PYTEST_XDIST_WORKER' not in os.environ or not hasattr(os, 'SCHED_IDLE'):
         return
     module = item.module
