@@ -1,7 +1,7 @@
 """Cold compile cost of each set of compiled kernels (a benchmark, not a test).
 
 A fresh clone compiles every kernel set once (``make test`` prints the sum as
-"numba compiling in this process"). This
+"numba compiling in the pytest processes"). This
 measures each set's share: every run is a new Python process on a new, empty
 numba cache directory (``NUMBA_CACHE_DIR``), which builds the kernel sets in the order given, and
 reports for each the seconds numba spent compiling it
@@ -128,9 +128,10 @@ def write_section(add, m: dict) -> None:
         f'Every kernel set compiled once, cold, in one process: '
         f'**{statistics.median(totals):.1f} s** — '
         f'{"met" if ok else "**not met**"} by this measure. `make test` prints its '
-        'figure at its end ("numba compiling in this process"; `make test-workers`: '
-        '"numba compiling in the pytest processes", its four workers loading what the '
-        'controller and one process beside it compiled before they started); '
+        'figure at its end ("numba compiling in the pytest processes": the nodes\' '
+        'kernels in a second process while the first modules run, the rest in the pytest '
+        'process; `make test-workers`: its four workers loading what the controller and '
+        'one process beside it compiled before they started); '
         'a test that runs the engine in a subprocess on an unwritable cache compiles the '
         'run once more there.')
     add('')
