@@ -481,7 +481,7 @@ LONG_MODULES = {
 ALONE_MODULES = frozenset({
     'test_sim_tool_churn', 'test_faults_garbage', 'test_fit_live',
     'test_controller_closed_loop', 'test_joint_closed_loop', 'test_faults_limb',
-    'test_faults_controller_kill', 'test_recorder_simulation'})
+    'test_faults_controller_kill', 'test_recorder_simulation', 'test_faults_flood'})
 
 
 def is_offline_module(name: str) -> bool:
