@@ -153,7 +153,7 @@ _COMPILE_THE_PAPERS = (
 _sidecar_compile_s: list[float] = []
 
 
-#: Compiles the node's kernel sets (the FES muscle's and the limb's), then
+#: Compiles the nodes' kernel sets (the FES muscle's and the limb's), then
 #: prints its compiling seconds (:func:`pytest_sessionstart`, serial runs).
 _COMPILE_THE_NODES = (
     'from hill_muscle_ros.model import engine, fes_kernels, limb_kernels\n'
