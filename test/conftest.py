@@ -13,7 +13,8 @@ start ROS processes or DDS participants, at normal priority, two side by
 side; a module with an ``alone`` test or one that takes the stall watcher (a
 timing claim that needs the machine: the simulator's 20 ms tick gap under
 tool churn, the 15 N stretch, failed all three runs beside another ROS module)
-runs while no other ROS module does (:func:`_ros_turns`).
+runs while no other ROS module does and the offline workers are frozen
+(:func:`_ros_turns`).
 The other half run the offline modules (the model, the offline CLI and
 bags, the figures, the clean install: :func:`is_offline_module`)
 at the kernel's idle priority (``SCHED_IDLE``, and
@@ -458,6 +459,11 @@ _WEAKEST_NICE = 19
 _CPU_CGROUP_ROOTS = (Path('/sys/fs/cgroup/cpu'), Path('/sys/fs/cgroup'))
 #: The CPU cgroup of the offline workers and all they start (``cpu.idle``).
 _IDLE_CGROUP = 'hill_muscle_ros_offline_tests'
+#: cgroup v1's freezer hierarchy, where the offline workers also join a group
+#: of that name, so that an ``alone`` module can freeze them (:func:`_freeze_offline`).
+_FREEZER_ROOT = Path('/sys/fs/cgroup/freezer')
+#: [s] bound on the wait for the offline workers' group to be frozen.
+_FREEZE_DEADLINE_S = 10.0
 
 
 #: [s] the modules that took longest in a run under ``-n 4 --dist loadgroup``
@@ -605,14 +611,67 @@ def _join_idle_cgroup() -> bool:
             (group / 'cgroup.procs').write_text(str(os.getpid()))
         except OSError:
             continue
+        _join_freezer_group()
         return True
     return False
+
+
+def _join_freezer_group() -> None:
+    """Move this process into :data:`_IDLE_CGROUP` of cgroup v1's freezer
+    hierarchy too, where there is one and it is writable (a cgroup v2 tree
+    freezes the CPU group itself: :func:`_freeze_offline`)."""
+    if not (_FREEZER_ROOT / 'cgroup.procs').is_file():
+        return
+    group = _FREEZER_ROOT / _IDLE_CGROUP
+    try:
+        group.mkdir(exist_ok=True)
+        (group / 'cgroup.procs').write_text(str(os.getpid()))
+    except OSError:
+        pass
+
+
+def _freeze_offline(frozen: bool) -> str:
+    """Freeze (or thaw) the offline workers and all they started, for an
+    ``alone`` module (:func:`_ros_turns`); return what was done, for its log.
+
+    Their idle CPU priority was not enough for a 20 ms timing claim: by hand,
+    the churn test's tick thread waited 9-21 ms for a CPU beside two busy
+    loops at ``SCHED_IDLE`` in a CPU group with ``cpu.idle`` 1 (cgroup v1),
+    against 1-6 ms on an idle machine; and a fresh clone's workers run failed
+    that test on such waits. A frozen process gets no CPU at all; its wall
+    clock runs on, so an offline test's deadline loses the frozen time
+    (every such deadline here is far longer than an ``alone`` module). Another
+    pytest run's offline workers in the same group freeze too.
+    """
+    groups = [(_FREEZER_ROOT / _IDLE_CGROUP / 'freezer.state', 'FROZEN', 'THAWED')]
+    groups += [(root / _IDLE_CGROUP / 'cgroup.freeze', '1', '0')
+               for root in _cpu_cgroup_roots()]
+    for state, on, off in groups:
+        if not state.is_file():
+            continue
+        try:
+            state.write_text(on if frozen else off)
+        except OSError as err:
+            return f'not {"frozen" if frozen else "thawed"} ({state}: {err})'
+        if not frozen:
+            return 'thawed'
+        # v1 reads FREEZING until every task has stopped; v2 says it in cgroup.events.
+        events = state.with_name('cgroup.events')
+        deadline = time.monotonic() + _FREEZE_DEADLINE_S
+        while time.monotonic() < deadline:
+            if (state.read_text().strip() == on if state.name == 'freezer.state'
+                    else 'frozen 1' in events.read_text()):
+                return 'frozen'
+            time.sleep(0.001)
+        return f'still freezing after {_FREEZE_DEADLINE_S:g} s ({state})'
+    return 'no freezer group'
 
 
 def _remove_idle_cgroup() -> None:
     """Remove :data:`_IDLE_CGROUP` once empty (another run's workers may still
     be in it: then it stays, and is used again)."""
-    for root in _cpu_cgroup_roots():
+    _freeze_offline(False)   # an alone module that died frozen them
+    for root in [*_cpu_cgroup_roots(), _FREEZER_ROOT]:
         try:
             (root / _IDLE_CGROUP).rmdir()
         except OSError:
@@ -704,7 +763,8 @@ def _ros_turns(request):
     :data:`ALONE_MODULES` runs while no other ROS module does; the others run
     side by side. A readers-writer lock between the worker processes (``flock``):
     everyone queues at a turnstile first, so a waiting ``alone`` module is
-    not overtaken by the modules that start after it asked."""
+    not overtaken by the modules that start after it asked. While an
+    ``alone`` module runs, the offline workers are frozen (:func:`_freeze_offline`)."""
     folder = os.environ.get(_TURNS_ENV)
     name = request.module.__name__.rsplit('.', 1)[-1]
     if 'PYTEST_XDIST_WORKER' not in os.environ or folder is None or is_offline_module(name):
@@ -725,7 +785,11 @@ def _ros_turns(request):
         fcntl.flock(turnstile, fcntl.LOCK_EX)
         fcntl.flock(turn, fcntl.LOCK_EX if alone else fcntl.LOCK_SH)
         fcntl.flock(turnstile, fcntl.LOCK_UN)
+        if alone:
+            print(f'\n{name}: offline workers {_freeze_offline(True)}')
         yield
     finally:
+        if alone:
+            _freeze_offline(False)
         os.close(turn)        # closing releases the lock
         os.close(turnstile)
