@@ -29,8 +29,8 @@ def test_sine_near_at_zero_step_is_the_known_sine_exactly():
 
 
 def test_the_series_falls_short_beyond_its_range():
-    # A check that the range bound means something: ten times past it the
-    # truncated series is off by far more than rounding.
+    # A check that the range bound means something: at twenty times the bound
+    # the truncated series is off by far more than rounding.
     theta_a, d = 0.7, 10 * SINE_SERIES_MAX_RAD * 2
     assert abs(sine_near(math.sin(theta_a), math.cos(theta_a), d)
                - math.sin(theta_a + d)) > 1e3 * ROUNDING
