@@ -177,7 +177,8 @@ def run(seconds: float, log_dir: Path, executor: str | None = None
     ns = f'/bench_{os.getpid()}_{next(_RUNS)}'   # a namespace of its own per run
     log_dir.mkdir(parents=True, exist_ok=True)
     with ProcessGroup(log_dir, env) as procs, \
-            GraphProbe('bench_observer', namespace=ns) as probe:
+            GraphProbe('bench_observer', namespace=ns, executor='single') as probe:
+        # single: the MessageInfo callbacks below (GraphProbe.PROBE_EXECUTORS)
         sim = procs.start('simulator', node_command(
             'simulator', ns=ns, params={'rate_hz': RATE_HZ, 'input_timeout_s': 0.0}))
         echo = procs.start('echo', [sys.executable, '-c', ECHO_NODE,

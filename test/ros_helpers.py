@@ -155,10 +155,12 @@ class Probe(GraphProbe):
     manager so that it shuts down.
 
     :param name: node name
+    :param executor: ``single`` where a subscription's callback takes the
+        ``MessageInfo`` (see :attr:`GraphProbe.PROBE_EXECUTORS`)
     """
 
-    def __init__(self, name: str = 'test_probe') -> None:
-        super().__init__(name)
+    def __init__(self, name: str = 'test_probe', executor: str = 'events') -> None:
+        super().__init__(name, executor=executor)
         self._recordings: dict[str, Recording] = {}
         self._publishers: dict[str, Any] = {}
 

@@ -96,7 +96,7 @@ class Witness:
 def sim(tmp_path_factory):
     tmp = tmp_path_factory.mktemp('recorder_stop')
     ns = f'/recstop_{os.getpid()}_{next(_RUNS)}'
-    with ProcessGroup(tmp) as procs, Probe('recorder_stop_probe') as probe:
+    with ProcessGroup(tmp) as procs, Probe('recorder_stop_probe', executor='single') as probe:
         proc = procs.start('simulator', node_command('simulator', ns=ns))
         wrench = Witness(probe, f'{ns}/wrench')
         probe.spin_until(lambda: wrench.seqs, 'a wrench', procs=[proc])

@@ -115,7 +115,7 @@ def _knot(stamp_ns: int, value: float) -> PointStamped:
 
 
 def test_stalled_simulator_publishes_every_step_once_with_its_own_stamp(tmp_path):
-    with ProcessGroup(tmp_path) as procs, Probe('every_step_probe') as probe:
+    with ProcessGroup(tmp_path) as procs, Probe('every_step_probe', executor='single') as probe:
         proc, wrenches, knots, _ = _start(procs, probe)
         ramp_start_ns = wrenches.latest_ns() + round(RAMP_LEAD_S * 1e9)
         ramp_end_ns = ramp_start_ns + round(RAMP_S * 1e9)
@@ -144,7 +144,8 @@ def test_stalled_simulator_publishes_every_step_once_with_its_own_stamp(tmp_path
 
 
 def test_every_step_at_real_time_factor_5_when_asked(tmp_path):
-    with ProcessGroup(tmp_path) as procs, Probe('every_step_rtf_probe') as probe:
+    with ProcessGroup(tmp_path) as procs, \
+            Probe('every_step_rtf_probe', executor='single') as probe:
         proc, wrenches, _, _ = _start(procs, probe, real_time_factor=5.0,
                                       publish_every_n_steps=1)
         first_ns = wrenches.latest_ns()
@@ -161,7 +162,7 @@ def test_every_step_at_real_time_factor_5_when_asked(tmp_path):
 def test_default_at_real_time_factor_10_is_every_10th_step_on_a_fixed_grid(tmp_path):
     # 10 kHz of steps: by default the outputs stay at 1 kHz of the steady clock.
     every = 10
-    with ProcessGroup(tmp_path) as procs, Probe('every_n_probe') as probe:
+    with ProcessGroup(tmp_path) as procs, Probe('every_n_probe', executor='single') as probe:
         proc, wrenches, _, ns = _start(procs, probe, real_time_factor=10.0)
         got = probe.get_parameters(f'{ns}/simulator', ['publish_every_n_steps'],
                                    procs=[proc])
@@ -178,7 +179,7 @@ def test_default_at_real_time_factor_10_is_every_10th_step_on_a_fixed_grid(tmp_p
 
 def test_explicit_publish_every_n_steps_at_real_time(tmp_path):
     every = 3
-    with ProcessGroup(tmp_path) as procs, Probe('every_3_probe') as probe:
+    with ProcessGroup(tmp_path) as procs, Probe('every_3_probe', executor='single') as probe:
         proc, wrenches, _, _ = _start(procs, probe, publish_every_n_steps=every)
         _wait_stamp(probe, wrenches, wrenches.latest_ns() + 300_000_000, proc)
     stamps = np.array(wrenches.stamps_ns, dtype=np.int64)
