@@ -55,6 +55,17 @@ def test_unknown_executor_name_is_a_startup_error_naming_the_variable(context, m
         make_executor(context)
 
 
+def test_a_probe_spins_with_the_events_executor_unless_asked_for_the_single_one():
+    with Probe('executor_probe') as events, Probe('executor_probe', executor='single') as single:
+        assert type(events.executor).__name__ == 'EventsExecutor'
+        assert isinstance(single.executor, SingleThreadedExecutor)
+
+
+def test_a_probe_refuses_an_unknown_executor_by_name():
+    with pytest.raises(ValueError, match="`executor` must be one of events, single, got 'multi'"):
+        Probe('executor_probe', executor='multi')
+
+
 def test_stop_signal_is_recorded_not_raised_and_repeats_are_ignored():
     before = signal.getsignal(signal.SIGINT)
     with StopSignals() as stop:
