@@ -13,8 +13,8 @@ start ROS processes or DDS participants, at normal priority, two side by
 side; a module with an ``alone`` test or one that takes the stall watcher (a
 timing claim that needs the machine: the simulator's 20 ms tick gap under
 tool churn, the 15 N stretch, failed all three runs beside another ROS module)
-runs while no other ROS module does and the offline workers are frozen
-(:func:`_ros_turns`).
+runs while no other ROS module does; for a claim on milliseconds, or one that
+needs both CPUs, the offline workers are frozen meanwhile (:func:`_ros_turns`).
 The other half run the offline modules (the model, the offline CLI and
 bags, the figures, the clean install: :func:`is_offline_module`)
 at the kernel's idle priority (``SCHED_IDLE``, and
@@ -488,6 +488,14 @@ ALONE_MODULES = frozenset({
     'test_sim_tool_churn', 'test_faults_garbage', 'test_fit_live',
     'test_controller_closed_loop', 'test_joint_closed_loop', 'test_faults_limb',
     'test_faults_controller_kill', 'test_recorder_simulation', 'test_faults_flood'})
+#: The :data:`ALONE_MODULES` during which the offline workers are frozen too
+#: (:func:`_freeze_offline`): a claim on milliseconds that idle priority does
+#: not protect (the churn test's 20 ms tick gap: its tick thread waited 9-21 ms
+#: for a CPU beside two idle-priority busy loops), or a test that needs both
+#: CPUs (the flood: its flooder and the simulator). In a fresh clone's run
+#: with no freezing, these were the only alone modules that failed; the others
+#: claim times of 0.1 s and more, and run beside the idle offline workers.
+FROZEN_MODULES = frozenset({'test_sim_tool_churn', 'test_faults_flood'})
 
 
 def is_offline_module(name: str) -> bool:
@@ -631,8 +639,9 @@ def _join_freezer_group() -> None:
 
 
 def _freeze_offline(frozen: bool) -> str:
-    """Freeze (or thaw) the offline workers and all they started, for an
-    ``alone`` module (:func:`_ros_turns`); return what was done, for its log.
+    """Freeze (or thaw) the offline workers and all they started, for a
+    module of :data:`FROZEN_MODULES` (:func:`_ros_turns`); return what was
+    done, for its log.
 
     Their idle CPU priority was not enough for a 20 ms timing claim: by hand,
     the churn test's tick thread waited 9-21 ms for a CPU beside two busy
@@ -763,8 +772,9 @@ def _ros_turns(request):
     :data:`ALONE_MODULES` runs while no other ROS module does; the others run
     side by side. A readers-writer lock between the worker processes (``flock``):
     everyone queues at a turnstile first, so a waiting ``alone`` module is
-    not overtaken by the modules that start after it asked. While an
-    ``alone`` module runs, the offline workers are frozen (:func:`_freeze_offline`)."""
+    not overtaken by the modules that start after it asked. While a module of
+    :data:`FROZEN_MODULES` runs, the offline workers are frozen too
+    (:func:`_freeze_offline`)."""
     folder = os.environ.get(_TURNS_ENV)
     name = request.module.__name__.rsplit('.', 1)[-1]
     if 'PYTEST_XDIST_WORKER' not in os.environ or folder is None or is_offline_module(name):
@@ -779,17 +789,18 @@ def _ros_turns(request):
     if claims and not alone:
         pytest.fail(f'{name} has an `alone` test or takes the stall watcher: add it to '
                     f'ALONE_MODULES in conftest.py')
+    frozen = name in FROZEN_MODULES
     turnstile = os.open(os.path.join(folder, 'turnstile'), os.O_RDWR | os.O_CREAT)
     turn = os.open(os.path.join(folder, 'turn'), os.O_RDWR | os.O_CREAT)
     try:
         fcntl.flock(turnstile, fcntl.LOCK_EX)
         fcntl.flock(turn, fcntl.LOCK_EX if alone else fcntl.LOCK_SH)
         fcntl.flock(turnstile, fcntl.LOCK_UN)
-        if alone:
+        if frozen:
             print(f'\n{name}: offline workers {_freeze_offline(True)}')
         yield
     finally:
-        if alone:
+        if frozen:
             _freeze_offline(False)
         os.close(turn)        # closing releases the lock
         os.close(turnstile)
