@@ -130,8 +130,8 @@ def write_section(add, m: dict) -> None:
         f'{"met" if ok else "**not met**"} by this measure. `make test` prints its '
         'figure at its end ("numba compiling in the pytest processes": the nodes\' '
         'kernels in a second process while the first modules run, the rest in the pytest '
-        'process; `make test-workers`: its four workers loading what the controller and '
-        'one process beside it compiled before they started); '
+        'process; `make test-workers`: two processes that the controller starts before '
+        'its workers, which wait for them after their first modules); '
         'a test that runs the engine in a subprocess on an unwritable cache compiles the '
         'run once more there.')
     add('')

@@ -167,8 +167,9 @@ _COMPILE_THE_NODES = (
 FIRST_WHILE_COMPILING = ('test_install_clean', 'test_colcon_build',
                          'test_repository_standalone', 'test_model_curves',
                          'test_model_memory', 'test_control_pi')
-#: The serial run's compiling process while it runs (:func:`_await_the_nodes_kernels`).
-_nodes_compiling: list = []
+#: The compiling processes and when they started, until their seconds are
+#: collected (:func:`_await_the_kernels`, :func:`_stop_compiling`).
+_compiling: list = []
 
 
 def _compiles_for_the_nodes(config) -> bool:
@@ -184,6 +185,23 @@ def _compiles_for_the_nodes(config) -> bool:
         return False   # the node falls back to Python then; test_node_limb says whether it should
 
 
+#: Under xdist, the workers' kernel sets: the nodes' and the batch of FES
+#: muscles (on the FES muscle: in the same process, so compiled once).
+_COMPILE_FOR_THE_WORKERS = (
+    'from hill_muscle_ros.model import engine, fes_batch_kernels, fes_kernels, limb_kernels\n'
+    'fes_kernels.compiled(); limb_kernels.compiled(); fes_batch_kernels.compiled()\n'
+    'print(engine.compile_seconds())')
+#: Under xdist: the lock file that the compiling processes hold (``flock``)
+#: until they end; a worker waits for it (:func:`_await_the_kernels`). Set by
+#: the controller before it starts its workers, which inherit it.
+_COMPILING_LOCK_ENV = 'HILL_MUSCLE_TEST_COMPILING_LOCK'
+#: [s] bound on a worker's wait for the compiling processes (a cold compile
+#: of every set takes about 40 s); past it, the tests compile what is missing.
+_COMPILING_DEADLINE_S = 600.0
+#: [s] how often a waiting worker tries the lock again.
+_COMPILING_POLL_S = 0.05
+
+
 def pytest_sessionstart(session):
     """Load the compiled limb and the compiled FES muscle before any test that
     may start a node: a node started by a test then loads them from numba's
@@ -191,39 +209,35 @@ def pytest_sessionstart(session):
     whole start-up deadline). The offline tests compile these kernels anyway,
     so the run compiles nothing more.
 
-    Serially, a second process compiles them into the cache while the
+    A second process compiles them into the cache while the
     :data:`FIRST_WHILE_COMPILING` modules run (:func:`pytest_collection_modifyitems`
-    puts them first): the run used one core, and waited 30 s for the compiler
-    before its first test. :func:`_await_the_nodes_kernels` waits for it
-    before any other module. Under xdist the controller compiles every kernel
-    set (the paper's muscle's in a second process at the same time), before
-    it starts its workers, which then load from the cache."""
+    puts them first serially; under xdist each pool hands them out first):
+    before, the run used one core, and waited 30 s for the compiler before
+    its first test. :func:`_await_the_kernels` waits for it before any other
+    module. Under xdist it compiles the workers' kernel sets too, and the
+    paper's muscle's compile in a third process at the same time; the
+    workers start (and collect) meanwhile."""
     if not _compiles_for_the_nodes(session.config):
         return
-    workers = _runs_workers(session.config)
-    if not workers:
-        _nodes_compiling.append((subprocess.Popen([sys.executable, '-c', _COMPILE_THE_NODES],
-                                                  stdout=subprocess.PIPE, text=True),
-                                 time.monotonic()))
+    if not _runs_workers(session.config):
+        _compiling.append((subprocess.Popen([sys.executable, '-c', _COMPILE_THE_NODES],
+                                            stdout=subprocess.PIPE, text=True),
+                           time.monotonic()))
         return
-    from hill_muscle_ros.model import engine, fes_batch_kernels, fes_kernels, limb_kernels
-    reporter = session.config.pluginmanager.get_plugin('terminalreporter')
-    started = time.monotonic()
-    # The workers' kernel sets too (two offline workers would otherwise
-    # compile the same ones at once, each in full); the paper's muscle's in a
-    # second process on the second core meanwhile: nothing else runs until
-    # the workers start.
-    sidecar = subprocess.Popen([sys.executable, '-c', _COMPILE_THE_PAPERS],
-                               stdout=subprocess.PIPE, text=True)
-    fes_kernels.compiled()   # the simulator node's FES muscle (compiled_muscle)
-    limb_kernels.compiled()
-    fes_batch_kernels.compiled()   # on top of fes_kernels: in this process
-    _sidecar_compile_s.append(_compiled_seconds(sidecar))
-    if reporter is not None:
-        reporter.write_line(
-            f'compiled kernels loaded for the tests in '
-            f'{time.monotonic() - started:.1f} s ({engine.compile_seconds():.1f} s of it '
-            f'compiling here, {_sidecar_compile_s[0]:.1f} s in a second process)')
+    lock_path = os.path.join(os.environ[_TURNS_ENV], 'compiling')
+    lock = os.open(lock_path, os.O_RDWR | os.O_CREAT)
+    try:
+        # Taken here, held by the children (they share the open file): the
+        # lock is free once both have ended, however they end.
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        for code in (_COMPILE_FOR_THE_WORKERS, _COMPILE_THE_PAPERS):
+            _compiling.append((subprocess.Popen([sys.executable, '-c', code],
+                                                stdout=subprocess.PIPE, text=True,
+                                                pass_fds=(lock,)),
+                               time.monotonic()))
+    finally:
+        os.close(lock)
+    os.environ[_COMPILING_LOCK_ENV] = lock_path
 
 
 def _compiled_seconds(process: subprocess.Popen) -> float:
@@ -245,36 +259,79 @@ def _module_name(item) -> str:
     return item.module.__name__.rsplit('.', 1)[-1]
 
 
-def _await_the_nodes_kernels(item) -> None:
-    """Before the first test outside :data:`FIRST_WHILE_COMPILING`: wait for the
-    compiling process, then load its kernels here from the cache."""
-    if not _nodes_compiling or _module_name(item) in FIRST_WHILE_COMPILING:
+def _await_the_kernels(item) -> None:
+    """Before the first test outside :data:`FIRST_WHILE_COMPILING`: wait for
+    the compiling process(es) (:func:`pytest_sessionstart`). Serially, then
+    load the nodes' kernels here from the cache; an xdist worker waits for
+    the controller's processes through their lock file and loads nothing:
+    its tests load what they use."""
+    if _module_name(item) in FIRST_WHILE_COMPILING:
         return
-    process, started = _nodes_compiling.pop()
+    if 'PYTEST_XDIST_WORKER' in os.environ:
+        _await_the_compiling_lock(item)
+        return
+    if not _compiling:
+        return
+    process, started = _compiling.pop()
     _sidecar_compile_s.append(_compiled_seconds(process))
     from hill_muscle_ros.model import engine, fes_kernels, limb_kernels
     waited = time.monotonic()
     fes_kernels.compiled()   # the simulator node's FES muscle (compiled_muscle)
     limb_kernels.compiled()
+    _say(item, f'\nthe nodes\' compiled kernels: {_sidecar_compile_s[-1]:.1f} s compiling in '
+               f'a second process, beside the first modules; {time.monotonic() - started:.1f} s '
+               f'from the start to loaded here, {time.monotonic() - waited:.1f} s loading '
+               f'({engine.compile_seconds():.1f} s of it compiling)')
+
+
+#: Whether this xdist worker has waited for the compiling processes.
+_compiling_awaited: list[bool] = []
+
+
+def _await_the_compiling_lock(item) -> None:
+    """An xdist worker's wait for :data:`_COMPILING_LOCK_ENV` (once)."""
+    path = os.environ.get(_COMPILING_LOCK_ENV)
+    if path is None or _compiling_awaited:
+        return
+    _compiling_awaited.append(True)
+    started = time.monotonic()
+    lock = os.open(path, os.O_RDONLY)
+    try:
+        while True:
+            try:
+                fcntl.flock(lock, fcntl.LOCK_SH | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:
+                if time.monotonic() - started > _COMPILING_DEADLINE_S:
+                    _say(item, f'\nthe compiling processes still run after '
+                               f'{_COMPILING_DEADLINE_S:g} s: the tests compile what they need')
+                    return
+                time.sleep(_COMPILING_POLL_S)
+    finally:
+        os.close(lock)    # closing releases the lock
+    _say(item, f'\nwaited {time.monotonic() - started:.1f} s for the compiling processes '
+               f'before {_module_name(item)}')
+
+
+def _say(item, line: str) -> None:
+    """Write ``line`` to the terminal, outside the test's captured output."""
     reporter = item.config.pluginmanager.get_plugin('terminalreporter')
     capture = item.config.pluginmanager.get_plugin('capturemanager')
     if reporter is not None and capture is not None:
         with capture.global_and_fixture_disabled():   # a test's setup is captured
-            reporter.write_line(
-                f'\nthe nodes\' compiled kernels: {_sidecar_compile_s[-1]:.1f} s compiling in a '
-                f'second process, beside the first modules; {time.monotonic() - started:.1f} s '
-                f'from the start to loaded here, {time.monotonic() - waited:.1f} s loading '
-                f'({engine.compile_seconds():.1f} s of it compiling)')
+            reporter.write_line(line)
 
 
 def _stop_compiling() -> None:
-    """A run that ends before it needs the nodes' kernels (``-k`` on the first
-    modules) stops their compiling: numba writes each cache file whole
-    (a temporary file renamed), so nothing half-written stays."""
-    while _nodes_compiling:
-        process, _ = _nodes_compiling.pop()
-        process.kill()
-        process.wait()
+    """Collect what each compiling process compiled (:data:`_sidecar_compile_s`),
+    once no test needs them: a run that ended before it needed the kernels
+    (``-k`` on the first modules) kills them instead; numba writes each cache
+    file whole (a temporary file renamed), so nothing half-written stays."""
+    while _compiling:
+        process, _ = _compiling.pop()
+        if process.poll() is None:
+            process.kill()
+        _sidecar_compile_s.append(_compiled_seconds(process))
 
 
 #: Key of a worker's compiling seconds in xdist's ``workeroutput``.
@@ -402,21 +459,16 @@ def pytest_terminal_summary(terminalreporter):
     them. Under xdist: this process and each worker, and their sum. And the
     garbage collector's long pauses here (:class:`GcPauses`)."""
     terminalreporter.write_line(_gc_pauses.summary())
+    _stop_compiling()   # every test has run: none needs them any more
     own = _compile_seconds()
-    if not _workers_compile_s:
-        sidecar = sum(_sidecar_compile_s)
-        terminalreporter.write_line(
-            f'numba compiling in the pytest processes: {own + sidecar:.1f} s (this one '
-            f'{own:.1f} s, its compiling process {sidecar:.1f} s; the tests\' subprocesses '
-            f'not counted)')
-        return
+    sidecar = ', '.join(f'{s:.1f}' for s in _sidecar_compile_s) or '0.0'
+    total = own + sum(_sidecar_compile_s) + sum(_workers_compile_s)
     workers = ', '.join(f'{s:.1f}' for s in _workers_compile_s)
-    sidecar = sum(_sidecar_compile_s)
     terminalreporter.write_line(
-        f'numba compiling in the pytest processes: '
-        f'{own + sidecar + sum(_workers_compile_s):.1f} s (this one {own:.1f} s, its '
-        f'compiling process {sidecar:.1f} s, workers {workers} s; the tests\' subprocesses '
-        f'not counted)')
+        f'numba compiling in the pytest processes: {total:.1f} s (this one {own:.1f} s, '
+        f'its compiling processes {sidecar} s'
+        + (f', workers {workers} s' if workers else '')
+        + '; the tests\' subprocesses not counted)')
 
 
 # --------------------------------------------------------------------------- two workers
@@ -540,9 +592,11 @@ def pytest_xdist_make_scheduler(config, log):
         def _next_scope(self, node) -> str | None:
             pool = self._pool_of_node(node)
             scopes = [s for s in self.workqueue if pool_of_scope(s) == pool]
-            # The modules that run alone first, then the longest, so that a
-            # pool's workers end together.
-            return min(scopes, key=lambda s: (Path(s).stem not in ALONE_MODULES,
+            # The modules that need no compiled kernel first, while they
+            # compile (_await_the_kernels); then those that run alone; then the
+            # longest, so that a pool's workers end together.
+            return min(scopes, key=lambda s: (Path(s).stem not in FIRST_WHILE_COMPILING,
+                                              Path(s).stem not in ALONE_MODULES,
                                               -LONG_MODULES.get(Path(s).stem, 0)), default=None)
 
         def _assign_work_unit(self, node) -> None:
@@ -744,10 +798,10 @@ def pytest_runtest_setup(item):
     ROS tests' cgroup.
 
     First, in every run, the garbage collector's turn
-    (:func:`_collect_between_modules`), and in a serial run the wait for the
-    nodes' kernels (:func:`_await_the_nodes_kernels`)."""
+    (:func:`_collect_between_modules`), and the wait for the compiled kernels
+    (:func:`_await_the_kernels`)."""
     _collect_between_modules(item.module)
-    _await_the_nodes_kernels(item)
+    _await_the_kernels(item)
     if 'PYTEST_XDIST_WORKER' not in os.environ or not hasattr(os, 'SCHED_IDLE'):
         return
     module = item.module
