@@ -555,6 +555,15 @@ def is_offline_module(name: str) -> bool:
     return name.startswith(OFFLINE_PREFIXES) or name in OFFLINE_MODULES
 
 
+#: How many offline workers may join the ROS pool once the offline modules
+#: are all handed out: the offline pool ends in about half the run, and then
+#: the two ROS workers alone ran the ROS modules left for about 140 s, the
+#: second half of the run (a fresh clone's ``make test-workers``). One more,
+#: not two: each ROS module keeps most of a core busy (a serial run: 361
+#: CPU-s in its 383 s of ROS modules), so three share the two CPUs already.
+JOINING_WORKERS = 1
+
+
 def ros_workers(n_workers: int) -> int:
     """How many of ``n_workers`` xdist workers run the ROS tests: half (at
     least one); the rest run the offline ones."""
@@ -564,9 +573,12 @@ def ros_workers(n_workers: int) -> int:
 def pytest_xdist_make_scheduler(config, log):
     """``--dist loadgroup``: two pools of workers, one for the tests that start
     ROS processes or DDS participants (:data:`SERIAL_GROUP`), one for the
-    offline tests (:data:`OFFLINE_GROUP`): a worker only ever runs modules of
-    its own pool, a whole module at a time, the :data:`LONG_MODULES` first,
-    then in collection order (:func:`ros_workers` says how many are ROS workers).
+    offline tests (:data:`OFFLINE_GROUP`): a worker runs modules of its own
+    pool, a whole module at a time, the :data:`FIRST_WHILE_COMPILING`, then
+    the :data:`ALONE_MODULES`, then the :data:`LONG_MODULES` first, then in
+    collection order (:func:`ros_workers` says how many are ROS workers).
+    Once the offline modules are all handed out, :data:`JOINING_WORKERS` of
+    the offline workers join the ROS pool.
 
     pytest-xdist's own loadgroup (the ``xdist_group`` mark) renames the test
     ids, which pytest 9.2 no longer lets it do, and pins a group to one
@@ -581,17 +593,30 @@ def pytest_xdist_make_scheduler(config, log):
         return OFFLINE_GROUP if is_offline_module(Path(scope).stem) else SERIAL_GROUP
 
     class PoolScheduling(LoadScopeScheduling):
+        def __init__(self, *args, **kwargs) -> None:
+            super().__init__(*args, **kwargs)
+            self._joined = []   # the offline workers that joined the ROS pool (_next_scope)
+
         def _split_scope(self, nodeid: str) -> str:
             return nodeid.split('::', 1)[0]
 
         def _pool_of_node(self, node) -> str:
             # Workers are gw0, gw1, ...: the first ros_workers() run the ROS tests.
             index = int(node.gateway.id.removeprefix('gw'))
-            return SERIAL_GROUP if index < ros_workers(self.numnodes) else OFFLINE_GROUP
+            if index < ros_workers(self.numnodes) or node in self._joined:
+                return SERIAL_GROUP
+            return OFFLINE_GROUP
 
         def _next_scope(self, node) -> str | None:
             pool = self._pool_of_node(node)
             scopes = [s for s in self.workqueue if pool_of_scope(s) == pool]
+            if (not scopes and pool == OFFLINE_GROUP
+                    and len(self._joined) < JOINING_WORKERS):
+                # Its pool ran dry while the ROS pool has work left: it joins
+                # that (as an ordinary ROS worker: pytest_runtest_setup).
+                scopes = [s for s in self.workqueue if pool_of_scope(s) == SERIAL_GROUP]
+                if scopes:
+                    self._joined.append(node)
             # The modules that need no compiled kernel first, while they
             # compile (_await_the_kernels); then those that run alone; then the
             # longest, so that a pool's workers end together.
@@ -667,15 +692,52 @@ def _join_idle_cgroup() -> bool:
     """
     for root in _cpu_cgroup_roots():
         group = root / _IDLE_CGROUP
+        previous = _group_of_this_process(root)
         try:
             group.mkdir(exist_ok=True)
             (group / 'cpu.idle').write_text('1')
             (group / 'cgroup.procs').write_text(str(os.getpid()))
         except OSError:
             continue
+        _left_groups.append(previous)
         _join_freezer_group()
         return True
     return False
+
+
+#: The groups this process left for :data:`_IDLE_CGROUP` (:func:`_rejoin_the_ros_tests`).
+_left_groups: list[Path] = []
+
+
+def _group_of_this_process(root: Path) -> Path:
+    """This process's group in the hierarchy mounted at ``root``
+    (``/proc/self/cgroup``: ``id:controllers:path``; cgroup v2 has no controllers)."""
+    wanted = 'freezer' if root == _FREEZER_ROOT else 'cpu'
+    for line in Path('/proc/self/cgroup').read_text().splitlines():
+        _, controllers, path = line.split(':', 2)
+        if wanted in controllers.split(',') or (not controllers and root.name != wanted):
+            return root / path.lstrip('/')
+    return root
+
+
+def _rejoin_the_ros_tests() -> None:
+    """An offline worker that joined the ROS pool (``JOINING_WORKERS``) goes
+    back to the groups it left, so that it is neither idle nor frozen with the
+    offline workers; without cgroups, its session's autogroup back to nice 0."""
+    if not _left_groups:
+        try:
+            with open('/proc/self/autogroup', 'w') as autogroup:
+                autogroup.write('0')
+        except OSError:
+            pass     # no autogroups: the policy alone then
+        return
+    while _left_groups:
+        group = _left_groups.pop()
+        try:
+            (group / 'cgroup.procs').write_text(str(os.getpid()))
+        except OSError as err:
+            raise RuntimeError(f'cannot leave the offline workers\' cgroup for {group}: '
+                               f'{err}') from err
 
 
 def _join_freezer_group() -> None:
@@ -685,11 +747,13 @@ def _join_freezer_group() -> None:
     if not (_FREEZER_ROOT / 'cgroup.procs').is_file():
         return
     group = _FREEZER_ROOT / _IDLE_CGROUP
+    previous = _group_of_this_process(_FREEZER_ROOT)
     try:
         group.mkdir(exist_ok=True)
         (group / 'cgroup.procs').write_text(str(os.getpid()))
     except OSError:
-        pass
+        return
+    _left_groups.append(previous)
 
 
 def _freeze_offline(frozen: bool) -> str:
@@ -813,10 +877,13 @@ def pytest_runtest_setup(item):
                     f'off OFFLINE_PREFIXES / OFFLINE_MODULES')
     policy = os.SCHED_IDLE if idle else os.SCHED_OTHER
     if os.sched_getscheduler(0) != policy:
+        # Once per worker: a worker runs one pool only (PoolScheduling), but
+        # for the offline workers that join the ROS pool once theirs is done.
         if idle and not _join_idle_cgroup():
-            # Once per worker: a worker runs one pool only (PoolScheduling).
             # Autogroups do not apply inside a cgroup, so only without one.
             _leave_the_ros_tests_autogroup()
+        if not idle:
+            _rejoin_the_ros_tests()
         _set_priority(policy, _IOPRIO_CLASS_IDLE if idle else _IOPRIO_CLASS_NONE)
 
 
