@@ -42,7 +42,7 @@ from hypothesis import settings
 
 from hill_muscle_ros.dds_transport import use_udp_transport
 from hill_muscle_ros.domain_lock import lock_free_domain
-from stall_watch import StallWatcher
+from stall_watch import RepeatedOnStall, StallWatcher
 
 #: Domain IDs 1..100 stay clear of 0 (the default most people use), of the
 #: demo's 101..199, and within the range Fast DDS maps to valid UDP ports.
@@ -453,12 +453,28 @@ def _collect_between_modules(module) -> None:
         gc.disable()
 
 
+#: The tests that repeated a run on a measured external stall (one entry a repeat).
+_repeats: list[str] = []
+
+
+def pytest_warning_recorded(warning_message, when, nodeid, location):
+    """Count the :class:`~stall_watch.RepeatedOnStall` warnings (under xdist
+    the controller hears the workers' too)."""
+    if issubclass(warning_message.category, RepeatedOnStall):
+        _repeats.append(nodeid)
+
+
 def pytest_terminal_summary(terminalreporter):
     """Say how long the pytest processes spent in numba's compiler: a clean
     clone compiles every kernel once (the budget is 60 s), a second run loads
     them. Under xdist: this process and each worker, and their sum. And the
-    garbage collector's long pauses here (:class:`GcPauses`)."""
+    garbage collector's long pauses here (:class:`GcPauses`), and the runs repeated
+    on a measured stall (:func:`pytest_warning_recorded`)."""
     terminalreporter.write_line(_gc_pauses.summary())
+    terminalreporter.write_line(
+        f'runs repeated on a measured external stall: {len(_repeats)}'
+        + ''.join(f'\n  {nodeid}' for nodeid in _repeats)
+        + ('\n  (their causes: the warnings summary above)' if _repeats else ''))
     _stop_compiling()   # every test has run: none needs them any more
     own = _compile_seconds()
     sidecar = ', '.join(f'{s:.1f}' for s in _sidecar_compile_s) or '0.0'

@@ -23,6 +23,7 @@ from __future__ import annotations
 import os
 import threading
 import time
+import warnings
 from collections import deque
 from typing import Any, Callable
 
@@ -152,6 +153,20 @@ class StallWatcher:
         return found
 
 
+class RepeatedOnStall(UserWarning):
+    """A timing test repeated a run after a measured external stall. A
+    warning, so that pytest's warnings summary names every repeat with its
+    test and cause, and the run's last line counts them (conftest), rather
+    than a line in a passing test's captured output that nobody sees."""
+
+
+def report_repeat(message: str) -> None:
+    """Print ``message`` (a repeated run and its measured cause) and warn
+    with it as :class:`RepeatedOnStall`."""
+    print(f'\n{message}')
+    warnings.warn(message, RepeatedOnStall, stacklevel=2)
+
+
 def repeat_only_on_external_stall(run: Callable[[], Any], check: Callable[[Any], str | None],
                                   watcher: StallWatcher,
                                   attempts: int = DEFAULT_ATTEMPTS) -> Any:
@@ -179,9 +194,9 @@ def repeat_only_on_external_stall(run: Callable[[], Any], check: Callable[[Any],
                                  f'{WINDOW_FACTOR * watcher.stall_s * 1e3:.0f} ms during the '
                                  f'run: {str(result)[:QUOTE_CHARS]}')
         worst = max(stalls, key=lambda s: s[2])
-        print(f'\nREPEATED run {attempt} of {attempts}: {failure}; the machine kept '
-              f'{len(stalls)} process(es) of the test from a CPU, worst {worst[0]} waiting '
-              f'{worst[2] * 1e3:.0f} ms within {worst[3] * 1e3:.0f} ms')
+        report_repeat(f'REPEATED run {attempt} of {attempts}: {failure}; the machine kept '
+                      f'{len(stalls)} process(es) of the test from a CPU, worst {worst[0]} '
+                      f'waiting {worst[2] * 1e3:.0f} ms within {worst[3] * 1e3:.0f} ms')
         tried.append((failure, worst[0], round(worst[2] * 1e3)))
     raise AssertionError(f'all {attempts} runs failed, each with an external stall measured '
                          f'(failure, process, ms waiting for a CPU): {tried}')

@@ -61,6 +61,7 @@ import pytest
 from std_msgs.msg import Float64
 
 from ros_helpers import DEFAULT_TIMEOUT_S, Probe, ProcessGroup, node_command
+from stall_watch import report_repeat
 
 _RUNS = itertools.count()
 
@@ -484,7 +485,7 @@ def test_simulator_tick_never_pauses_while_cli_tools_join_and_leave(tmp_path):
             pytest.fail(f'the simulator did not tick for {gap_s * 1e3:.1f} ms (bound '
                         f'{MAX_TICK_GAP_S * 1e3:.0f} ms): blocked up to {blocked_s * 1e3:.1f} ms '
                         f'of it by itself, held up by the machine only {machine_s * 1e3:.1f} ms')
-        print(f'REPEATED run {attempt} of {MAX_ATTEMPTS}: the machine held the tick thread up '
-              f'{machine_s * 1e3:.1f} ms of the {gap_s * 1e3:.1f} ms gap')
+        report_repeat(f'REPEATED run {attempt} of {MAX_ATTEMPTS}: the machine held the tick '
+                      f'thread up {machine_s * 1e3:.1f} ms of the {gap_s * 1e3:.1f} ms gap')
     pytest.fail(f'all {MAX_ATTEMPTS} runs had a gap over {MAX_TICK_GAP_S * 1e3:.0f} ms, each '
                 'with the simulator held up by the machine (CPU or disk) for longer than that')

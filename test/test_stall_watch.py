@@ -7,7 +7,7 @@ import time
 
 import pytest
 
-from stall_watch import StallWatcher, repeat_only_on_external_stall
+from stall_watch import RepeatedOnStall, StallWatcher, repeat_only_on_external_stall
 
 STALL_S = 0.05
 #: [s] how long the probes below run.
@@ -61,6 +61,9 @@ def test_a_failed_run_with_an_external_stall_is_repeated():
     runs = []
     with StallWatcher(STALL_S) as watcher:
         watcher.stalls = lambda *_: [('simulator[1]', 0.0, 0.3, 0.1)]
-        result = repeat_only_on_external_stall(
-            lambda: runs.append(1) or len(runs), lambda n: None if n == 2 else 'failed', watcher)
+        with pytest.warns(RepeatedOnStall, match=r'REPEATED run 1 of \d+: failed; .*'
+                                                 r'simulator\[1\] waiting 300 ms'):
+            result = repeat_only_on_external_stall(
+                lambda: runs.append(1) or len(runs), lambda n: None if n == 2 else 'failed',
+                watcher)
     assert (result, len(runs)) == (2, 2)
