@@ -653,10 +653,14 @@ def pytest_xdist_make_scheduler(config, log):
         def _reschedule(self, node) -> None:
             if node.shutting_down:
                 return
+            # Nothing is decided for a worker with work ahead of it: an offline
+            # worker that joined the ROS pool while it still had a long module
+            # to run (the sweep, 87 s at idle priority beside the ROS tests)
+            # kept the other, idle one from joining, which then stopped.
+            if self._pending_of(self.assigned_work[node]) > 2:
+                return
             if self._next_scope(node) is None:
                 node.shutdown()   # after the tests it has; its pool has no more
-                return
-            if self._pending_of(self.assigned_work[node]) > 2:
                 return
             self._assign_work_unit(node)
 
