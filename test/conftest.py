@@ -25,7 +25,9 @@ only if what they start cannot escape it: the offline workers join a CPU
 cgroup marked idle, which their subprocesses cannot leave by starting a
 session (:func:`_join_idle_cgroup`); where the cgroup tree is not writable,
 they run in sessions of their own at the weakest autogroup nice
-(:func:`_leave_the_ros_tests_autogroup`).
+(:func:`_leave_the_ros_tests_autogroup`). Once the offline modules are all
+handed out, the first offline worker to run out of work joins the ROS ones
+(:data:`JOINING_WORKERS`, :func:`_rejoin_the_ros_tests`).
 """
 import ctypes
 import fcntl
