@@ -37,6 +37,7 @@ import random
 import subprocess
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import pytest
@@ -270,7 +271,7 @@ def _await_the_kernels(item) -> None:
     if _module_name(item) in FIRST_WHILE_COMPILING:
         return
     if 'PYTEST_XDIST_WORKER' in os.environ:
-        _await_the_compiling_lock(item)
+        _await_the_compiling_lock()
         return
     if not _compiling:
         return
@@ -290,8 +291,9 @@ def _await_the_kernels(item) -> None:
 _compiling_awaited: list[bool] = []
 
 
-def _await_the_compiling_lock(item) -> None:
-    """An xdist worker's wait for :data:`_COMPILING_LOCK_ENV` (once)."""
+def _await_the_compiling_lock() -> None:
+    """An xdist worker's wait for :data:`_COMPILING_LOCK_ENV` (once). It
+    writes nothing to the terminal: a worker's terminal output is not shown."""
     path = os.environ.get(_COMPILING_LOCK_ENV)
     if path is None or _compiling_awaited:
         return
@@ -305,14 +307,15 @@ def _await_the_compiling_lock(item) -> None:
                 break
             except BlockingIOError:
                 if time.monotonic() - started > _COMPILING_DEADLINE_S:
-                    _say(item, f'\nthe compiling processes still run after '
-                               f'{_COMPILING_DEADLINE_S:g} s: the tests compile what they need')
+                    # A warning: a worker's terminal output is not shown, the
+                    # warnings summary is.
+                    warnings.warn(f'the compiling processes still run after '
+                                  f'{_COMPILING_DEADLINE_S:g} s: the tests compile what '
+                                  f'they need', stacklevel=1)
                     return
                 time.sleep(_COMPILING_POLL_S)
     finally:
         os.close(lock)    # closing releases the lock
-    _say(item, f'\nwaited {time.monotonic() - started:.1f} s for the compiling processes '
-               f'before {_module_name(item)}')
 
 
 def _say(item, line: str) -> None:
