@@ -24,8 +24,11 @@ so ``ros2 bag info``, Foxglove, PlotJuggler and rosbags open it as it is.
   it is not recorded: a single ``ros2 topic pub --once``, which publishes as
   soon as one other subscriber matches and exits, is usually lost.
 - Messages stay serialized: the CDR bytes go to disk exactly as received.
-- ``log_time`` is the receive time on the node's clock (sim time with
-  ``use_sim_time``), ``publish_time`` the header stamp where there is one.
+- ``log_time`` is the receive time on the node's clock, ``publish_time``
+  the header stamp where there is one. With ``use_sim_time`` it is the sim
+  time in force at the DDS receive instant, from the ``/clock`` messages' own
+  receive instants (:class:`~hill_muscle_ros.recording.receipt_clock.ReceiptClock`),
+  not the clock read when Python takes the message.
 - Each message's publisher sequence number is checked: a gap means DDS lost
   messages, and is reported with the count of messages sent vs. recorded.
 - SIGINT and SIGTERM stop it cleanly: what each publisher sent before the
@@ -55,8 +58,10 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSCompatibility, QoSProfile,
                        ReliabilityPolicy, qos_check_compatible)
+from rosgraph_msgs.msg import Clock as ClockMsg
 
 from ..recording.bag_writer import BagOutputError, BagWriter, read_msg_file, split_type_name
+from ..recording.receipt_clock import ReceiptClock
 from ..timebase import NS_PER_S
 from ._common import (DIAGNOSTICS_TOPIC, EXIT_FAILURE, EXIT_SUCCESS, DiagnosticReport,
                       NodeDiagnostics, StartupError, TeardownGuard, check_qos_overrides,
@@ -119,6 +124,14 @@ FASTDDS_HEARTBEAT_PERIOD_S = 3.0
 #: before the stop, and a margin for the request and the resend on a busy
 #: machine.
 DRAIN_TIMEOUT_S = FASTDDS_HEARTBEAT_PERIOD_S + 0.5
+#: The sim-time source (REP 2008), global by convention.
+CLOCK_TOPIC = '/clock'
+#: QoS of the recorder's own ``/clock`` subscription on sim time (the
+#: :class:`ReceiptClock`): best effort, so that it matches a best-effort
+#: ``/clock`` publisher (rclcpp's ``ClockQoS``) as well as a reliable one, and
+#: deep enough to hold every tick between two takes.
+CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=QUEUE_DEPTH,
+                       reliability=ReliabilityPolicy.BEST_EFFORT)
 #: [s] executor wake-up period (checks the stop flag).
 SPIN_PERIOD_S = 0.05
 #: Start of the log line that says the recorder is subscribed and writing.
@@ -307,6 +320,8 @@ class Recorder(Node):
         except BagOutputError as err:
             raise StartupError(str(err)) from None
         self._use_sim_time = bool(self.get_parameter('use_sim_time').value)
+        #: On sim time: the sim time at each DDS receive instant (see ReceiptClock).
+        self._receipt_clock = ReceiptClock() if self._use_sim_time else None
         # Holds the subscriptions; never spun (see TAKE_PERIOD_S). Hidden ('_'),
         # and without global arguments so that a `__node:=` remap cannot give it
         # this node's name. Topic names given to it are already resolved.
@@ -315,6 +330,10 @@ class Recorder(Node):
                                          start_parameter_services=False,
                                          parameter_overrides=qos_overrides_of(self))
         self._subs: dict[str, Any] = {}
+        # Taken like the recorded topics, whether or not /clock is recorded too.
+        self._clock_sub = (self._reader.create_subscription(ClockMsg, CLOCK_TOPIC,
+                                                            _never_called, CLOCK_QOS)
+                           if self._use_sim_time else None)
         self._types: dict[str, str] = {}
         self._stats: dict[str, _TopicStats] = {}
         self._warned_types: set[str] = set()
@@ -422,6 +441,8 @@ class Recorder(Node):
         :return: the number of messages written
         """
         written = 0
+        pending = []   # on sim time: recorded once /clock has been taken up to them
+        self.take_clock()
         for topic, sub in list(self._subs.items()):
             while not self.failure:
                 # rclpy 7.1.6 has no public take on a Subscription; this is the
@@ -430,16 +451,52 @@ class Recorder(Node):
                     taken = sub.handle.take_message(sub.msg_type, True)
                 if taken is None:
                     break
-                self._record(topic, *taken)
+                if self._receipt_clock is None:
+                    self._record(topic, *taken)
+                    written += 1
+                else:
+                    pending.append((topic, *taken))
+        if pending:
+            # Every /clock message received before the last one taken above is
+            # taken now, so each gets the sim time in force when it arrived.
+            self.take_clock()
+            for topic, data, info in pending:
+                if self.failure:
+                    break
+                self._record(topic, data, info)
                 written += 1
         return written
+
+    def take_clock(self) -> int:
+        """On sim time: take the ``/clock`` messages DDS has received into the
+        :class:`ReceiptClock`, with their receive instants.
+
+        :return: the number taken (0 on the system clock)
+        """
+        if self._clock_sub is None:
+            return 0
+        count = 0
+        while True:
+            with self._clock_sub.handle:
+                taken = self._clock_sub.handle.take_message(ClockMsg, False)
+            if taken is None:
+                return count
+            msg, info = taken
+            received_ns = info.get('received_timestamp')
+            if received_ns:
+                self._receipt_clock.add(received_ns,
+                                        msg.clock.sec * NS_PER_S + msg.clock.nanosec)
+            count += 1
 
     def _record(self, topic: str, data: bytes, info: dict[str, Any]) -> None:
         stats = self._stats[topic]
         if not self._writer.has_topic(topic):
             self._register(topic)
-        if self._use_sim_time:
-            log_ns = self.get_clock().now().nanoseconds
+        if self._receipt_clock is not None:
+            received_ns = info.get('received_timestamp')
+            sim_ns = self._receipt_clock.sim_ns_at(received_ns) if received_ns else None
+            # Before the first /clock message: what the node's clock says (0).
+            log_ns = sim_ns if sim_ns is not None else self.get_clock().now().nanoseconds
         else:
             # DDS's receive instant on the system clock, i.e. this node's clock,
             # and not delayed by how long the message waited for Python. Fast DDS
@@ -599,6 +656,9 @@ class Recorder(Node):
         for sub in self._subs.values():
             self._reader.destroy_subscription(sub)
         self._subs.clear()
+        if self._clock_sub is not None:
+            self._reader.destroy_subscription(self._clock_sub)
+            self._clock_sub = None
         self._reader.destroy_node()
         try:
             self._writer.close()

@@ -9,6 +9,8 @@ a live recorder.
 
 - :mod:`.bag_writer`: writing a bag; :mod:`.reader`: reading one into NumPy;
 - :mod:`.offline`: an offline simulation as a bag with the live topics;
+- :mod:`.receipt_clock`: the sim time at a DDS receive instant (a live
+  recorder's ``log_time`` on sim time);
 - :mod:`.analysis`: what a recorded run says (protocol start, the force at
   given times against the offline simulation, the plots), shared by the
   demos, the tests and the benchmarks.
