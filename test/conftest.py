@@ -29,6 +29,7 @@ they run in sessions of their own at the weakest autogroup nice
 handed out, the first offline worker to run out of work joins the ROS ones
 (:data:`JOINING_WORKERS`, :func:`_rejoin_the_ros_tests`).
 """
+import ast
 import ctypes
 import fcntl
 import gc
@@ -163,13 +164,33 @@ _COMPILE_THE_NODES = (
     'from hill_muscle_ros.model import engine, fes_kernels, limb_kernels\n'
     'fes_kernels.compiled(); limb_kernels.compiled()\n'
     'print(engine.compile_seconds())')
-#: Test modules that a serial run takes first, while a second process compiles
-#: the nodes' kernels on the other core (:func:`pytest_sessionstart`): they
-#: start no node and load no compiled kernel, and claim no timing (the clean
-#: install, 20-25 s of pip and imports, takes most of the compiling's 30 s).
+#: ROS test modules whose nodes load no compiled kernel: they start only the
+#: recorder, the controllers and the protocol player (of the nodes, only the
+#: simulator and the limb load one, in ``nodes._common.load_engine``), and
+#: none claims a time that needs the machine (none is in :data:`ALONE_MODULES`).
+#: :func:`_check_kernel_free` holds each to the first part.
+KERNEL_FREE_ROS_MODULES = ('test_recorder_node', 'test_controller_node',
+                           'test_node_joint_controller', 'test_faults_bad_protocol',
+                           'test_node_teardown_guard', 'test_recorder_sim_time')
+#: Test modules that a run takes first, while other processes compile the
+#: kernels (:func:`pytest_sessionstart`): they load no compiled kernel. The
+#: offline ones claim no timing either (the clean install, 20-25 s of pip and
+#: imports, takes most of the compiling's 30 s); then the
+#: :data:`KERNEL_FREE_ROS_MODULES`, 60-75 s of ROS tests that waited for the
+#: compiling before (under xdist both ROS workers waited about 40 s).
 FIRST_WHILE_COMPILING = ('test_install_clean', 'test_colcon_build',
                          'test_repository_standalone', 'test_model_curves',
-                         'test_model_memory', 'test_control_pi')
+                         'test_model_memory', 'test_control_pi') + KERNEL_FREE_ROS_MODULES
+#: What a module of :data:`KERNEL_FREE_ROS_MODULES` must not name: the
+#: executables of the nodes that load compiled kernels (setup.py) and their
+#: module names, or a ``demo`` word (``make demo``), as string constants; and,
+#: in its imports, those nodes, the demos (which start them) and the kernel
+#: modules. A static check: a helper that starts such a node unnamed escapes
+#: it, and then that node compiles the kernels itself, 30 s and more, and
+#: fails its start-up wait with its log.
+KERNEL_NODE_NAMES = frozenset({'simulator', 'limb_simulator', 'limb'})
+KERNEL_IMPORT_PARTS = ('nodes.simulator', 'nodes.limb', 'demo', 'kernels', 'engine',
+                       'compiled_muscle')
 #: The compiling processes and when they started, until their seconds are
 #: collected (:func:`_await_the_kernels`, :func:`_stop_compiling`).
 _compiling: list = []
@@ -513,6 +534,43 @@ OFFLINE_MODULES = frozenset({
 #: join the graph: such a module cannot be an offline one.
 ROS_NAMES = frozenset({'rclpy', 'ros_helpers', 'Probe', 'ProcessGroup', 'node_command',
                        'supervisor', 'GraphProbe', 'StallWatcher'})
+
+
+def _kernel_references_in(path: str | Path) -> list[str]:
+    """What the test module at ``path`` names of :data:`KERNEL_NODE_NAMES`
+    (string constants) and :data:`KERNEL_IMPORT_PARTS` (imports), sorted
+    (empty: its nodes load no compiled kernel)."""
+    found = set()
+    for node in ast.walk(ast.parse(Path(path).read_text(encoding='utf-8'))):
+        if isinstance(node, ast.Constant) and isinstance(node.value, str) and (
+                node.value in KERNEL_NODE_NAMES or 'demo' in node.value.split()):
+            found.add(repr(node.value))
+        elif isinstance(node, (ast.Import, ast.ImportFrom)):
+            names = [a.name for a in node.names]
+            if isinstance(node, ast.ImportFrom):
+                names = [f'{node.module or ""}.{n}' for n in names]
+            found.update(f'import of {n}' for n in names
+                         if any(part in n for part in KERNEL_IMPORT_PARTS))
+    return sorted(found)
+
+
+#: The :data:`KERNEL_FREE_ROS_MODULES` checked so far in this process.
+_checked_kernel_free: set[str] = set()
+
+
+def _check_kernel_free(module) -> None:
+    """Fail a module listed in :data:`KERNEL_FREE_ROS_MODULES` that names a
+    node or a module that loads compiled kernels: run while they compile, its
+    node would compile them itself (about 30 s, past its start-up deadline)."""
+    name = module.__name__.rsplit('.', 1)[-1]
+    if name not in KERNEL_FREE_ROS_MODULES or name in _checked_kernel_free:
+        return
+    _checked_kernel_free.add(name)
+    found = _kernel_references_in(module.__file__)
+    if found:
+        pytest.fail(f'{name} is listed in KERNEL_FREE_ROS_MODULES in conftest.py (it runs '
+                    f'while the kernels compile) but names {", ".join(found)}: take it off '
+                    f'that list', pytrace=False)
 
 
 def _ros_names_in(module) -> list[str]:
@@ -891,6 +949,7 @@ def pytest_runtest_setup(item):
     (:func:`_collect_between_modules`), and the wait for the compiled kernels
     (:func:`_await_the_kernels`)."""
     _collect_between_modules(item.module)
+    _check_kernel_free(item.module)
     _await_the_kernels(item)
     if 'PYTEST_XDIST_WORKER' not in os.environ or not hasattr(os, 'SCHED_IDLE'):
         return
