@@ -195,6 +195,10 @@ def run(profile: TargetProfile, out: Path, namespace: str) -> tuple[Path, int]:
             while time.monotonic() < next_tick:
                 probe.spin_once(max(0.0, next_tick - time.monotonic()))
             procs.check_alive()
+        # Gone from the graph before the recorder stops: it then does not wait
+        # for more of them (publishers gone quiet) before closing the bag.
+        for pub in (target_pub, length_pub):
+            probe.retire_publisher(pub, STOP_TIMEOUT_S)
         status = recorder.stop(STOP_TIMEOUT_S)
         if status != 0:
             raise RuntimeError(f'recorder exited with status {status}; see {out}/recorder.log')

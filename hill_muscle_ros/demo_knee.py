@@ -309,7 +309,7 @@ def run(profile: KneeProfile, plant: LimbPlant, out: Path, namespace: str) -> tu
             procs.check_alive()
         # Gone from the graph before the recorder stops: it then does not wait
         # for more of the target (a publisher gone quiet) before closing the bag.
-        probe.node.destroy_publisher(target_pub)
+        probe.retire_publisher(target_pub, STOP_TIMEOUT_S)
         status = recorder.stop(STOP_TIMEOUT_S)
         if status != 0:
             raise RuntimeError(f'recorder exited with status {status}; see {out}/recorder.log')

@@ -469,6 +469,32 @@ class GraphProbe:
         """:func:`wait_until`, spinning the probe between checks."""
         return wait_until(condition, what, timeout_s, watch, self.spin_once)
 
+    def retire_publisher(self, publisher: Any, timeout_s: float) -> None:
+        """Destroy ``publisher`` once its matched subscriptions have acknowledged
+        what it sent, and spin until the graph no longer counts it.
+
+        A recorder stopped while a publisher it records is still in the graph
+        waits up to its drain timeout (3.5 s) for more from that publisher
+        (``nodes.recorder.Recorder.drain``); one that is gone it need not wait
+        for. With the EventsExecutor, destroying a publisher takes effect only
+        at the executor's next spins: it still counted, and the recorder
+        waited, when the stop came right after ``destroy_publisher`` (checked
+        by hand: gone after two spins).
+
+        :param publisher: a publisher of :attr:`node`
+        :param timeout_s: [s] bound on each of the two waits
+        :raises SupervisorError: if a wait times out
+        """
+        from rclpy.duration import Duration
+        topic = publisher.topic_name
+        if not publisher.wait_for_all_acked(Duration(seconds=timeout_s)):
+            raise SupervisorError(f'{topic}: the subscriptions did not acknowledge what '
+                                  f'was published within {timeout_s:g} s')
+        before = self.node.count_publishers(topic)
+        self.node.destroy_publisher(publisher)
+        self.spin_until(lambda: self.node.count_publishers(topic) < before,
+                        f'{topic}: the destroyed publisher gone from the graph', timeout_s)
+
     # -- graph conditions ---------------------------------------------------------
 
     def _endpoint_nodes(self, infos) -> list[str]:

@@ -231,6 +231,12 @@ class Probe(GraphProbe):
             self._publishers[topic] = self.node.create_publisher(msg_type, topic, RELIABLE_QOS)
         return self._publishers[topic]
 
+    def retire(self, topic: str, timeout_s: float = DEFAULT_TIMEOUT_S) -> None:
+        """Retire the publisher on ``topic`` (:meth:`GraphProbe.retire_publisher`):
+        before a recorder stops, so that it does not wait for more from a
+        publisher that has gone quiet."""
+        self.retire_publisher(self._publishers.pop(topic), timeout_s)
+
     def publish_when_matched(self, topic: str, msg: Any, *, subscribers: int = 1,
                              timeout_s: float = DEFAULT_TIMEOUT_S,
                              procs: Iterable[NodeProcess] = ()) -> None:

@@ -114,6 +114,7 @@ def test_simulator_restart_is_survived_and_both_lives_are_recorded(tmp_path):
         probe.spin_until(lambda: 'feedback is back' in ctrl.output(),
                          'the controller to say its feedback is back', procs=[ctrl, player])
         assert 'Traceback' not in ctrl.output() + player.output()
+        probe.retire(f'{ns}/force_target')   # else the recorder waits for more of it
         rec.stop()
         assert rec.returncode == 0, rec.output()
 

@@ -19,7 +19,7 @@ from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import Reader
 from std_msgs.msg import Float64
 
-from hill_muscle_ros.nodes.recorder import subscriptions_node_name
+from hill_muscle_ros.nodes.recorder import DRAIN_TIMEOUT_S, subscriptions_node_name
 from hill_muscle_ros.recording.reader import read_bag
 from hill_muscle_ros.timebase import NS_PER_S
 from ros_helpers import DEFAULT_TIMEOUT_S, ProcessGroup, Probe, node_command
@@ -33,7 +33,8 @@ NS_PER_MS = 1_000_000
 
 #: Publishes message k (k = 0, 1, ...) on every topic at RATE_HZ: Float64 data = k,
 #: WrenchStamped force.x = k stamped k ms. Starts once every topic has a
-#: subscriber, prints progress, and stays alive after the last message.
+#: subscriber, prints progress, and stays alive after the last message; on
+#: SIGINT it leaves the graph (a recorder then need not wait for more from it).
 PUBLISHER = r'''
 import sys, time
 import rclpy
@@ -74,6 +75,9 @@ try:
         time.sleep(1.0)
 except KeyboardInterrupt:
     pass
+# Gone from the graph at once: a recorder stopped next does not wait for more.
+node.destroy_node()
+rclpy.try_shutdown()
 '''
 
 
@@ -127,6 +131,9 @@ def full_run(tmp_path_factory):
         pub = procs.start('publisher', publisher_cmd(n, ns))
         # 'done' comes after every message was acknowledged by the recorder's reader.
         wait_for_output(procs, pub, f'done {n}', timeout_s=60, watch=[rec])
+        # Every message is acknowledged: the publisher goes, so that the
+        # recorder need not wait for more from it (a quiet publisher).
+        assert pub.stop() == 0, pub.output()
         status = stop(rec, signal.SIGINT)
     return bag, n, status, rec.output(), ns
 
@@ -302,6 +309,7 @@ def test_topics_resolve_in_the_namespace_and_unknown_types_are_discovered(tmp_pa
         pub = procs.start('publisher', publisher_cmd(n, ns, topics=(
             f'{ns}/left/force', elsewhere)))
         wait_for_output(procs, pub, f'done {n}', timeout_s=60, watch=[rec])
+        assert pub.stop() == 0, pub.output()   # acknowledged: see full_run
         assert stop(rec, signal.SIGINT) == 0
     assert read_bag(bag).counts() == {f'{ns}/left/force': n, elsewhere: n}
 
@@ -326,8 +334,27 @@ def test_single_message_on_a_typed_topic_is_recorded(tmp_path, ns):
                          "the recorder's subscription matched", procs=[rec])
         pub.publish(Float64(data=42.0))
         assert pub.wait_for_all_acked(Duration(seconds=DEFAULT_TIMEOUT_S))
+        probe.retire(f'{ns}/extra')   # gone: the recorder need not wait for more
         assert stop(rec, signal.SIGINT) == 0, rec.output()
     assert list(read_bag(bag).topic(f'{ns}/extra').values()) == [42.0]
+
+
+def test_a_quiet_publisher_is_waited_for_then_named_as_the_stop_closes_the_bag(tmp_path, ns):
+    """A publisher still in the graph but silent since before the stop may
+    have a lost message that DDS repairs on its next heartbeat: the recorder
+    waits the drain timeout for it, then closes the bag (exit 0) and names the
+    topic and how long before the stop its newest message was sent."""
+    bag = tmp_path / 'bag'
+    with ProcessGroup(tmp_path) as procs, Probe('quiet_publisher_probe') as probe:
+        rec = _recorder_with_topics(procs, bag, ns, ['extra:std_msgs/msg/Float64'])
+        probe.publish_when_matched(f'{ns}/extra', Float64(data=7.0), procs=[rec])
+        assert probe.publisher(f'{ns}/extra', Float64).wait_for_all_acked(
+            Duration(seconds=DEFAULT_TIMEOUT_S))
+        assert stop(rec, signal.SIGINT) == 0, rec.output()
+    line = (f'{ns}/extra: nothing its publisher sent after the stop arrived '
+            f'(waited {DRAIN_TIMEOUT_S:g} s); the newest message recorded was sent ')
+    assert line in rec.output(), rec.output()
+    assert list(read_bag(bag).topic(f'{ns}/extra').values()) == [7.0]
 
 
 def test_best_effort_publisher_on_a_typed_topic_is_reported_by_name(tmp_path, ns):
