@@ -598,16 +598,25 @@ _FREEZER_ROOT = Path('/sys/fs/cgroup/freezer')
 _FREEZE_DEADLINE_S = 10.0
 
 
-#: [s] the modules that took longest in a run under ``-n 4 --dist loadgroup``
-#: (rounded; the idle-priority offline modules wait for CPUs too):
-#: each pool hands them out first. The rest follow in collection order.
+#: [s] the modules that took longest in a fresh clone's run under ``-n 4
+#: --dist loadgroup`` (rounded; an idle-priority offline module waits for the
+#: CPUs too, so its time depends on what runs beside it): each pool hands them
+#: out first, the rest follow in collection order. The sweep (dask worker
+#: processes) took 17 s serially but 77 s when it came last, beside three ROS
+#: workers, and ended that run 5 s after everything else.
 LONG_MODULES = {
-    'test_fit_limb': 95, 'test_install_clean': 70, 'test_batch_compiled': 60,
-    'test_fit': 50, 'test_batch_fes_compiled': 45, 'test_cli': 30, 'test_figures': 20,
-    'test_demo': 20, 'test_recorder_node': 29, 'test_joint_closed_loop': 28,
-    'test_node_diagnostics': 25, 'test_demo_knee': 20, 'test_faults_garbage': 19,
-    'test_node_player': 19, 'test_faults_recorder_stop': 18,
-    'test_controller_closed_loop': 17}
+    'test_sweep': 77, 'test_install_clean': 59, 'test_fit_limb': 33,
+    'test_muscle_compiled': 29, 'test_fit': 26, 'test_model_fes_accuracy': 26,
+    'test_limb_step_compiled': 24, 'test_limb_compiled': 22, 'test_control_pi': 17,
+    'test_model_limb': 15, 'test_batch_compiled': 13, 'test_model_limb_batch': 13,
+    'test_batch_fes_compiled': 12, 'test_model_curves': 12, 'test_recording_offline': 10,
+    'test_node_diagnostics': 45, 'test_controller_closed_loop': 45, 'test_faults_garbage': 36,
+    'test_joint_closed_loop': 35, 'test_demo_knee': 33, 'test_recorder_node': 32,
+    'test_faults_flood': 32, 'test_node_player': 30, 'test_faults_recorder_stop': 28,
+    'test_fit_live': 24, 'test_demo': 22, 'test_recorder_simulation': 21,
+    'test_sim_tool_churn': 18, 'test_faults_controller_kill': 17, 'test_faults_limb': 17,
+    'test_controller_node': 17, 'test_controller_demo': 15, 'test_node_simulator': 14,
+    'test_node_length_stamped': 13, 'test_node_joint_controller': 13, 'test_node_limb': 10}
 
 
 #: The ROS modules with a timing claim that needs the machine: an ``alone``
