@@ -628,7 +628,8 @@ LONG_MODULES = {
 ALONE_MODULES = frozenset({
     'test_sim_tool_churn', 'test_faults_garbage', 'test_fit_live',
     'test_controller_closed_loop', 'test_joint_closed_loop', 'test_faults_limb',
-    'test_faults_controller_kill', 'test_recorder_simulation', 'test_faults_flood'})
+    'test_faults_controller_kill', 'test_recorder_simulation', 'test_faults_flood',
+    'test_demo_sim_time'})
 #: The :data:`ALONE_MODULES` during which the offline workers are frozen too
 #: (:func:`_freeze_offline`): a claim on milliseconds that idle priority does
 #: not protect (the churn test's 20 ms tick gap: its tick thread waited 9-21 ms

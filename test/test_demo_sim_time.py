@@ -30,7 +30,9 @@ from hill_muscle_ros.recording.reader import read_bag
 from hill_muscle_ros.resources import default_params_file, protocol_path
 from hill_muscle_ros.timebase import NS_PER_S
 
-pytestmark = [pytest.mark.ros, pytest.mark.slow]
+# alone: at RTF 10 a tolerance of 0.5 s of sim time is 50 ms of wall time; beside
+# three other ROS modules (xdist) a recorder's batch of 136 messages came 145 ms late.
+pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.alone]
 
 RTF = 10.0
 #: [N] the pass criterion: every end-of-second reading within this of offline.
@@ -38,8 +40,10 @@ FORCE_TOLERANCE_N = 0.5
 #: [s] generous for a shared 2-core box; a healthy run takes ~10 s.
 DEMO_TIMEOUT_S = 180.0
 #: [s] the recorded protocol's span on the recorder's sim clock may differ
-#: from the protocol's duration by the recorder's polling (10 ms of wall time,
-#: 0.1 s of sim time at RTF 10) and the player's tick granularity.
+#: from the protocol's duration by the DDS receive latency (the recorder
+#: stamps the sim time in force when DDS received a message, not when it took
+#: it: ReceiptClock) and the player's tick granularity, at RTF 10 ten times
+#: their wall time.
 SPAN_TOLERANCE_S = 0.5
 #: Added to the run's ROS_DOMAIN_ID for the sim-time demo's processes.
 SIM_TIME_DOMAIN_OFFSET = 100
