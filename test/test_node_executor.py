@@ -3,7 +3,8 @@
 The default is rclpy's C++ EventsExecutor; ``HILL_MUSCLE_EXECUTOR=single``
 falls back to the SingleThreadedExecutor. Under either, a stop signal ends the
 node cleanly: its ``on_exit`` runs (the simulator logs its statistics there)
-and nothing is reported as an error.
+and nothing is reported as an error; the recorder, which spins the same
+executor for its timers, closes its bag with what it received.
 """
 from __future__ import annotations
 
@@ -18,6 +19,7 @@ from std_msgs.msg import Float64
 
 from hill_muscle_ros.nodes._common import (EXECUTOR_ENV, EXECUTORS, StartupError,
                                            StopSignals, make_executor)
+from hill_muscle_ros.recording.reader import read_bag
 from ros_helpers import Probe, ProcessGroup, node_command, ros_env
 
 _RUNS = itertools.count()
@@ -101,3 +103,21 @@ def test_unknown_executor_name_stops_the_node_with_one_line(tmp_path):
         assert sim.wait() == 1
         log = sim.output()
     assert f"{EXECUTOR_ENV}='bogus'" in log and 'Traceback' not in log
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize('executor', sorted(EXECUTORS))
+def test_recorder_records_and_stops_cleanly_under_either_executor(tmp_path, executor):
+    ns = f'/exec_rec_{os.getpid()}_{next(_RUNS)}'
+    bag = tmp_path / 'bag'
+    with ProcessGroup(tmp_path) as procs, Probe('exec_rec_probe') as probe:
+        rec = procs.start('recorder', node_command(
+            'recorder', ns=ns, params={'output': str(bag), 'topics': ['force']}),
+            env=ros_env(**{EXECUTOR_ENV: executor}))
+        probe.publish_when_matched(f'{ns}/force', Float64(data=3.0), procs=[rec])
+        probe.retire(f'{ns}/force')   # acknowledged, and gone: nothing more to wait for
+        rec.popen.send_signal(signal.SIGINT)
+        assert rec.wait() == 0
+        log = rec.output()
+    assert list(read_bag(bag).topic(f'{ns}/force').values()) == [3.0], log
+    assert 'FATAL' not in log and 'Traceback' not in log

@@ -54,7 +54,7 @@ from typing import Any
 
 import rclpy
 from rcl_interfaces.msg import ParameterDescriptor, ParameterType
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSCompatibility, QoSProfile,
                        ReliabilityPolicy, qos_check_compatible)
@@ -65,7 +65,7 @@ from ..recording.receipt_clock import ReceiptClock
 from ..timebase import NS_PER_S
 from ._common import (DIAGNOSTICS_TOPIC, EXIT_FAILURE, EXIT_SUCCESS, DiagnosticReport,
                       NodeDiagnostics, StartupError, TeardownGuard, check_qos_overrides,
-                      init_ros,
+                      init_ros, make_executor,
                       overridable_subscription, parameter_overrides, qos_overrides_of,
                       process_entry)
 
@@ -686,8 +686,8 @@ def main(args: list[str] | None = None) -> int:
     if not started:
         return EXIT_FAILURE
     node = None
+    executor = None
     status = EXIT_SUCCESS
-    executor = SingleThreadedExecutor()
 
     def request_stop(signum: int, _frame: Any) -> None:
         if node is not None:
@@ -697,6 +697,11 @@ def main(args: list[str] | None = None) -> int:
 
     previous = {s: signal.signal(s, request_stop) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
+        # The nodes' executor (EventsExecutor by default): the recorder wakes
+        # about 180 times a second on its timers even with nothing to record,
+        # and each wake of the SingleThreadedExecutor rebuilds its wait set in
+        # Python (idle: 0.08-0.09 CPU-s a second with it, 0.04 with events).
+        executor = make_executor()
         node = Recorder()
         if transport_note is not None:
             node.get_logger().info(transport_note)
@@ -714,10 +719,11 @@ def main(args: list[str] | None = None) -> int:
             status = node.close()
         # The bag is closed: a hung middleware teardown must not keep the process.
         guard = TeardownGuard(status)
+        if executor is not None:
+            # Before the node goes: the EventsExecutor holds callbacks on its entities.
+            executor.shutdown()
         if node is not None:
-            executor.remove_node(node)
             node.destroy_node()
-        executor.shutdown()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
         rclpy.try_shutdown()
