@@ -163,6 +163,7 @@ class Probe(GraphProbe):
         super().__init__(name, executor=executor)
         self._recordings: dict[str, Recording] = {}
         self._publishers: dict[str, Any] = {}
+        self._parameter_clients: dict[str, AsyncParameterClient] = {}
 
     # -- waiting ----------------------------------------------------------------
 
@@ -262,6 +263,26 @@ class Probe(GraphProbe):
         finally:
             self.node.destroy_client(client)
 
+    def _parameter_client(self, node_name: str, timeout_s: float,
+                          procs: Iterable[NodeProcess]) -> AsyncParameterClient:
+        """One parameter client per remote node, kept for the probe's life, once
+        its services are ready.
+
+        A new client per call raced each time: ready means that this side has
+        matched the services, not that the service's response writer has
+        matched this client's reader yet. rmw_fastrtps waits 100 ms for that
+        match before it sends a response and drops the response after
+        (ros2/rmw_fastrtps#390 and #467): a get_parameters waited 30 s for
+        one beside three other ROS test modules. A client kept after its
+        first answer has that behind it for each service it has called."""
+        client = self._parameter_clients.get(node_name)
+        if client is None:
+            client = self._parameter_clients[node_name] = AsyncParameterClient(
+                self.node, node_name)
+        self.spin_until(lambda: client.services_are_ready(), f'parameter services of {node_name}',
+                        timeout_s, procs)
+        return client
+
     def set_parameters(self, node_name: str, parameters: dict[str, Any], *,
                        timeout_s: float = DEFAULT_TIMEOUT_S,
                        procs: Iterable[NodeProcess] = ()) -> list[Any]:
@@ -270,9 +291,7 @@ class Probe(GraphProbe):
         :param node_name: fully qualified node name, e.g. ``/left/simulator``
         :return: one ``SetParametersResult`` per parameter (``successful``, ``reason``)
         """
-        client = AsyncParameterClient(self.node, node_name)
-        self.spin_until(lambda: client.services_are_ready(), f'parameter services of {node_name}',
-                        timeout_s, procs)
+        client = self._parameter_client(node_name, timeout_s, procs)
         future = client.set_parameters([Parameter(n, value=v) for n, v in parameters.items()])
         self.spin_until(future.done, f'set_parameters on {node_name}', timeout_s, procs)
         return list(future.result().results)
@@ -281,9 +300,7 @@ class Probe(GraphProbe):
                        timeout_s: float = DEFAULT_TIMEOUT_S,
                        procs: Iterable[NodeProcess] = ()) -> dict[str, Any]:
         """Read parameters of a remote node; return name to Python value."""
-        client = AsyncParameterClient(self.node, node_name)
-        self.spin_until(lambda: client.services_are_ready(), f'parameter services of {node_name}',
-                        timeout_s, procs)
+        client = self._parameter_client(node_name, timeout_s, procs)
         future = client.get_parameters(names)
         self.spin_until(future.done, f'get_parameters on {node_name}', timeout_s, procs)
         return {n: parameter_value_to_python(v)
