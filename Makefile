@@ -27,10 +27,10 @@ bytecode: $(STAMP)
 	$(BIN)/python -m compileall -q hill_muscle_ros
 
 # Serially: every DDS test has the machine to itself. `make test-workers` runs
-# four pytest workers on two pools (test/conftest.py): faster, but a test
-# still failed in one of its runs, and it needs a writable cgroup tree to
-# freeze the offline workers for the millisecond claims, so it is not the
-# test command.
+# four pytest workers on two pools (test/conftest.py): faster, but tests
+# still failed in some of its runs under the load of several ROS modules at
+# once, and it needs a writable cgroup tree to freeze the offline workers for
+# the millisecond claims, so it is not the test command.
 test: $(STAMP) bytecode
 	$(BIN)/python -m pytest -q --durations=15
 
