@@ -129,7 +129,10 @@ CLOCK_TOPIC = '/clock'
 #: QoS of the recorder's own ``/clock`` subscription on sim time (the
 #: :class:`ReceiptClock`): best effort, so that it matches a best-effort
 #: ``/clock`` publisher (rclcpp's ``ClockQoS``) as well as a reliable one, and
-#: deep enough to hold every tick between two takes.
+#: deep enough to hold every tick between two takes. Like rclpy's own
+#: time-source subscription to ``/clock``, it takes no QoS override: best
+#: effort already matches every publisher, and an override of the recorded
+#: ``/clock`` (``qos_overrides./clock.subscription...``) stays the user's.
 CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=QUEUE_DEPTH,
                        reliability=ReliabilityPolicy.BEST_EFFORT)
 #: [s] executor wake-up period (checks the stop flag).
