@@ -445,7 +445,6 @@ class Recorder(Node):
         """
         written = 0
         pending = []   # on sim time: recorded once /clock has been taken up to them
-        self.take_clock()
         for topic, sub in list(self._subs.items()):
             while not self.failure:
                 # rclpy 7.1.6 has no public take on a Subscription; this is the
@@ -459,15 +458,15 @@ class Recorder(Node):
                     written += 1
                 else:
                     pending.append((topic, *taken))
-        if pending:
-            # Every /clock message received before the last one taken above is
-            # taken now, so each gets the sim time in force when it arrived.
-            self.take_clock()
-            for topic, data, info in pending:
-                if self.failure:
-                    break
-                self._record(topic, data, info)
-                written += 1
+        # After the data: every /clock message received before the last one
+        # taken above is taken now, so each gets the sim time in force when it
+        # arrived (and with no data, the /clock queue is still kept short).
+        self.take_clock()
+        for topic, data, info in pending:
+            if self.failure:
+                break
+            self._record(topic, data, info)
+            written += 1
         return written
 
     def take_clock(self) -> int:
