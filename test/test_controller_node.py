@@ -75,6 +75,12 @@ def test_without_force_feedback_the_controller_publishes_zero(tmp_path):
 
 #: [s] how long a publisher may wait for its subscribers' acknowledgements.
 ACK_TIMEOUT_S = 30.0
+#: [s] ``feedback_timeout_s`` of the wind-up test: the probe's 5 ms feedback
+#: timer runs only while the test process gets a CPU, and a workers run's
+#: first minute (four workers collecting, two compiling processes) stalled it
+#: past the default 0.5 s, so the controller rightly held zero. That test is
+#: about the target, not the timeout (which has tests of its own below).
+WIND_UP_FEEDBACK_TIMEOUT_S = 30.0
 #: Controller periods of force feedback heard before the target arrives: at
 #: 100 Hz, 0.5 s, far more than the reference model's 60 ms time constant,
 #: so a controller that acted on a made-up 0 N target would have wound up.
@@ -93,7 +99,9 @@ def test_force_heard_before_the_target_neither_stimulates_nor_winds_up(tmp_path)
     expected_pw = ForceController(ControllerParams(), MuscleParams()).feedforward(
         TARGET_N, TARGET_N)
     with ProcessGroup(tmp_path) as procs, Probe('ctrl_probe') as probe:
-        proc = procs.start('controller', node_command('force_controller', ns=ns))
+        proc = procs.start('controller', node_command(
+            'force_controller', ns=ns,
+            params={'feedback_timeout_s': WIND_UP_FEEDBACK_TIMEOUT_S}))
         pw = probe.record(f'{ns}/pulse_width', Float64)
         force_pub = probe.publisher(f'{ns}/force', Float64)
         target_pub = probe.publisher(f'{ns}/force_target', Float64)
