@@ -339,6 +339,44 @@ def test_single_message_on_a_typed_topic_is_recorded(tmp_path, ns):
     assert list(read_bag(bag).topic(f'{ns}/extra').values()) == [42.0]
 
 
+#: The recorder's console script, but a SIGINT comes at the end of its node's
+#: construction (its subscriptions made, its bag open), once the file named by
+#: argv[1] exists: a Ctrl-C that lands while the recorder starts. The rest of
+#: argv is the recorder's ``--ros-args``.
+SIGNALLED_WHILE_STARTING = r'''
+import signal, sys, time
+from pathlib import Path
+from hill_muscle_ros.nodes import recorder
+go = Path(sys.argv[1])
+class Recorder(recorder.Recorder):
+    def __init__(self):
+        super().__init__()
+        while not go.exists():   # polled: the test makes it once its message is acknowledged
+            time.sleep(0.01)
+        signal.raise_signal(signal.SIGINT)
+recorder.Recorder = Recorder
+sys.argv = [sys.argv[0], *sys.argv[2:]]
+recorder.process_main()
+'''
+
+
+def test_a_stop_signal_while_the_recorder_starts_still_writes_what_it_received(tmp_path, ns):
+    """A message that DDS delivered to a recorder still inside its start-up is
+    in the bag, and the bag is closed, when Ctrl-C comes before the start-up
+    ends (a fresh clone's run: exit 0 and a bag of only its header)."""
+    bag, go = tmp_path / 'bag', tmp_path / 'go'
+    ros_args = node_command('recorder', ns=ns, params={'output': str(bag),
+                                                        'topics': ['force']})[1:]
+    with ProcessGroup(tmp_path) as procs, Probe('start_signal_probe') as probe:
+        rec = procs.start('recorder', [sys.executable, '-c', SIGNALLED_WHILE_STARTING,
+                                       str(go), *ros_args])
+        probe.publish_when_matched(f'{ns}/force', Float64(data=3.0), procs=[rec])
+        probe.retire(f'{ns}/force')   # acknowledged by the recorder's reader, and gone
+        go.touch()
+        assert rec.wait() == 0, rec.output()
+    assert list(read_bag(bag).topic(f'{ns}/force').values()) == [3.0], rec.output()
+
+
 def test_a_quiet_publisher_is_waited_for_then_named_as_the_stop_closes_the_bag(tmp_path, ns):
     """A publisher still in the graph but silent since before the stop may
     have a lost message that DDS repairs on its next heartbeat: the recorder

@@ -568,12 +568,15 @@ class Recorder(Node):
 
     # -- stopping -----------------------------------------------------------------
 
-    def request_stop(self) -> None:
-        """Stop recording (a stop signal); a second request cuts :meth:`drain` short."""
+    def request_stop(self, stop_ns: int | None = None) -> None:
+        """Stop recording (a stop signal); a second request cuts :meth:`drain` short.
+
+        :param stop_ns: [ns] system time of the stop signal; ``None``: now
+        """
         if self.stop_requested:
             self._drain_cut_short = True
             return
-        self.stop_time_ns = time.time_ns()
+        self.stop_time_ns = time.time_ns() if stop_ns is None else stop_ns
         self.stop_requested = True
 
     def behind_the_stop(self, stop_ns: int) -> list[str]:
@@ -684,20 +687,28 @@ def main(args: list[str] | None = None) -> int:
     what DDS has delivered but the node has not yet written. This node takes
     SIGINT and SIGTERM itself, stops, drains, and closes the bag.
     """
-    started, transport_note = init_ros(args, NODE_NAME)
-    if not started:
-        return EXIT_FAILURE
     node = None
     executor = None
     status = EXIT_SUCCESS
+    #: [ns] system times of the stop signals that came before the node existed
+    early_stops: list[int] = []
 
     def request_stop(signum: int, _frame: Any) -> None:
         if node is not None:
             node.request_stop()
         else:
-            raise KeyboardInterrupt
+            # Not raised: a signal that lands inside the constructor, once the
+            # bag is open and DDS may have acknowledged messages to the new
+            # subscriptions, would leave the bag unclosed and those messages
+            # unwritten (a fresh clone's run: exit 0, a bag of only its header).
+            early_stops.append(time.time_ns())
 
     previous = {s: signal.signal(s, request_stop) for s in (signal.SIGINT, signal.SIGTERM)}
+    started, transport_note = init_ros(args, NODE_NAME)
+    if not started:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        return EXIT_FAILURE
     try:
         # The nodes' executor (EventsExecutor by default): the recorder wakes
         # about 180 times a second on its timers even with nothing to record,
@@ -705,6 +716,8 @@ def main(args: list[str] | None = None) -> int:
         # Python (idle: 0.08-0.09 CPU-s a second with it, 0.04 with events).
         executor = make_executor()
         node = Recorder()
+        for stop_ns in early_stops:
+            node.request_stop(stop_ns)
         if transport_note is not None:
             node.get_logger().info(transport_note)
         executor.add_node(node)
