@@ -199,6 +199,13 @@ def test_simulator_ignores_garbage_on_every_input_and_keeps_the_last_good_value(
     assert final == pytest.approx(expected, abs=STEADY_TOL_N)
 
 
+#: [s] the controller's ``feedback_timeout_s`` in its garbage test: the
+#: probe's 20 ms force timer runs only while the test process gets a CPU, and a
+#: stall past the default 0.5 s would rightly make the controller hold zero.
+#: This test is about garbage, not the timeout (test_controller_node has those).
+CONTROLLER_FEEDBACK_TIMEOUT_S = 30.0
+
+
 def test_controller_ignores_garbage_on_every_input_and_keeps_the_last_good_value(tmp_path):
     ns = f'/garbage_ctrl_{os.getpid()}_{next(_RUNS)}'
     target_n = 10.0
@@ -206,7 +213,9 @@ def test_controller_ignores_garbage_on_every_input_and_keeps_the_last_good_value
     expected_pw = ForceController(ControllerParams(), MuscleParams()).feedforward(
         target_n, target_n, STRETCH_M, 0.0)
     with ProcessGroup(tmp_path) as procs, Probe('garbage_ctrl_probe') as probe:
-        ctrl = procs.start('controller', node_command('force_controller', ns=ns))
+        ctrl = procs.start('controller', node_command(
+            'force_controller', ns=ns,
+            params={'feedback_timeout_s': CONTROLLER_FEEDBACK_TIMEOUT_S}))
         pw = probe.record(f'{ns}/pulse_width', Float64)
         pubs = {t: probe.publisher(f'{ns}/{t}', Float64)
                 for t in ('force_target', 'force', 'length_command')}
