@@ -162,9 +162,13 @@ def test_a_stale_target_stops_stimulation_when_target_timeout_is_set(tmp_path):
         assert off > on
 
 
-#: [s] a plant stall shorter than the feedback timeout (0.5 s), as long as the
+#: [s] a plant stall shorter than the feedback timeout, as long as the
 #: simulator stalls that a loop must ride through.
 PLANT_STALL_S = 0.3
+#: [s] the controller's feedback timeout in the plant-stall test: the
+#: probe's silence is PLANT_STALL_S plus however long the test process then
+#: waits for a CPU, so the default 0.5 s left a margin of only 0.2 s for that.
+STALL_TEST_FEEDBACK_TIMEOUT_S = 2.0
 #: [s] read on after the zero of a stopped controller, for anything it sent later
 AFTER_EXIT_S = 0.5
 #: Pulse widths at the end of the stall that must all be the held one: the
@@ -176,7 +180,9 @@ def test_a_plant_stall_shorter_than_the_feedback_timeout_holds_the_pulse_width(t
     """No dropout and no integration on an old error while the force is briefly late."""
     ns = unique_namespace()
     with ProcessGroup(tmp_path) as procs, Probe('ctrl_probe') as probe:
-        proc = procs.start('controller', node_command('force_controller', ns=ns))
+        proc = procs.start('controller', node_command(
+            'force_controller', ns=ns,
+            params={'feedback_timeout_s': STALL_TEST_FEEDBACK_TIMEOUT_S}))
         pw = probe.record(f'{ns}/pulse_width', Float64)
         force_pub = probe.publisher(f'{ns}/force', Float64)
         probe.spin_until(lambda: force_pub.get_subscription_count() > 0,
