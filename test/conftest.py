@@ -660,6 +660,14 @@ def is_offline_module(name: str) -> bool:
 JOINING_WORKERS = 1
 
 
+def joining_workers(n_workers: int) -> int:
+    """How many offline workers of ``n_workers`` may join the ROS pool:
+    :data:`JOINING_WORKERS`, but none where one worker runs the ROS tests
+    (``-n 2``): there they run one module at a time, as in a serial run, and a
+    joining worker would run a second beside it."""
+    return JOINING_WORKERS if ros_workers(n_workers) > 1 else 0
+
+
 def ros_workers(n_workers: int) -> int:
     """How many of ``n_workers`` xdist workers run the ROS tests: half (at
     least one); the rest run the offline ones."""
@@ -707,7 +715,7 @@ def pytest_xdist_make_scheduler(config, log):
             pool = self._pool_of_node(node)
             scopes = [s for s in self.workqueue if pool_of_scope(s) == pool]
             if (not scopes and pool == OFFLINE_GROUP
-                    and len(self._joined) < JOINING_WORKERS):
+                    and len(self._joined) < joining_workers(self.numnodes)):
                 # Its pool ran dry while the ROS pool has work left: it joins
                 # that (as an ordinary ROS worker: pytest_runtest_setup).
                 scopes = [s for s in self.workqueue if pool_of_scope(s) == SERIAL_GROUP]
