@@ -502,6 +502,8 @@ def pytest_terminal_summary(terminalreporter):
     them. Under xdist: this process and each worker, and their sum. And the
     garbage collector's long pauses here (:class:`GcPauses`), and the runs repeated
     on a measured stall (:func:`pytest_warning_recorded`)."""
+    for why in _auto_decision:
+        terminalreporter.write_line(f'-n auto: {why}')
     terminalreporter.write_line(_gc_pauses.summary())
     terminalreporter.write_line(
         f'runs repeated on a measured external stall: {len(_repeats)}'
@@ -666,6 +668,85 @@ def joining_workers(n_workers: int) -> int:
     (``-n 2``): there they run one module at a time, as in a serial run, and a
     joining worker would run a second beside it."""
     return JOINING_WORKERS if ros_workers(n_workers) > 1 else 0
+
+
+#: ``-n auto`` (the test command): this many workers where the offline ones
+#: can be kept out of the ROS tests' way (:func:`auto_workers`): one runs the
+#: ROS modules one at a time, as a serial run does, the other the offline
+#: modules at idle CPU priority, frozen during :data:`FROZEN_MODULES`.
+AUTO_WORKERS = 2
+#: Environment variable that sets the ``-n auto`` worker count (0: serial).
+WORKERS_ENV = 'HILL_MUSCLE_TEST_WORKERS'
+
+
+def _offline_workers_can_be_isolated() -> str | None:
+    """``None`` if this machine lets the offline workers run in an idle CPU
+    cgroup that can be frozen (:func:`_join_idle_cgroup`, :func:`_freeze_offline`),
+    else why not. Tried by making both groups, then removing them."""
+    made = []
+    try:
+        cpu_roots = _cpu_cgroup_roots()
+        if not cpu_roots:
+            return 'no CPU cgroup tree'
+        cpu_group = cpu_roots[0] / _IDLE_CGROUP
+        cpu_group.mkdir(exist_ok=True)
+        made.append(cpu_group)
+        if not (cpu_group / 'cpu.idle').is_file():
+            return f'no cpu.idle in {cpu_roots[0]} (Linux 5.15 on)'
+        if (_FREEZER_ROOT / 'cgroup.procs').is_file():
+            freezer_group = _FREEZER_ROOT / _IDLE_CGROUP
+            freezer_group.mkdir(exist_ok=True)
+            made.append(freezer_group)
+        elif not (cpu_group / 'cgroup.freeze').is_file():
+            return 'no cgroup freezer'
+        return None
+    except OSError as err:
+        return f'cgroup tree not writable ({err})'
+    finally:
+        for group in reversed(made):
+            try:
+                group.rmdir()
+            except OSError:
+                pass   # another run's offline workers are in it
+
+
+def auto_workers() -> tuple[int, str]:
+    """How many xdist workers ``-n auto`` starts, and why (0: serial).
+
+    :data:`AUTO_WORKERS` on a machine of two CPUs or more whose cgroup tree
+    lets the offline workers be isolated; else serial, since the churn
+    test's 20 ms claim failed beside busy neighbours that were not frozen.
+    :data:`WORKERS_ENV` overrides it.
+    """
+    override = os.environ.get(WORKERS_ENV)
+    if override is not None:
+        try:
+            n = int(override)
+        except ValueError:
+            raise pytest.UsageError(f'`{WORKERS_ENV}` must be a whole number of workers '
+                                    f'(0: serial), got {override!r}') from None
+        if n < 0:
+            raise pytest.UsageError(f'`{WORKERS_ENV}` must be 0 or more, got {n}')
+        return n, f'{WORKERS_ENV}={n}'
+    cpus = len(os.sched_getaffinity(0))
+    if cpus < 2:
+        return 0, f'serial: {cpus} CPU'
+    why_not = _offline_workers_can_be_isolated()
+    if why_not is not None:
+        return 0, f'serial: the offline tests cannot be kept out of the ROS tests\' way: {why_not}'
+    return AUTO_WORKERS, (f'{AUTO_WORKERS} workers: the ROS tests one module at a time, the '
+                          'offline tests beside them at idle priority')
+
+
+#: What :func:`pytest_xdist_auto_num_workers` decided, for the terminal summary.
+_auto_decision: list[str] = []
+
+
+def pytest_xdist_auto_num_workers(config):
+    """``-n auto``: :func:`auto_workers`."""
+    n, why = auto_workers()
+    _auto_decision.append(why)
+    return n
 
 
 def ros_workers(n_workers: int) -> int:
