@@ -804,10 +804,18 @@ def pytest_xdist_make_scheduler(config, log):
                     self._joined.append(node)
             # The modules that need no compiled kernel first, while they
             # compile (_await_the_kernels); then those that run alone; then the
-            # longest, so that a pool's workers end together.
-            return min(scopes, key=lambda s: (Path(s).stem not in FIRST_WHILE_COMPILING,
-                                              Path(s).stem not in ALONE_MODULES,
-                                              -LONG_MODULES.get(Path(s).stem, 0)), default=None)
+            # longest, so that a pool's workers end together. With one ROS
+            # worker (-n 2) those that run alone come last instead: the
+            # offline worker ends well before it (a fresh clone's run: ROS
+            # modules 357 s, offline 249 s at idle priority), so they mostly run
+            # on a machine as quiet as a serial run's, not beside the compiling
+            # processes and a frozen neighbour (the churn test repeated a run
+            # on a 17.8 ms stall there once).
+            alone_last = ros_workers(self.numnodes) == 1
+            return min(scopes, key=lambda s: (
+                Path(s).stem not in FIRST_WHILE_COMPILING,
+                (Path(s).stem in ALONE_MODULES) == alone_last,
+                -LONG_MODULES.get(Path(s).stem, 0)), default=None)
 
         def _assign_work_unit(self, node) -> None:
             scope = self._next_scope(node)
