@@ -366,7 +366,7 @@ def test_ctrl_c_stops_the_sweep_and_keeps_the_finished_sets(tmp_path):
         stop_group(proc)
     wait_for(lambda: group_gone(proc.pid), 'the workers to exit')
     assert proc.returncode == 130, err.decode()
-    assert 'Traceback' not in err.decode()
+    assert 'Traceback' not in err.decode(), err.decode()
     table = pq.read_table(out)
     assert table.schema.metadata[b'hill_muscle_ros.complete'] == b'false'
     ids = sorted(set(table.column('set_id').to_pylist()))
