@@ -670,10 +670,11 @@ def joining_workers(n_workers: int) -> int:
     return JOINING_WORKERS if ros_workers(n_workers) > 1 else 0
 
 
-#: ``-n auto`` (the test command): this many workers where the offline ones
-#: can be kept out of the ROS tests' way (:func:`auto_workers`): one runs the
-#: ROS modules one at a time, as a serial run does, the other the offline
-#: modules at idle CPU priority, frozen during :data:`FROZEN_MODULES`.
+#: ``pytest -n auto --dist loadgroup`` (not the test command): this many
+#: workers where the offline ones can be kept out of the ROS tests' way
+#: (:func:`auto_workers`): one runs the ROS modules one at a time, as a serial
+#: run does, the other the offline modules at idle CPU priority, frozen during
+#: :data:`FROZEN_MODULES`.
 AUTO_WORKERS = 2
 #: Environment variable that sets the ``-n auto`` worker count (0: serial).
 WORKERS_ENV = 'HILL_MUSCLE_TEST_WORKERS'
