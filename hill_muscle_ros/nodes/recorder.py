@@ -704,10 +704,14 @@ def main(args: list[str] | None = None) -> int:
             early_stops.append(time.time_ns())
 
     previous = {s: signal.signal(s, request_stop) for s in (signal.SIGINT, signal.SIGTERM)}
-    started, transport_note = init_ros(args, NODE_NAME)
-    if not started:
+
+    def restore_handlers() -> None:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+
+    started, transport_note = init_ros(args, NODE_NAME)
+    if not started:
+        restore_handlers()
         return EXIT_FAILURE
     try:
         # The nodes' executor (EventsExecutor by default): the recorder wakes
@@ -739,8 +743,7 @@ def main(args: list[str] | None = None) -> int:
             executor.shutdown()
         if node is not None:
             node.destroy_node()
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+        restore_handlers()
         rclpy.try_shutdown()
         guard.stop()
     return status
