@@ -278,6 +278,15 @@ def stop_group(proc: subprocess.Popen) -> None:
             proc.wait()
 
 
+def as_from_a_terminal() -> None:
+    """In the child before exec: SIGINT at its default, as a terminal's shell
+    starts a foreground command. A pytest started in the background by a
+    shell without job control inherits SIGINT ignored, its children too, and
+    Python leaves an inherited ignored SIGINT ignored: the sweep then ran all
+    its sets through the Ctrl-C and exited 0 (a fresh clone's serial run)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def group_gone(pgid: int) -> bool:
     try:
         os.killpg(pgid, 0)
@@ -345,7 +354,8 @@ def test_ctrl_c_stops_the_sweep_and_keeps_the_finished_sets(tmp_path):
     proc = subprocess.Popen(
         [str(VENV_BIN / 'hill-muscle'), 'sweep', str(write_spec(tmp_path, doc)),
          '--out', str(out), '--workers', '2', '--chunk', '1'],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True,
+        preexec_fn=as_from_a_terminal)
     try:
         os.set_blocking(proc.stderr.fileno(), False)
         progress = bytearray()
