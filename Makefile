@@ -6,7 +6,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: test test-workers demo figures clean venv bytecode
+.PHONY: test test-workers demo figures clean venv bytecode kernels
 
 venv: $(STAMP)
 
@@ -26,6 +26,12 @@ $(STAMP): setup.py setup.cfg package.xml requirements-dev.txt requirements-ros.t
 bytecode: $(STAMP)
 	$(BIN)/python -m compileall -q hill_muscle_ros
 
+# The model's numba kernels, compiled into numba's disk cache as the bytecode
+# is (`hill-muscle compile`): about 25 s in a clean clone, two processes at
+# once; under a second once cached. No node or test compiles after it.
+kernels: $(STAMP) bytecode
+	$(BIN)/hill-muscle compile
+
 # Serially: every DDS test has the machine to itself. `make test-workers` runs
 # four pytest workers on two pools (test/conftest.py): faster, but tests
 # still failed in some of its runs under the load of several ROS modules at
@@ -34,10 +40,10 @@ bytecode: $(STAMP)
 # --dist loadgroup` (two workers where the cgroup tree allows, the ROS modules
 # one at a time) is not either: in one of its five fresh-clone runs a test
 # failed, and in two a run was repeated on a measured stall.
-test: $(STAMP) bytecode
+test: $(STAMP) bytecode kernels
 	$(BIN)/python -m pytest -q --durations=15
 
-test-workers: $(STAMP) bytecode
+test-workers: $(STAMP) bytecode kernels
 	$(BIN)/python -m pytest -q -n 4 --dist loadgroup --durations=15
 
 # The live demo: simulator, protocol player and recorder as three ROS 2

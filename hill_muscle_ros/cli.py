@@ -15,7 +15,9 @@ from __future__ import annotations
 import argparse
 import importlib
 import math
+import os
 import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Sequence
@@ -214,6 +216,14 @@ def build_parser() -> argparse.ArgumentParser:
     fig.add_argument('--rate', type=_positive_rate, default=None, metavar='HZ',
                      help='step rate of the simulations behind the figures '
                           '(default: 1000 Hz, the figures of this README)')
+    sub.add_parser(
+        'compile', help='compile every numba kernel into its disk cache ahead of use',
+        description='Compile the model\'s numba kernels (the FES muscle, the limb, the '
+                    'batches, the paper\'s muscle) into numba\'s disk cache, or load those '
+                    'already there, so that no node and no run compiles later: the limb '
+                    'node\'s first start in a clean install otherwise takes about 30 s. '
+                    'Run it after installing or editing the model; `make test` runs it '
+                    'before the tests.')
     limb_cli.add_animate_parser(sub)
     from . import sweep
     sweep.add_parser(sub)
@@ -396,13 +406,35 @@ def cmd_fit(args: argparse.Namespace) -> int:
     return fit(args)
 
 
+def cmd_compile(_args: argparse.Namespace) -> int:
+    """``hill-muscle compile``: each group of kernel sets in a process of its own
+    (:data:`.model.precompile.KERNEL_GROUPS`), one line per set."""
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    from .model import engine, precompile
+    if not engine.numba_available():
+        raise UserError('numba is not installed, so nothing is compiled: the model runs '
+                        'its Python loops (pip install numba for the compiled engine)')
+    groups = precompile.KERNEL_GROUPS
+    start = time.perf_counter()
+    with ProcessPoolExecutor(max_workers=min(len(groups), os.cpu_count() or 1)) as pool:
+        for done in as_completed([pool.submit(precompile.compile_kernel_group, group)
+                                  for group in groups]):
+            for name, wall_s, compiling_s in done.result():
+                how = (f'compiled in {compiling_s:.1f} s' if compiling_s > 0.0
+                       else 'loaded from the cache')
+                print(f'{name}: {how} ({wall_s:.1f} s)', flush=True)
+    print(f'every kernel in numba\'s cache ({time.perf_counter() - start:.1f} s)')
+    return 0
+
+
 def cmd_sweep(args: argparse.Namespace) -> int:
     from .sweep import cmd_sweep as sweep   # Dask and pyarrow load only here
     return sweep(args)
 
 
 _COMMANDS = {'simulate': cmd_simulate, 'figures': cmd_figures, 'animate': cmd_animate,
-             'sweep': cmd_sweep, 'fit': cmd_fit}
+             'sweep': cmd_sweep, 'fit': cmd_fit, 'compile': cmd_compile}
 
 
 def _error(message: str) -> int:

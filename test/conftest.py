@@ -537,7 +537,7 @@ OFFLINE_MODULES = frozenset({
     'test_gym', 'test_fit', 'test_fit_limb', 'test_recording_joint_state',
     'test_batch_compiled', 'test_sweep', 'test_muscle_compiled', 'test_batch_fes_compiled',
     'test_simulate_fes_compiled', 'test_compiled_muscle', 'test_cli_bounded_number',
-    'test_recording_receipt_clock', 'test_auto_workers'})
+    'test_recording_receipt_clock', 'test_auto_workers', 'test_precompile'})
 #: Names whose presence in a module's namespace means it may start nodes or
 #: join the graph: such a module cannot be an offline one.
 ROS_NAMES = frozenset({'rclpy', 'ros_helpers', 'Probe', 'ProcessGroup', 'node_command',
