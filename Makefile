@@ -6,7 +6,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: test test-workers demo figures clean venv bytecode kernels
+.PHONY: test test-serial demo figures clean venv bytecode kernels
 
 venv: $(STAMP)
 
@@ -32,19 +32,18 @@ bytecode: $(STAMP)
 kernels: $(STAMP) bytecode
 	$(BIN)/hill-muscle compile
 
-# Serially: every DDS test has the machine to itself. `make test-workers` runs
-# four pytest workers on two pools (test/conftest.py): faster, but tests
-# still failed in some of its runs under the load of several ROS modules at
-# once, and it needs a writable cgroup tree to freeze the offline workers for
-# the millisecond claims, so it is not the test command. `pytest -n auto
-# --dist loadgroup` (two workers where the cgroup tree allows, the ROS modules
-# one at a time) is not either: in one of its five fresh-clone runs a test
-# failed, and in two a run was repeated on a measured stall.
+# Four pytest workers in two pools where test/conftest.py can keep the offline
+# tests out of the ROS tests' way (a CPU cgroup marked idle, and the cgroup
+# freezer for the two modules whose claim is on milliseconds): two run the
+# modules that start ROS processes, two at a time (one at a time for those
+# with a timing claim that needs the machine), two the offline modules at idle
+# CPU priority. Elsewhere it runs serially, and says so at the end.
+# `make test-serial` runs every test one after the other.
 test: $(STAMP) bytecode kernels
-	$(BIN)/python -m pytest -q --durations=15
+	$(BIN)/python -m pytest -q -n auto --dist loadgroup --durations=15
 
-test-workers: $(STAMP) bytecode kernels
-	$(BIN)/python -m pytest -q -n 4 --dist loadgroup --durations=15
+test-serial: $(STAMP) bytecode kernels
+	$(BIN)/python -m pytest -q --durations=15
 
 # The live demo: simulator, protocol player and recorder as three ROS 2
 # processes on a DDS domain of their own; the bag is read back, plotted

@@ -7,7 +7,8 @@ two concurrent runs on one machine never draw the same one. Subprocesses
 inherit these variables. Under pytest-xdist each worker claims a domain of
 its own.
 
-Workers (``make test-workers`` runs ``pytest -n 4 --dist loadgroup``; ``make test`` runs serially): two pools,
+Workers (``make test`` runs ``pytest -n auto --dist loadgroup``, four workers
+where :func:`auto_workers` allows; ``make test-serial`` runs serially): two pools,
 :func:`pytest_xdist_make_scheduler`. Half the workers run the modules that
 start ROS processes or DDS participants, at normal priority, two side by
 side; a module with an ``alone`` test or one that takes the stall watcher (a
@@ -656,7 +657,7 @@ def is_offline_module(name: str) -> bool:
 #: How many offline workers may join the ROS pool once the offline modules
 #: are all handed out: the offline pool ends in about half the run, and then
 #: the two ROS workers alone ran the ROS modules left for about 140 s, the
-#: second half of the run (a fresh clone's ``make test-workers``). One more,
+#: second half of the run (a fresh clone's four-worker ``make test``). One more,
 #: not two: each ROS module keeps most of a core busy (a serial run: 361
 #: CPU-s in its 383 s of ROS modules), so three share the two CPUs already.
 JOINING_WORKERS = 1
@@ -670,12 +671,16 @@ def joining_workers(n_workers: int) -> int:
     return JOINING_WORKERS if ros_workers(n_workers) > 1 else 0
 
 
-#: ``pytest -n auto --dist loadgroup`` (not the test command): this many
-#: workers where the offline ones can be kept out of the ROS tests' way
-#: (:func:`auto_workers`): one runs the ROS modules one at a time, as a serial
-#: run does, the other the offline modules at idle CPU priority, frozen during
-#: :data:`FROZEN_MODULES`.
-AUTO_WORKERS = 2
+#: ``pytest -n auto --dist loadgroup`` (the test command, ``make test``): this
+#: many workers where the offline ones can be kept out of the ROS tests' way
+#: (:func:`auto_workers`): two run the ROS modules, two at a time (one at a
+#: time for the :data:`ALONE_MODULES`), two the offline modules at idle CPU
+#: priority, frozen during :data:`FROZEN_MODULES`. A module of ROS tests run
+#: alone keeps less than one core busy (the player's: 11.5 CPU-s in its
+#: 19.8 s, the closed knee's 21.9 in 29.7), so two fit on two CPUs; with one
+#: ROS worker (``-n 2``) the ROS modules alone took 357-373 s one after the
+#: other.
+AUTO_WORKERS = 4
 #: Environment variable that sets the ``-n auto`` worker count (0: serial).
 WORKERS_ENV = 'HILL_MUSCLE_TEST_WORKERS'
 
@@ -735,8 +740,8 @@ def auto_workers() -> tuple[int, str]:
     why_not = _offline_workers_can_be_isolated()
     if why_not is not None:
         return 0, f'serial: the offline tests cannot be kept out of the ROS tests\' way: {why_not}'
-    return AUTO_WORKERS, (f'{AUTO_WORKERS} workers: the ROS tests one module at a time, the '
-                          'offline tests beside them at idle priority')
+    return AUTO_WORKERS, (f'{AUTO_WORKERS} workers: {ros_workers(AUTO_WORKERS)} run the ROS '
+                          f'tests, the others the offline tests at idle priority')
 
 
 #: What :func:`pytest_xdist_auto_num_workers` decided, for the terminal summary.

@@ -27,7 +27,7 @@ from hill_muscle_ros.timebase import NS_PER_S
 
 # alone: the flooder and the simulator take both cores; beside another ROS
 # module under xdist the simulator fell to 0.915 simulated s per wall s
-# (a fresh clone's `make test-workers`), against the 5 % it is held to.
+# (a fresh clone's `make test` on four workers), against the 5 % it is held to.
 pytestmark = [pytest.mark.faults, pytest.mark.ros, pytest.mark.alone]
 
 _RUNS = itertools.count()
