@@ -130,7 +130,7 @@ def write_section(add, m: dict) -> None:
         f'{"met" if ok else "**not met**"} by this measure. `make test` compiles them '
         'before pytest (`hill-muscle compile`, two processes), and pytest prints what '
         'its own processes compiled after that at its end ("numba compiling in the '
-        'pytest processes", 0.1 s in a fresh clone); pytest run without `make` compiles '
+        'pytest processes"); pytest run without `make` compiles '
         'them itself, in processes that the controller starts before its workers, which '
         'wait for them after their first modules; '
         'a test that runs the engine in a subprocess on an unwritable cache compiles the '
