@@ -149,22 +149,25 @@ def _runs_workers(config) -> bool:
         getattr(config.option, 'dist', 'no') != 'no'
 
 
+def _compile_code(sets) -> str:
+    """Python code that builds the kernel ``sets`` (names of
+    :data:`~hill_muscle_ros.model.precompile.KERNEL_SETS`) in one process, as
+    ``hill-muscle compile`` does, then prints its compiling seconds."""
+    return ('from hill_muscle_ros.model import engine, precompile\n'
+            f'precompile.compile_kernel_group({tuple(sets)!r})\n'
+            'print(engine.compile_seconds())')
+
+
 #: Compiles the paper's muscle's kernel sets (which share no code with the FES
 #: ones), then prints its compiling seconds (:func:`pytest_sessionstart`).
-_COMPILE_THE_PAPERS = (
-    'from hill_muscle_ros.model import engine, kernels\n'
-    'kernels.compiled(); kernels.compiled_run()\n'
-    'print(engine.compile_seconds())')
+_COMPILE_THE_PAPERS = _compile_code(('muscle_batch', 'muscle_run'))
 #: [s] what that process compiled (empty if it did not run).
 _sidecar_compile_s: list[float] = []
 
 
 #: Compiles the nodes' kernel sets (the FES muscle's and the limb's), then
 #: prints its compiling seconds (:func:`pytest_sessionstart`, serial runs).
-_COMPILE_THE_NODES = (
-    'from hill_muscle_ros.model import engine, fes_kernels, limb_kernels\n'
-    'fes_kernels.compiled(); limb_kernels.compiled()\n'
-    'print(engine.compile_seconds())')
+_COMPILE_THE_NODES = _compile_code(('fes_muscle', 'limb'))
 #: ROS test modules whose nodes load no compiled kernel: they start only the
 #: recorder, the controllers and the protocol player (of the nodes, only the
 #: simulator and the limb load one, in ``nodes._common.load_engine``), and
@@ -215,10 +218,7 @@ def _compiles_for_the_nodes(config) -> bool:
 
 #: Under xdist, the workers' kernel sets: the nodes' and the batch of FES
 #: muscles (on the FES muscle: in the same process, so compiled once).
-_COMPILE_FOR_THE_WORKERS = (
-    'from hill_muscle_ros.model import engine, fes_batch_kernels, fes_kernels, limb_kernels\n'
-    'fes_kernels.compiled(); limb_kernels.compiled(); fes_batch_kernels.compiled()\n'
-    'print(engine.compile_seconds())')
+_COMPILE_FOR_THE_WORKERS = _compile_code(('fes_muscle', 'limb', 'fes_batch'))
 #: Under xdist: the lock file that the compiling processes hold (``flock``)
 #: until they end; a worker waits for it (:func:`_await_the_kernels`). Set by
 #: the controller before it starts its workers, which inherit it.
