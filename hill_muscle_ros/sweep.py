@@ -629,12 +629,18 @@ def run_on_client(spec: SweepSpec, client, chunk: int | None = None,
                for ids in chunk_ranges(len(spec.sets), n_workers, chunk, _max_chunk(spec))]
     results = []
     try:
-        for future in as_completed(futures):
+        # The results come with the futures, fetched by the client's own
+        # thread: this thread calls nothing that waits on it until a task
+        # fails. A Ctrl-C inside such a wait (``Future.result``) that came
+        # before the wait's coroutine had started made distributed's
+        # ``sync`` cancel a future it did not have yet: a NameError that
+        # tornado printed with its traceback (distributed 2026.8.0; 1 of 45
+        # interrupted sweeps at idle priority beside two busy cores).
+        for future, res in as_completed(futures, with_results=True, raise_errors=False):
             if future.status != 'finished':
                 client.cancel(futures)
                 raise SweepError(f'a sweep task {future.status} on the cluster: '
                                  f'{_task_error(future)}')
-            res = future.result()
             results.append(res)
             if on_chunk:
                 on_chunk(len(res['set_ids']))
