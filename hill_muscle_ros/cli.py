@@ -1,7 +1,7 @@
 """The ``hill-muscle`` command: offline simulation, the paper's figures, and the ROS nodes.
 
-``simulate`` and ``figures`` run the model core offline and never import
-rclpy. The node subcommands (``simulator``, ``player``, ``record``,
+``simulate``, ``figures`` and ``compile`` (the numba kernels into their disk
+cache) run the model core offline and never import rclpy. The node subcommands (``simulator``, ``player``, ``record``,
 ``controller``) import their node module only when called and hand it the
 rest of the command line untouched, so ``--ros-args -p name:=value`` works as
 with ``ros2 run``.
