@@ -244,7 +244,9 @@ def pytest_sessionstart(session):
     its first test. :func:`_await_the_kernels` waits for it before any other
     module. Under xdist it compiles the workers' kernel sets too, and the
     paper's muscle's compile in a third process at the same time; the
-    workers start (and collect) meanwhile."""
+    workers start (and collect) meanwhile. After ``make kernels`` (which
+    ``make test`` runs first: ``hill-muscle compile``) these processes only
+    load the sets from numba's cache, in about a second."""
     if not _compiles_for_the_nodes(session.config):
         return
     if not _runs_workers(session.config):
