@@ -628,6 +628,13 @@ def run_on_client(spec: SweepSpec, client, chunk: int | None = None,
                              spec.rate_hz, spec.sample_indices, pure=False)
                for ids in chunk_ranges(len(spec.sets), n_workers, chunk, _max_chunk(spec))]
     results = []
+    completed = None
+
+    def keep(res) -> None:
+        results.append(res)
+        if on_chunk:
+            on_chunk(len(res['set_ids']))
+
     try:
         # The results come with the futures, fetched by the client's own
         # thread: this thread calls nothing that waits on it until a task
@@ -636,18 +643,50 @@ def run_on_client(spec: SweepSpec, client, chunk: int | None = None,
         # ``sync`` cancel a future it did not have yet: a NameError that
         # tornado printed with its traceback (distributed 2026.8.0; 1 of 45
         # interrupted sweeps at idle priority beside two busy cores).
-        for future, res in as_completed(futures, with_results=True, raise_errors=False):
+        completed = as_completed(futures, with_results=True, raise_errors=False)
+        for future, res in completed:
             if future.status != 'finished':
-                client.cancel(futures)
-                raise SweepError(f'a sweep task {future.status} on the cluster: '
-                                 f'{_task_error(future)}')
-            results.append(res)
-            if on_chunk:
-                on_chunk(len(res['set_ids']))
+                error = SweepError(f'a sweep task {future.status} on the cluster: '
+                                   f'{_task_error(future)}')
+                _cancel_and_settle(client, futures, completed, keep)
+                raise error
+            keep(res)
     except KeyboardInterrupt:
-        client.cancel(futures)
+        _cancel_and_settle(client, futures, completed, keep)
         return SweepResult(results, False, time.perf_counter() - start)
     return SweepResult(results, True, time.perf_counter() - start)
+
+
+#: [s] bound on the wait for the futures' last results after a Ctrl-C or a
+#: failed task (:func:`_cancel_and_settle`).
+SETTLE_TIMEOUT_S = CONNECT_TIMEOUT_S
+#: [s] how often that wait looks for them.
+SETTLE_POLL_S = 0.02
+
+
+def _cancel_and_settle(client, futures, completed, keep: Callable) -> None:
+    """Cancel the unfinished ``futures``, then take what ``completed`` (their
+    ``as_completed(with_results=True)``, None before it exists) still hands out, at most
+    :data:`SETTLE_TIMEOUT_S`: a finished task's result goes to ``keep``.
+
+    The client's thread fetches each finished task's result; the cluster
+    closed while one was still on its way left that fetch a
+    ``CommClosedError``, which tornado printed with its traceback (1 of 75
+    interrupted sweeps at idle priority beside two busy cores). A second
+    Ctrl-C stops the wait.
+    """
+    try:
+        client.cancel([f for f in futures if not f.done()])
+        deadline = time.monotonic() + SETTLE_TIMEOUT_S
+        while completed is not None and not completed.is_empty() and time.monotonic() < deadline:
+            if not completed.has_ready():
+                time.sleep(SETTLE_POLL_S)
+                continue
+            future, res = next(completed)
+            if future.status == 'finished':
+                keep(res)
+    except KeyboardInterrupt:
+        pass
 
 
 def _task_error(future) -> str:
