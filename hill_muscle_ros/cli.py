@@ -1,10 +1,10 @@
 """The ``hill-muscle`` command: offline simulation, the paper's figures, and the ROS nodes.
 
 ``simulate``, ``figures`` and ``compile`` (the numba kernels into their disk
-cache) run the model core offline and never import rclpy. The node subcommands (``simulator``, ``player``, ``record``,
-``controller``) import their node module only when called and hand it the
-rest of the command line untouched, so ``--ros-args -p name:=value`` works as
-with ``ros2 run``.
+cache) run the model core offline and never import rclpy. The node
+subcommands (``simulator``, ``player``, ``record``, ``controller``) import
+their node module only when called and hand it the rest of the command line
+untouched, so ``--ros-args -p name:=value`` works as with ``ros2 run``.
 
 User errors (a malformed protocol or parameters file, a bad option value)
 print one line naming the file and the key and exit with status 2; there is

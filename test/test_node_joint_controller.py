@@ -121,8 +121,8 @@ class Controller:
         self.target_pub = probe.publisher(f'{self.ns}/angle_target', Float64)
         self.joint_pub = probe.publisher(f'{self.ns}/joint_states', JointState)
         self._feed = None
-        #: time.monotonic() of the last joint state the feed published
-        self.last_feed_s: float | None = None   # [s] time.time() of the newest joint state
+        #: [s] time.time() of the last joint state the feed published
+        self.last_feed_s: float | None = None
         self.paused = False
 
     @property
