@@ -270,17 +270,30 @@ def use_udp_transport(environ: MutableMapping[str, str] | None = None,
     if (choice != 'udp' or environ.get('RMW_IMPLEMENTATION', DEFAULT_RMW) not in FASTDDS_RMWS
             or user_settings or scope in ('OFF', 'SYSTEM_DEFAULT')):
         return None
-    why = (f'DDS transport: UDPv4 only, as Fast DDS shared memory can hold every publish of '
-           f'this process for 333 ms when another process joins ({TRANSPORT_ENV}=rmw '
-           'keeps the shared memory)')
+    # The log line says the range in force and where it comes from, read before
+    # the environment changes: rmw is handed SYSTEM_DEFAULT below, not the user.
+    heading = f'DDS: discovery range {scope} ({_range_origin(environ)}) on UDPv4 only'
+    why = (f'Fast DDS shared memory can hold every publish of this process for 333 ms '
+           f'when another process joins ({TRANSPORT_ENV}=rmw keeps it)')
     if scope == 'SUBNET':
         environ['FASTDDS_BUILTIN_TRANSPORTS'] = 'UDPv4'
-        return f'{why}: FASTDDS_BUILTIN_TRANSPORTS=UDPv4'
+        return f'{heading} (FASTDDS_BUILTIN_TRANSPORTS=UDPv4): {why}'
     # rcl ignores the static peers under the deprecated ROS_LOCALHOST_ONLY=1.
     peers = [] if environ.get(LOCALHOST_ONLY_ENV) == '1' else static_peer_addresses(environ)
     profile = write_profile(localhost_profile(peers), profile_dir)
     environ.pop(LOCALHOST_ONLY_ENV, None)   # it would force rmw's localhost transports
     environ[RANGE_ENV] = 'SYSTEM_DEFAULT'
     environ['FASTRTPS_DEFAULT_PROFILES_FILE'] = str(profile)
-    return (f'{why}: localhost discovery from the Fast DDS profile {profile} '
-            f'({RANGE_ENV}=SYSTEM_DEFAULT)')
+    return f'{heading} (Fast DDS profile {profile}): {why}'
+
+
+def _range_origin(environ: MutableMapping[str, str]) -> str:
+    """Where :func:`discovery_range` took the range from, for the log line."""
+    if environ.get(LOCALHOST_ONLY_ENV) == '1':
+        return f'{LOCALHOST_ONLY_ENV}=1'
+    value = environ.get(RANGE_ENV, '')
+    if value == '':
+        return f"{RANGE_ENV} unset: rcl's default"
+    if value not in RANGES:
+        return f'{RANGE_ENV}={value!r}, which rcl reads as LOCALHOST'
+    return f'{RANGE_ENV}={value}'

@@ -158,6 +158,37 @@ def test_profile_file_is_written_once_per_content(tmp_path):
 
 
 
+@pytest.mark.parametrize('env, origin', [
+    ({'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}, 'ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST'),
+    ({'ROS_LOCALHOST_ONLY': '1'}, 'ROS_LOCALHOST_ONLY=1'),
+    ({'ROS_AUTOMATIC_DISCOVERY_RANGE': 'localhost'},
+     "ROS_AUTOMATIC_DISCOVERY_RANGE='localhost', which rcl reads as LOCALHOST"),
+], ids=['range', 'localhost_only', 'unknown_value'])
+def test_log_line_says_the_localhost_range_the_user_set_not_what_rmw_is_handed(
+        tmp_path, env, origin):
+    note = use_udp_transport(env, profile_dir=tmp_path)
+    assert note.startswith(f'DDS: discovery range LOCALHOST ({origin}) on UDPv4 only '
+                           f'(Fast DDS profile {env["FASTRTPS_DEFAULT_PROFILES_FILE"]}): ')
+    assert 'SYSTEM_DEFAULT' not in note
+    assert '\n' not in note
+
+
+@pytest.mark.parametrize('env, origin', [
+    ({}, "ROS_AUTOMATIC_DISCOVERY_RANGE unset: rcl's default"),
+    ({'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SUBNET'}, 'ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET'),
+], ids=['unset', 'subnet'])
+def test_log_line_says_the_subnet_range_and_where_it_comes_from(tmp_path, env, origin):
+    note = use_udp_transport(env, profile_dir=tmp_path)
+    assert note.startswith(f'DDS: discovery range SUBNET ({origin}) on UDPv4 only '
+                           '(FASTDDS_BUILTIN_TRANSPORTS=UDPv4): ')
+
+
+def test_log_line_says_why_udp_only_and_how_to_keep_shared_memory(tmp_path):
+    note = use_udp_transport({}, profile_dir=tmp_path)
+    assert note.endswith(': Fast DDS shared memory can hold every publish of this process '
+                         f'for 333 ms when another process joins ({TRANSPORT_ENV}=rmw keeps it)')
+
+
 #: New participants that look for the running node, one after the other.
 JOINERS = 5
 #: [s] the node has run this long before the first joiner: past its initial
