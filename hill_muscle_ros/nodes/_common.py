@@ -217,17 +217,64 @@ def spin(executor: Any, stop: StopSignals, until: Any = None) -> None:
 # -- main() -------------------------------------------------------------------
 
 
+#: rcl's flag for a parameters file, inside ``--ros-args``: ``--params-file FILE``.
+PARAMS_FILE_FLAG = '--params-file'
+_ROS_ARGS_START = '--ros-args'
+_ROS_ARGS_END = '--'
+#: rcl's message for a ``-p`` it cannot parse: the only error the quoting hint is for.
+_OVERRIDE_RULE_ERROR = "Couldn't parse parameter override rule"
+
+
+def params_file_arguments(args: list[str]) -> list[str]:
+    """The files given with ``--params-file`` among the ROS arguments of ``args``.
+
+    ROS arguments run from each ``--ros-args`` to the next ``--`` (or the end).
+    """
+    files = []
+    inside = False
+    for i, arg in enumerate(args):
+        if arg == _ROS_ARGS_START:
+            inside = True
+        elif arg == _ROS_ARGS_END:
+            inside = False
+        elif inside and arg == PARAMS_FILE_FLAG and i + 1 < len(args):
+            files.append(args[i + 1])
+    return files
+
+
+def check_params_files(args: list[str]) -> None:
+    """Stop before rcl on a ``--params-file`` that is not there: rcl would say
+    only "Error opening YAML file".
+
+    :raises StartupError: naming the first missing file
+    """
+    for name in params_file_arguments(args):
+        path = os.path.expanduser(name)
+        if not os.path.exists(path):
+            raise StartupError(f'cannot start: the parameters file {name} ({PARAMS_FILE_FLAG}) '
+                               'does not exist')
+        if not os.path.isfile(path):
+            raise StartupError(f'cannot start: the parameters file {name} ({PARAMS_FILE_FLAG}) '
+                               'is not a file')
+
+
 def init_ros(args: list[str] | None, logger_name: str) -> tuple[bool, str | None]:
     """``rclpy.init`` for a node process, with the transport set first.
 
     A command line rcl cannot parse (``-p "topics:=[a, b:pkg/msg/T]"``
-    unquoted) is one logged line, not a traceback.
+    unquoted, a ``--params-file`` that does not exist) is one logged line, not
+    a traceback.
 
     :param args: command-line arguments (``None``: ``sys.argv``)
     :param logger_name: the logger of the error line
     :return: whether rclpy is initialised, and what the transport set (or ``None``)
     """
     logger = rclpy.logging.get_logger(logger_name)
+    try:
+        check_params_files(list(sys.argv if args is None else args))
+    except StartupError as err:
+        logger.error(str(err))
+        return False, None
     try:
         # Before rclpy.init: the RMW reads it when it creates the participant.
         transport_note = use_udp_transport()
@@ -238,8 +285,10 @@ def init_ros(args: list[str] | None, logger_name: str) -> tuple[bool, str | None
         rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     except RuntimeError as err:
         # rclpy 7.1.x raises _rclpy.RCLError, a RuntimeError with no public alias.
-        logger.error(f'cannot start: {err} (quote values that contain ":" or ",", '
-                     "e.g. -p 'topics:=[force, \"force_target:std_msgs/msg/Float64\"]')")
+        hint = (' (quote values that contain ":" or ",", e.g. '
+                "-p 'topics:=[force, \"force_target:std_msgs/msg/Float64\"]')"
+                if _OVERRIDE_RULE_ERROR in str(err) else '')
+        logger.error(f'cannot start: {err}{hint}')
         return False, None
     return True, transport_note
 
