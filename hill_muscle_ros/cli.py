@@ -36,6 +36,8 @@ EXIT_USAGE = 2
 DEFAULT_RATE_HZ = 1000.0
 #: Key of the step rate in the simulator node's parameters file.
 RATE_KEY = 'rate_hz'
+#: The key that makes a protocol file a limb protocol (inputs per muscle).
+LIMB_PROTOCOL_KEY = 'muscles'
 #: printf format that round-trips a float64 exactly (17 significant digits).
 CSV_FLOAT_FORMAT = '%.17g'
 #: [s] spacing of the rows of the summary table printed without ``--csv``.
@@ -184,8 +186,9 @@ def build_parser() -> argparse.ArgumentParser:
                '--protocol config/protocols/knee_extension.yaml',
         formatter_class=argparse.RawDescriptionHelpFormatter)
     sim.add_argument('--protocol', required=True, metavar='{I,II,PATH}',
-                     help='the paper\'s Protocol I or II, or a protocol YAML file '
-                          '(copy config/protocols/protocol_II.yaml to write one)')
+                     help='the paper\'s Protocol I or II (in any case), or a protocol YAML '
+                          'file (copy config/protocols/protocol_II.yaml to write one); with '
+                          '--plant, a limb protocol file')
     sim.add_argument('--units', choices=UNITS_CHOICES,
                      help='motor units: multi (N virtual units, Eq. 2) or single '
                           '(overrides the parameters file)')
@@ -251,13 +254,36 @@ def _rate_from_file(node_settings: dict, source: Path) -> float | None:
     return float(value)
 
 
+def _read_muscle_protocol(path: Path) -> Protocol:
+    """A single-muscle protocol; a limb protocol (one with ``muscles``) gets a
+    hint to add ``--plant`` in place of the muscle protocol's complaint.
+
+    :raises ProtocolError: naming the file and the key
+    :raises UserError: for a limb protocol
+    """
+    try:
+        return Protocol.from_yaml(path)
+    except ValueError:
+        from .model.protocol import safe_load_yaml
+        try:
+            doc = safe_load_yaml(path.read_text(encoding='utf-8'))
+        except Exception:   # noqa: BLE001 -- unreadable: the muscle protocol's message
+            doc = None
+        if not (isinstance(doc, dict) and LIMB_PROTOCOL_KEY in doc):
+            raise
+    raise UserError(f'{path} is a limb protocol (`{LIMB_PROTOCOL_KEY}`: inputs per muscle): '
+                    f'add --plant with the limb\'s plant file, e.g. '
+                    f'--plant {resources.knee_plant_file()}')
+
+
 def load_inputs(args: argparse.Namespace) -> tuple[Protocol, MuscleParams, float]:
     """The protocol, parameters and step rate that the options ask for.
 
     :raises UserError: naming the file and key if a file is malformed
     """
     try:
-        protocol = Protocol.from_yaml(resources.protocol_path(args.protocol))
+        protocol_path = resources.find_protocol(args.protocol)
+        protocol = _read_muscle_protocol(protocol_path)
         params_path = args.params if args.params is not None else resources.default_params_file()
         params, node_settings = load_muscle_params(params_path)
     except ValueError as err:  # ProtocolError is a ValueError

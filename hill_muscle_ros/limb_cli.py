@@ -19,9 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
+from . import resources
 from .cli import (CSV_FLOAT_FORMAT, DEFAULT_RATE_HZ, PROG, UserError, _positive_rate,
                   _rate_from_file, bounded_number, summary_times)
 from .model.limb import LimbPlant, LimbProtocol, LimbResult, limb_columns, simulate_limb
+from .model.protocol import safe_load_yaml
 from .params_file import load_plant
 
 #: Options of ``simulate`` that configure the single muscle, not a limb.
@@ -92,10 +94,14 @@ def load_limb_run(plant_path: Path, protocol_path: Path, rate_hz: float | None) 
     :param rate_hz: [Hz] the step rate, or ``None`` for the plant file's ``rate_hz``
     :raises UserError: naming the file and the key on any defect
     """
+    _check_limb_protocol(protocol_path)
     try:
         plant, node = load_plant(plant_path)
         protocol = LimbProtocol.from_yaml(protocol_path)
     except ValueError as err:   # ProtocolError is a ValueError
+        if _is_muscle_protocol(protocol_path):
+            raise UserError(f'{protocol_path} is a single-muscle protocol (`recruitment`); '
+                            f'{_limb_plays()}') from None
         raise UserError(str(err)) from None
     rate = rate_hz if rate_hz is not None else (
         _rate_from_file(node, plant_path) or DEFAULT_RATE_HZ)
@@ -104,6 +110,33 @@ def load_limb_run(plant_path: Path, protocol_path: Path, rate_hz: float | None) 
     except ValueError as err:   # a protocol muscle the plant lacks, a limb out of range
         raise UserError(f'{protocol_path}: {err}') from None
     return LimbRun(plant, protocol, rate, result)
+
+
+def _limb_plays() -> str:
+    """What a limb runs, for the messages about a muscle protocol given to it."""
+    return ('a limb (--plant) plays a limb protocol file, with inputs per muscle, e.g. '
+            f'{resources.config_dir() / "protocols" / "knee_extension.yaml"}')
+
+
+def _check_limb_protocol(path: Path) -> None:
+    """A built-in protocol name (``II``) given for a limb: say what a limb plays.
+
+    :raises UserError: if ``path`` names a built-in protocol and no file
+    """
+    name = resources.builtin_protocol(str(path))
+    if name is not None and not path.exists():
+        raise UserError(f'--protocol {path}: the built-in protocols I and II are '
+                        f'single-muscle protocols; {_limb_plays()}')
+
+
+def _is_muscle_protocol(path: Path) -> bool:
+    """Whether ``path`` holds a mapping with a single-muscle protocol's ``recruitment``
+    and no limb protocol's ``muscles``."""
+    try:
+        doc = safe_load_yaml(path.read_text(encoding='utf-8'))
+    except Exception:   # noqa: BLE001 -- unreadable: LimbProtocol's message says so
+        return False
+    return isinstance(doc, dict) and 'recruitment' in doc and 'muscles' not in doc
 
 
 def write_limb_csv(path: Path, run: LimbRun) -> int:

@@ -31,14 +31,47 @@ def config_dir() -> Path:
     return Path(sysconfig.get_path('data')) / 'share' / PACKAGE / 'config'
 
 
+def builtin_protocol(spec: str) -> str | None:
+    """The built-in protocol ``spec`` names, in any case, or ``None``.
+
+    ``I`` and ``II`` always name the built-in ones; ``ii`` (or ``i``) does too
+    unless a file of that name exists in the working directory.
+    """
+    name = spec.upper()
+    if name not in BUILTIN_PROTOCOLS:
+        return None
+    if spec != name and Path(spec).expanduser().exists():
+        return None   # the user's file named ``ii``
+    return name
+
+
 def protocol_path(spec: str) -> Path:
-    """Resolve ``I``, ``II`` or a path to a protocol YAML file.
+    """Resolve ``I``, ``II`` (in any case: :func:`builtin_protocol`) or a path
+    to a protocol YAML file.
 
     :param spec: a built-in protocol name or a file path
     """
-    if spec in BUILTIN_PROTOCOLS:
-        return config_dir() / 'protocols' / BUILTIN_PROTOCOLS[spec]
+    name = builtin_protocol(spec)
+    if name is not None:
+        return config_dir() / 'protocols' / BUILTIN_PROTOCOLS[name]
     return Path(spec).expanduser()
+
+
+def find_protocol(spec: str) -> Path:
+    """:func:`protocol_path`, checked to exist.
+
+    :raises ValueError: naming ``spec`` and the built-in protocols
+    """
+    path = protocol_path(spec)
+    if not path.exists():
+        raise ValueError(f'{spec}: no such protocol file; the built-in protocols are '
+                                f'{" and ".join(BUILTIN_PROTOCOLS)}')
+    return path
+
+
+def knee_plant_file() -> Path:
+    """The shipped knee preset, ``knee.yaml`` (a plant file for the limb nodes)."""
+    return config_dir() / 'knee.yaml'
 
 
 def default_params_file() -> Path:

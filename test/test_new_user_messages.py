@@ -69,3 +69,79 @@ def test_an_unparsable_p_override_still_gets_the_quoting_hint():
     proc = run_cli('simulator', '--ros-args', '-p', 'topics:=[a, b:pkg/msg/T]')
     assert proc.returncode == 1, proc.stderr
     assert 'quote values that contain ":" or ","' in proc.stderr
+
+
+# -- protocol names ------------------------------------------------------------------
+
+from hill_muscle_ros import cli, resources  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+KNEE = REPO / 'config' / 'knee.yaml'
+KNEE_EXTENSION = REPO / 'config' / 'protocols' / 'knee_extension.yaml'
+
+
+def run_main(capsys, *args):
+    """``main()`` in this process: exit status, stdout, stderr."""
+    status = cli.main([str(a) for a in args])
+    out = capsys.readouterr()
+    return status, out.out, out.err
+
+
+@pytest.mark.parametrize('spec', ['ii', 'Ii'])
+def test_builtin_protocol_names_are_accepted_in_any_case(tmp_path, capsys, spec):
+    lower, upper = tmp_path / 'lower.csv', tmp_path / 'upper.csv'
+    assert run_main(capsys, 'simulate', '--protocol', spec, '--rate', 100, '--csv', lower)[0] == 0
+    assert run_main(capsys, 'simulate', '--protocol', 'II', '--rate', 100, '--csv', upper)[0] == 0
+    assert lower.read_text() == upper.read_text()
+
+
+def test_a_file_named_like_a_builtin_in_lower_case_is_the_file(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / 'ii').write_text('name: mine\n')
+    assert resources.protocol_path('ii') == Path('ii')
+    assert resources.protocol_path('II') == resources.config_dir() / 'protocols' / \
+        'protocol_II.yaml'
+
+
+def test_a_missing_protocol_file_names_the_builtin_protocols(tmp_path, capsys):
+    missing = tmp_path / 'III'
+    status, _, err = run_main(capsys, 'simulate', '--protocol', missing)
+    assert status == 2
+    assert err == (f'hill-muscle: error: {missing}: no such protocol file; the built-in '
+                   'protocols are I and II\n')
+
+
+@pytest.mark.parametrize('spec', ['II', 'i'])
+def test_a_builtin_protocol_with_a_plant_says_it_is_single_muscle_and_names_a_limb_protocol(
+        capsys, spec):
+    status, _, err = run_main(capsys, 'simulate', '--plant', KNEE, '--protocol', spec)
+    assert status == 2
+    assert err.startswith(f'hill-muscle: error: --protocol {spec}: the built-in protocols I '
+                          'and II are single-muscle protocols; a limb (--plant) plays a limb '
+                          'protocol file, with inputs per muscle, e.g. ')
+    assert err.rstrip().endswith('knee_extension.yaml')
+    assert 'No such file' not in err
+
+
+def test_a_muscle_protocol_file_with_a_plant_says_a_limb_plays_a_limb_protocol(capsys):
+    muscle_protocol = resources.protocol_path('II')
+    status, _, err = run_main(capsys, 'simulate', '--plant', KNEE, '--protocol', muscle_protocol)
+    assert status == 2
+    assert err.startswith(f'hill-muscle: error: {muscle_protocol} is a single-muscle protocol '
+                          '(`recruitment`); a limb (--plant) plays a limb protocol file')
+
+
+def test_a_limb_protocol_without_plant_hints_to_add_plant(capsys):
+    status, _, err = run_main(capsys, 'simulate', '--protocol', KNEE_EXTENSION)
+    assert status == 2
+    assert err == (f'hill-muscle: error: {KNEE_EXTENSION} is a limb protocol (`muscles`: '
+                   "inputs per muscle): add --plant with the limb's plant file, e.g. "
+                   f'--plant {resources.knee_plant_file()}\n')
+
+
+def test_a_malformed_muscle_protocol_keeps_its_own_message(tmp_path, capsys):
+    bad = tmp_path / 'typo.yaml'
+    bad.write_text('name: x\nduration_s: 1.0\nrecruitmnet: {times_s: [0.0], values: [0.0]}\n')
+    status, _, err = run_main(capsys, 'simulate', '--protocol', bad)
+    assert status == 2
+    assert 'unknown key `recruitmnet`' in err and '--plant' not in err

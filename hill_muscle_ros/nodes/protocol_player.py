@@ -44,7 +44,7 @@ from std_msgs.msg import Float64
 from ..model import MuscleParams, Protocol, ProtocolError
 from ..model.params import CURVE_FIELDS
 from ..model.protocol import STIMULATION_OUTPUTS
-from ..resources import BUILTIN_PROTOCOLS, protocol_path
+from ..resources import BUILTIN_PROTOCOLS, find_protocol
 from ..timebase import NS_PER_S
 from ._common import (EXIT_FAILURE, EXIT_SUCCESS, OUTPUT_QOS, DiagnosticReport,
                       NodeDiagnostics, overridable_publisher,
@@ -95,8 +95,8 @@ class ProtocolPlayer(Node):
     def __init__(self) -> None:
         super().__init__(NODE_NAME)
         spec = declare_checked(self, 'protocol', DEFAULT_PROTOCOL, ParameterDescriptor(
-            description=f'protocol: {", ".join(BUILTIN_PROTOCOLS)} or a path to a protocol '
-                        'YAML file', read_only=True))
+            description=f'protocol: {", ".join(BUILTIN_PROTOCOLS)} (in any case) or a path to '
+                        'a protocol YAML file', read_only=True))
         rate_hz = declare_checked(self, 'rate_hz', DEFAULT_RATE_HZ, number_descriptor(
             'publish rate', 'Hz', *RATE_HZ_RANGE, read_only=True))
         self._output = declare_checked(self, 'output', OUTPUT_CHOICES[0], ParameterDescriptor(
@@ -132,7 +132,7 @@ class ProtocolPlayer(Node):
                                f'{", ".join(OUTPUT_CHOICES)}, got {self._output!r}')
         try:
             self._curve = MuscleParams(**curve)
-            self._protocol = Protocol.from_yaml(protocol_path(spec))
+            self._protocol = Protocol.from_yaml(find_protocol(spec))
             # Fail now, not mid-run: every knot of the protocol maps on the curve.
             for t_s in self._protocol.stimulation.times_s:
                 self._protocol.stimulation_command(float(t_s), self._output, self._curve)
