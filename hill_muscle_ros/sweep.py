@@ -541,6 +541,18 @@ def _max_chunk(spec: SweepSpec) -> int:
     return MAX_AUTO_CHUNK if spec.plant is None else MAX_AUTO_LIMB_CHUNK
 
 
+def check_out(path: Path, overwrite: bool) -> None:
+    """Refuse an output that exists, before any simulation, unless ``overwrite``.
+
+    :raises SweepError: naming the file (and ``--overwrite``), or a directory
+    """
+    if path.is_dir():
+        raise SweepError(f'{path}: --out is a directory; give the Parquet file to write')
+    if path.exists() and not overwrite:
+        raise SweepError(f'{path} exists: pass --overwrite to replace it, or choose '
+                         'another --out')
+
+
 def write_parquet(path: Path, table) -> None:
     """Write the table; a failure to write names the file."""
     import pyarrow.parquet as pq
@@ -824,7 +836,10 @@ def add_parser(sub) -> None:
     p.add_argument('spec', type=Path, metavar='SPEC.yaml', help='the sweep spec')
     p.add_argument('--out', required=True, type=Path, metavar='PARQUET',
                    help='the Parquet file to write (also written on Ctrl-C, with the '
-                        'sets finished so far)')
+                        'sets finished so far); an existing file is an error unless '
+                        '--overwrite is given')
+    p.add_argument('--overwrite', action='store_true',
+                   help='replace the --out file if it exists')
     where = p.add_mutually_exclusive_group()
     where.add_argument('--scheduler', metavar='ADDRESS',
                        help='use the running Dask cluster at this scheduler address '
@@ -850,6 +865,7 @@ def cmd_sweep(args) -> int:
     """Run ``hill-muscle sweep``; user errors become the CLI's one-line errors."""
     from .cli import UserError
     try:
+        check_out(args.out, args.overwrite)
         spec = load_spec(args.spec)
         try:
             import pyarrow  # noqa: F401 - fail before simulating, not after

@@ -160,6 +160,37 @@ def test_cli_reports_a_bad_spec_in_one_line_with_status_2(tmp_path, capsys):
     assert 'Traceback' not in err and not (tmp_path / 'out.parquet').exists()
 
 
+
+#: A sweep of one set and one sample time, to 0.1 s: the cheapest that writes a table.
+TINY = {'protocol': 'II', 'sample_times_s': [0.1], 'vary': {'f_iso_max_n': [30.0]}}
+
+
+def test_existing_out_file_is_refused_naming_it_and_left_unchanged(tmp_path, capsys):
+    out = tmp_path / 'out.parquet'
+    out.write_bytes(b'results of yesterday')
+    status = cli.main(['sweep', str(write_spec(tmp_path, TINY)), '--out', str(out),
+                       '--workers', '0'])
+    assert status == cli.EXIT_USAGE
+    assert capsys.readouterr().err == (f'hill-muscle: error: {out} exists: pass --overwrite '
+                                       'to replace it, or choose another --out\n')
+    assert out.read_bytes() == b'results of yesterday'
+
+
+def test_existing_out_file_is_replaced_with_overwrite(tmp_path, capsys):
+    out = tmp_path / 'out.parquet'
+    out.write_bytes(b'results of yesterday')
+    assert cli.main(['sweep', str(write_spec(tmp_path, TINY)), '--out', str(out),
+                     '--workers', '0', '--overwrite']) == 0
+    assert pq.read_table(out).num_rows == 1
+
+
+def test_a_directory_as_out_is_refused_even_with_overwrite(tmp_path, capsys):
+    status = cli.main(['sweep', str(write_spec(tmp_path, TINY)), '--out', str(tmp_path),
+                       '--workers', '0', '--overwrite'])
+    assert status == cli.EXIT_USAGE
+    assert f'{tmp_path}: --out is a directory' in capsys.readouterr().err
+
+
 # --------------------------------------------------------------------------- numbers
 
 def test_batch_forces_equal_separate_simulate_runs_to_1e_9_newton():
