@@ -145,3 +145,36 @@ def test_a_malformed_muscle_protocol_keeps_its_own_message(tmp_path, capsys):
     status, _, err = run_main(capsys, 'simulate', '--protocol', bad)
     assert status == 2
     assert 'unknown key `recruitmnet`' in err and '--plant' not in err
+
+
+# -- the limb nodes without a plant file ----------------------------------------------
+
+from hill_muscle_ros.model.limb import LimbPlant  # noqa: E402
+from hill_muscle_ros.nodes.limb import require_muscles  # noqa: E402
+
+
+def test_a_plant_without_muscles_stops_start_up_naming_params_file_and_the_knee_preset():
+    with pytest.raises(StartupError) as err:
+        require_muscles(LimbPlant.from_mapping({}))
+    assert str(err.value) == (
+        '`muscles` must name at least one muscle, got none: give the plant file with '
+        '--ros-args --params-file PLANT.yaml, e.g. the knee preset '
+        f'{resources.knee_plant_file()}')
+
+
+def test_the_named_knee_preset_is_a_plant_file_with_muscles():
+    from hill_muscle_ros.params_file import load_plant
+    plant, _ = load_plant(resources.knee_plant_file())
+    require_muscles(plant)   # no error
+    assert plant.joint.name == 'knee' and plant.muscles
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize('command', ['limb', 'joint-controller'])
+def test_a_limb_node_started_without_a_plant_file_exits_1_saying_how_to_give_one(command):
+    proc = run_cli(command)
+    assert proc.returncode == 1, proc.stderr
+    assert '`muscles` must name at least one muscle, got none: give the plant file with ' \
+           '--ros-args --params-file PLANT.yaml' in proc.stderr
+    assert str(resources.knee_plant_file()) in proc.stderr
+    assert 'Traceback' not in proc.stderr

@@ -37,7 +37,7 @@ from ._common import (FINAL_ACK_TIMEOUT_S, OUTPUT_QOS, QOS_OVERRIDES_PREFIX, REL
                       check_qos_overrides, declare_plant, declare_spec_fields,
                       overridable_publisher, overridable_subscription, parameter_overrides,
                       plant_values, publish_last, run_node, process_entry)
-from .limb import LIMB_NODE_PARAMETERS   # a shared plant file carries them
+from .limb import LIMB_NODE_PARAMETERS, require_muscles   # a shared plant file carries them
 
 NODE_NAME = 'joint_controller'
 #: Longest time step, in control periods, that one update integrates over.
@@ -60,6 +60,7 @@ class JointControllerNode(Node):
         try:
             params = JointControllerParams(**values)
             self._plant = LimbPlant.from_mapping(plant, source='plant parameters')
+            require_muscles(self._plant)
             self.controller = JointController(self._plant, params)
         except ValueError as err:
             raise StartupError(str(err)) from None

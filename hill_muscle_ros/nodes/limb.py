@@ -60,6 +60,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
+from .. import resources
 from ..model import limb_kernels
 from ..model.limb import TORQUE_LIMIT_N_M, Limb, LimbPlant
 from ..model.muscle import check_recruitment
@@ -80,6 +81,19 @@ NODE_NAME = 'limb'
 LIMB_NODE_PARAMETERS = ('rate_hz', 'real_time_factor', 'input_timeout_s', 'publish_clock')
 #: Slack, in steps, for the rounding of ``tick period x rate x real_time_factor``.
 _STEPS_PER_TICK_ROUNDING = 1e-9
+
+
+def require_muscles(plant: LimbPlant) -> None:
+    """Stop start-up for a plant without muscles: the node was most likely
+    started without its plant file, and a bare joint would run silently.
+
+    :raises StartupError: naming ``--params-file`` and the shipped knee preset
+    """
+    if not plant.muscles:
+        raise StartupError(
+            '`muscles` must name at least one muscle, got none: give the plant file with '
+            f'--ros-args --params-file PLANT.yaml, e.g. the knee preset '
+            f'{resources.knee_plant_file()}')
 
 
 def load_limb(plant: LimbPlant, logger) -> Limb | limb_kernels.CompiledLimb:
@@ -128,6 +142,7 @@ class LimbNode(Node):
             self._plant = LimbPlant.from_mapping(values, source='plant parameters')
         except ValueError as err:
             raise StartupError(str(err)) from None
+        require_muscles(self._plant)
         declare_plant(self, values)
         names = [m.name for m in self._plant.muscles]
         topics = ['external_torque', 'joint_states']
@@ -193,7 +208,7 @@ class LimbNode(Node):
         self._error_behind_steps = max(1, math.ceil(ERROR_BEHIND_S * rtf * rate_hz))
         self._diagnostics = NodeDiagnostics(self, 'limb simulation', self._diagnose)
         self.get_logger().info(
-            f'{self._plant.joint.name} with {", ".join(names) or "no muscles"}, '
+            f'{self._plant.joint.name} with {", ".join(names)}, '
             f'{rate_hz:g} Hz, real_time_factor {rtf:g}, publish_clock {self._publish_clock}, '
             f'watchdog {self._input_timeout_s:g} s')
 
