@@ -178,3 +178,99 @@ def test_a_limb_node_started_without_a_plant_file_exits_1_saying_how_to_give_one
            '--ros-args --params-file PLANT.yaml' in proc.stderr
     assert str(resources.knee_plant_file()) in proc.stderr
     assert 'Traceback' not in proc.stderr
+
+
+# -- integers for floating-point parameters -------------------------------------------
+
+import rclpy  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+
+from hill_muscle_ros.model import MuscleParams  # noqa: E402
+from hill_muscle_ros.nodes._common import (declare_checked, declare_muscle_parameters,  # noqa: E402
+                                           number_descriptor)
+from hill_muscle_ros.params_file import load_muscle_params  # noqa: E402
+
+#: What a ROS user writes: integers for double parameters, and for a double array.
+INTEGER_PARAMS = ('/**:\n  ros__parameters:\n    f_iso_max_n: 45\n    rate_hz: 500\n'
+                  '    tau_fatigue_s: [30]\n')
+
+
+@pytest.fixture
+def params_node(tmp_path):
+    """A node (no other process) started with ``--params-file`` of INTEGER_PARAMS and
+    ``-p k_se_n_per_m:=20000``, in a context of its own; its muscle parameters declared."""
+    params = tmp_path / 'muscle.yaml'
+    params.write_text(INTEGER_PARAMS)
+    context = rclpy.Context()
+    rclpy.init(args=['--ros-args', '--params-file', str(params), '-p', 'k_se_n_per_m:=20000'],
+               context=context)
+    node = rclpy.create_node('integer_params_probe', context=context,
+                             start_parameter_services=False)
+    node.muscle = declare_muscle_parameters(node)
+    node.params_file = params
+    yield node
+    node.destroy_node()
+    rclpy.try_shutdown(context=context)
+
+
+def test_a_node_reads_an_integer_in_its_params_file_as_a_double(params_node):
+    assert params_node.muscle.f_iso_max_n == 45.0
+    assert isinstance(params_node.muscle.f_iso_max_n, float)
+    param = params_node.get_parameter('f_iso_max_n')
+    assert (param.type_, param.value) == (Parameter.Type.DOUBLE, 45.0)
+
+
+def test_a_node_reads_an_integer_array_in_its_params_file_as_doubles(params_node):
+    assert params_node.muscle.tau_fatigue_s == (30.0,)
+    assert params_node.get_parameter('tau_fatigue_s').type_ == Parameter.Type.DOUBLE_ARRAY
+
+
+def test_a_node_reads_an_integer_p_override_as_a_double(params_node):
+    assert params_node.muscle.k_se_n_per_m == 20000.0
+    assert isinstance(params_node.muscle.k_se_n_per_m, float)
+
+
+def test_a_node_parameter_outside_the_muscle_reads_an_integer_as_a_double(params_node):
+    rate = declare_checked(params_node, 'rate_hz', 1000.0,
+                           number_descriptor('step rate', 'Hz', 1.0, 10_000.0))
+    assert (rate, type(rate)) == (500.0, float)
+
+
+def test_the_cli_and_a_node_read_the_same_integer_params_file_alike(params_node):
+    offline, settings = load_muscle_params(params_node.params_file)
+    assert offline.replace(k_se_n_per_m=20000.0) == params_node.muscle
+    assert settings['rate_hz'] == 500
+
+
+def test_a_live_change_may_give_an_integer_to_a_double_parameter(params_node):
+    [result] = params_node.set_parameters([Parameter('f_iso_max_n', Parameter.Type.INTEGER,
+                                                     50)])
+    assert result.successful, result.reason
+    param = params_node.get_parameter('f_iso_max_n')
+    assert (param.type_, param.value) == (Parameter.Type.DOUBLE, 50.0)
+
+
+def test_an_integer_parameter_keeps_its_integer_type(params_node):
+    [result] = params_node.set_parameters([Parameter('n_units', Parameter.Type.INTEGER, 50)])
+    assert result.successful, result.reason
+    assert params_node.get_parameter('n_units').type_ == Parameter.Type.INTEGER
+
+
+def test_a_float_for_an_integer_parameter_is_still_rejected_live(params_node):
+    [result] = params_node.set_parameters([Parameter('n_units', Parameter.Type.DOUBLE, 50.5)])
+    assert not result.successful
+
+
+def test_the_cli_reads_an_integer_for_a_double_as_the_double(tmp_path, capsys):
+    runs = {}
+    for text in ('45', '45.0'):
+        params = tmp_path / f'muscle_{text}.yaml'
+        params.write_text(f'/**:\n  ros__parameters:\n    f_iso_max_n: {text}\n'
+                          '    rate_hz: 200\n')
+        out = tmp_path / f'run_{text}.csv'
+        status, _, err = run_main(capsys, 'simulate', '--protocol', 'I', '--params', params,
+                                  '--csv', out)
+        assert status == 0, err
+        runs[text] = out.read_text()
+    assert runs['45'] == runs['45.0']
+    assert len(runs['45'].splitlines()) == 1 + 200 * 6 + 1   # header, 6 s at 200 Hz, t = 0

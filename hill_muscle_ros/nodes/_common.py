@@ -495,24 +495,73 @@ def field_descriptor(field: dataclasses.Field, *, read_only: bool = False,
         additional_constraints=f'{each}{range_constraint(spec)} (finite)')
 
 
+#: Integer types ROS gives a value written without a decimal point (``45``,
+#: ``[1, 2]``), and the double types they are read as for a double parameter.
+_INTEGER_AS_DOUBLE = {Parameter.Type.INTEGER: Parameter.Type.DOUBLE,
+                      Parameter.Type.INTEGER_ARRAY: Parameter.Type.DOUBLE_ARRAY}
+
+
+def _as_double(param: Parameter, double_type: Parameter.Type) -> Parameter:
+    """``param`` (an integer or integer array) as the double type ``double_type``."""
+    value = param.value
+    value = float(value) if double_type == Parameter.Type.DOUBLE else [float(v) for v in value]
+    return Parameter(param.name, double_type, value)
+
+
+def _is_double(value: Any) -> bool:
+    """Whether ``value`` declares a double or double-array parameter."""
+    if isinstance(value, (list, tuple)):
+        return bool(value) and all(isinstance(v, float) for v in value)
+    return isinstance(value, float)
+
+
+def accept_integers_for_doubles(node: Node) -> None:
+    """Let a live change (``ros2 param set``) give an integer to a double
+    parameter, as the parameters file and ``-p`` may (:func:`declare_checked`):
+    ``45`` is read as ``45.0``, ``[1, 2]`` as ``[1.0, 2.0]``. Once per node.
+    """
+    if getattr(node, '_hill_muscle_integers_as_doubles', False):
+        return
+
+    def to_doubles(params: list[Parameter]) -> list[Parameter]:
+        out = []
+        for p in params:
+            double_type = _INTEGER_AS_DOUBLE.get(p.type_)
+            if double_type is not None and node.has_parameter(p.name) \
+                    and node.describe_parameter(p.name).type == double_type.value:
+                p = _as_double(p, double_type)
+            out.append(p)
+        return out
+
+    node.add_pre_set_parameters_callback(to_doubles)
+    node._hill_muscle_integers_as_doubles = True   # noqa: SLF001 - our own mark
+
+
 def declare_checked(node: Node, name: str, default: Any,
                     descriptor: ParameterDescriptor) -> Any:
     """Declare a parameter; turn a bad override into a :class:`StartupError`.
 
     rclpy raises on a wrong type or an out-of-range value from
     ``--params-file`` or ``-p``; the error names the parameter and the value.
+    An integer for a double parameter (``f_iso_max_n: 45``) is read as a
+    double (``45.0``), as the offline CLI reads the same file, at start-up and
+    in a live change (:func:`accept_integers_for_doubles`).
 
     :return: the parameter's value (override or default)
     """
+    accept_integers_for_doubles(node)
     given = parameter_overrides(node).get(name)  # only to quote it
     value = given.value if given is not None else default
     try:
+        double_type = _INTEGER_AS_DOUBLE.get(given.type_) if given is not None else None
+        if double_type is not None and _is_double(default):
+            return node.declare_parameter(name, _as_double(given, double_type).value,
+                                          descriptor, ignore_override=True).value
         return node.declare_parameter(name, default, descriptor).value
     except InvalidParameterTypeException:
-        hint = ' (write floats with a decimal point)' if isinstance(default, float) else ''
         raise StartupError(
             f'parameter `{name}`: got {value!r} ({type(value).__name__}), expected a '
-            f'{type(default).__name__} like {default!r}{hint}') from None
+            f'{type(default).__name__} like {default!r}') from None
     except InvalidParameterValueException as err:
         # rclpy 7.1.6 keeps the descriptor's reason only inside the message,
         # 'Invalid parameter value (v) for parameter. Reason: <reason>: <name>',
