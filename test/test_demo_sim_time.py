@@ -32,7 +32,7 @@ from hill_muscle_ros.timebase import NS_PER_S
 
 # alone: at RTF 10 a tolerance of 0.5 s of sim time is 50 ms of wall time; beside
 # three other ROS modules (xdist) a recorder's batch of 136 messages came 145 ms late.
-pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.alone]
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 RTF = 10.0
 #: [N] the pass criterion: every end-of-second reading within this of offline.

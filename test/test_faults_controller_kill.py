@@ -120,7 +120,16 @@ def trip_outside_bounds(run: dict) -> str | None:
     return None
 
 
-def test_killed_controller_leaves_the_muscle_at_R0_after_the_timeout(tmp_path, stall_watcher):
+@pytest.mark.realtime
+def test_killed_controller_leaves_the_muscle_at_R0_after_the_timeout(tmp_path, stall_watcher,
+                                                                     realtime_claim):
+    period_s = 1.0 / ControllerParams().rate_hz
+
+    def report(m):
+        realtime_claim('muscle watchdog trips after a killed controller',
+                       f'{m["t_trip_s"]:.4f} s', f'{INPUT_TIMEOUT_S - period_s - DDS_SLACK_S:g}'
+                       f'..{INPUT_TIMEOUT_S + DT_S + DDS_SLACK_S:g} s')
+
     # The trip time is measured against stamps seen through DDS: a run the
     # machine stalled is repeated, only then (stall_watch).
     runs = iter(range(10))
@@ -133,4 +142,4 @@ def test_killed_controller_leaves_the_muscle_at_R0_after_the_timeout(tmp_path, s
         gc.collect()
         return one_kill(run_dir)
 
-    repeat_only_on_external_stall(run, trip_outside_bounds, stall_watcher)
+    repeat_only_on_external_stall(run, trip_outside_bounds, stall_watcher, report=report)

@@ -35,7 +35,7 @@ from ros_helpers import Probe, ProcessGroup, node_command
 
 # alone: pacing keeps the node's keep-last-10 queue from dropping a bad value
 # only while no other ROS test loads the machine (publish_acked).
-pytestmark = [pytest.mark.faults, pytest.mark.ros, pytest.mark.alone]
+pytestmark = [pytest.mark.faults, pytest.mark.ros]
 
 _RUNS = itertools.count()
 RATE_HZ = 1000.0

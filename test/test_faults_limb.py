@@ -299,8 +299,15 @@ def timing_outside_bounds(run: dict) -> str | None:
     return None
 
 
+@pytest.mark.realtime
 def test_killed_controller_lets_the_knee_fall_after_the_watchdog_to_the_passive_rest(
-        tmp_path, stall_watcher):
+        tmp_path, stall_watcher, realtime_claim):
+    def report(m):
+        slack = round(DDS_SLACK_S * RATE_HZ)
+        realtime_claim('knee falls after the limb watchdog trips (steps)',
+                       f'{m["fallen_step"] - m["trip_step"]:+d} from the trip',
+                       f'{-slack:+d}..{1 + slack + round(FALL_S * RATE_HZ):+d}')
+
     runs = iter(range(10))
 
     def run() -> dict:
@@ -308,4 +315,4 @@ def test_killed_controller_lets_the_knee_fall_after_the_watchdog_to_the_passive_
         run_dir.mkdir()
         return one_kill(run_dir)
 
-    repeat_only_on_external_stall(run, timing_outside_bounds, stall_watcher)
+    repeat_only_on_external_stall(run, timing_outside_bounds, stall_watcher, report=report)

@@ -41,7 +41,7 @@ from hill_muscle_ros.params_file import load_muscle_params
 from live_run import record_live_run
 
 # alone: the length knots are sent a fixed time ahead of the plant.
-pytestmark = [pytest.mark.ros, pytest.mark.alone]
+pytestmark = [pytest.mark.ros]
 
 #: The simulated subject (the defaults are 45 N, 10 kN/m and 10 N): as in test_fit.
 TRUTH = {'f_iso_max_n': 52.0, 'k_se_n_per_m': 8000.0, 'fv_a_n': 13.0}

@@ -37,7 +37,7 @@ from hill_muscle_ros.timebase import NS_PER_S
 from ros_helpers import DEFAULT_TIMEOUT_S, Probe, ProcessGroup, node_command
 from stall_watch import repeat_only_on_external_stall
 
-pytestmark = [pytest.mark.ros, pytest.mark.slow]
+pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.realtime]
 
 KNEE_YAML = REPO / 'config' / 'knee.yaml'
 MUSCLES = ('quadriceps', 'hamstrings')
@@ -160,7 +160,13 @@ def loop_env(tmp_path, stall_watcher):
 
 @pytest.mark.parametrize('length', VARIANTS)
 def test_a_35_deg_step_settles_within_2_deg_in_2_s_and_a_0_2_hz_sine_tracks_within_3_deg_rms(
-        loop_env, length):
+        loop_env, length, realtime_claim):
+    def report(m):
+        realtime_claim(f'knee loop ({length}): 35 deg step settles', f'{m["settling_s"]:.3f} s',
+                       f'< {MAX_SETTLING_S} s')
+        realtime_claim(f'knee loop ({length}): 0.2 Hz sine RMS error',
+                       f'{m["sine_rms_deg"]:.2f} deg', f'<= {math.degrees(MAX_SINE_RMS_RAD):.1f} deg')
+
     def check(m):
         if not m['settling_s'] < MAX_SETTLING_S:
             return f'settling {m["settling_s"]:.3f} s'
@@ -170,4 +176,5 @@ def test_a_35_deg_step_settles_within_2_deg_in_2_s_and_a_0_2_hz_sine_tracks_with
             return f'sine RMS {m["sine_rms_deg"]:.2f} deg'
         return None
     procs, probe, tmp, watcher = loop_env
-    repeat_only_on_external_stall(lambda: run_profile(procs, probe, tmp, length), check, watcher)
+    repeat_only_on_external_stall(lambda: run_profile(procs, probe, tmp, length), check, watcher,
+                                  report=report)

@@ -301,9 +301,13 @@ def _lower_priority():
     # Each process starts in a session of its own, so in an autogroup of its own,
     # and the kernel shares the CPUs between autogroups before nice counts within
     # one: without this, three starting tools weighed as much as three simulators.
-    if os.path.exists(AUTOGROUP):
+    # A user who is not root may not write it (EACCES on most kernels): the
+    # tools then weigh as much as the simulator, a harder test, not a wrong one.
+    try:
         with open(AUTOGROUP, 'w') as group:
             group.write(str(TOOL_NICENESS))
+    except OSError:
+        pass
 
 
 def _run_tools(procs, ns, watch):
@@ -462,8 +466,8 @@ def test_gap_breakdown_tells_the_machine_from_the_simulator():
 
 @pytest.mark.ros
 @pytest.mark.slow
-@pytest.mark.alone
-def test_simulator_tick_never_pauses_while_cli_tools_join_and_leave(tmp_path):
+@pytest.mark.realtime
+def test_simulator_tick_never_pauses_while_cli_tools_join_and_leave(tmp_path, realtime_claim):
     for attempt in range(1, MAX_ATTEMPTS + 1):
         run = _one_run(tmp_path / f'attempt{attempt}')
         gap_s, end_s = run['gap_s'], run['gap_end_s']
@@ -474,6 +478,8 @@ def test_simulator_tick_never_pauses_while_cli_tools_join_and_leave(tmp_path):
               f'{machine_s * 1e3:.1f} ms, and was blocked otherwise at most '
               f'{blocked_s * 1e3:.1f} ms (watched over {span_s * 1e3:.1f} ms); {TOOLS} tools '
               f'in {run["tools_s"]:.1f} s')
+        realtime_claim('simulator tick gap while CLI tools come and go',
+                       f'{gap_s * 1e3:.1f} ms', f'< {MAX_TICK_GAP_S * 1e3:.0f} ms')
         if gap_s < MAX_TICK_GAP_S:
             return
         # The machine spoiled the run if it held the thread up for the bound or
