@@ -2,19 +2,36 @@
 # Both set up .venv on first use (idempotent, fast the second time).
 
 PYTHON ?= python3.11
-VENV   := .venv
+VENV   ?= .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: test test-serial demo figures clean venv bytecode kernels
+.PHONY: test test-serial check-realtime editable demo figures clean venv bytecode kernels
 
 venv: $(STAMP)
 
-$(STAMP): setup.py setup.cfg package.xml requirements-dev.txt requirements-ros.txt
+# The venv's pip is brought to the pinned PIP_VERSION first: a Python 3.11's
+# own pip may be old (Debian's is 23.0.1), and an old pip makes a legacy
+# editable install that puts the console scripts where setup.cfg's
+# ament_python script_dir says (lib/hill_muscle_ros), not in .venv/bin.
+PIP_VERSION := 25.3
+
+PIP_STAMP := $(VENV)/.pip-$(PIP_VERSION)
+
+$(PIP_STAMP):
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --disable-pip-version-check -q pip==$(PIP_VERSION)
+	touch $(PIP_STAMP)
+
+# The package itself, editable, without its dependencies (test_install_clean
+# runs this target alone on the system's Python 3.11).
+editable: $(PIP_STAMP)
+	$(BIN)/python -m pip install --disable-pip-version-check -q --no-deps -e .
+
+$(STAMP): $(PIP_STAMP) setup.py setup.cfg package.xml requirements-dev.txt requirements-ros.txt
 	$(BIN)/python -m pip install --disable-pip-version-check -q \
 	    -r requirements-dev.txt -r requirements-ros.txt
-	$(BIN)/python -m pip install --disable-pip-version-check -q --no-deps -e .
+	$(MAKE) editable
 	touch $(STAMP)
 
 # The package's bytecode, as pip writes it when it installs a package: the
@@ -32,18 +49,21 @@ bytecode: $(STAMP)
 kernels: $(STAMP) bytecode
 	$(BIN)/hill-muscle compile
 
-# Four pytest workers in two pools where test/conftest.py can keep the offline
-# tests out of the ROS tests' way (a CPU cgroup marked idle, and the cgroup
-# freezer for the two modules whose claim is on milliseconds): two run the
-# modules that start ROS processes, two at a time (one at a time for those
-# with a timing claim that needs the machine), two the offline modules at idle
-# CPU priority. Elsewhere it runs serially, and says so at the end.
-# `make test-serial` runs every test one after the other.
+# `make test`: the behaviour, every test but the real-time claims, on
+# TEST_WORKERS pytest-xdist workers (the tests of one ROS module stay on one
+# worker: test/conftest.py). `make test-serial`: the same, one after the other.
+# `make check-realtime`: the claims on milliseconds of wall time (tests marked
+# `realtime`), alone and serially, with a table of claim, measured and limit.
+TEST_WORKERS ?= 4
+
 test: $(STAMP) bytecode kernels
-	$(BIN)/python -m pytest -q -n auto --dist loadgroup --durations=15
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadgroup --durations=15
 
 test-serial: $(STAMP) bytecode kernels
-	$(BIN)/python -m pytest -q --durations=15
+	$(BIN)/python -m pytest -q -p no:xdist --durations=15
+
+check-realtime: $(STAMP) bytecode kernels
+	$(BIN)/python -m pytest -q -p no:xdist -m realtime -rA
 
 # The live demo: simulator, protocol player and recorder as three ROS 2
 # processes on a DDS domain of their own; the bag is read back, plotted

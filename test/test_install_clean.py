@@ -130,3 +130,26 @@ def test_installed_command_finds_its_shipped_protocol_and_parameters(clean_venv,
     assert proc.returncode == 0, f'hill-muscle simulate failed:\n{proc.stderr}'
     assert proc.stdout.startswith('Protocol II: units=multi, length=initial, 1000 Hz'), \
         proc.stdout
+
+
+#: The Python 3.11 a plain user's shell finds first on Debian: its venv seeds
+#: an old pip (23.0.1), whose legacy editable install honours setup.cfg's
+#: ament_python ``script_dir`` and put the console scripts outside ``bin/``.
+SYSTEM_PYTHON = Path('/usr/bin/python3.11')
+
+
+@pytest.mark.skipif(not SYSTEM_PYTHON.exists(), reason=f'no {SYSTEM_PYTHON} on this machine')
+def test_make_puts_the_commands_in_the_venvs_bin_on_the_systems_python(tmp_path):
+    """``make``'s editable install, from the system's Python 3.11 and its own
+    old pip (the Makefile brings pip to its pinned version first)."""
+    source = tmp_path / 'src'
+    shutil.copytree(REPO, source, ignore=COPY_IGNORE)
+    venv = tmp_path / 'venv'
+    proc = _run(['make', '-C', source, 'editable', f'VENV={venv}', f'PYTHON={SYSTEM_PYTHON}'],
+                tmp_path, INSTALL_TIMEOUT_S)
+    assert proc.returncode == 0, f'make editable failed:\n{proc.stdout}\n{proc.stderr}'
+    for command in ('hill-muscle', 'simulator', 'protocol_player', 'recorder'):
+        script = venv / 'bin' / command
+        assert script.is_file(), (f'{script} is missing: ' + ', '.join(
+            str(p.relative_to(venv)) for p in venv.rglob(command)))
+        assert script.read_text().startswith(f'#!{venv}/bin/python'), script.read_text()[:200]
