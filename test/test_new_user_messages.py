@@ -2,7 +2,9 @@
 that says what to do, or the behaviour the user expected.
 
 Offline where it can be: the CLI's ``main()`` in this process, a node's
-start-up checks as functions, and node processes that stop before DDS.
+start-up checks as functions, node processes that stop before DDS, and, for
+the parameters, a node in this process (no other process). Only the limb
+nodes started without a plant file create their participants (marked ``ros``).
 """
 from __future__ import annotations
 
@@ -11,9 +13,16 @@ import sys
 from pathlib import Path
 
 import pytest
+import rclpy
+from rclpy.parameter import Parameter
 
+from hill_muscle_ros import cli, resources
+from hill_muscle_ros.model.limb import LimbPlant
 from hill_muscle_ros.nodes._common import (StartupError, check_params_files,
-                                           params_file_arguments)
+                                           declare_checked, declare_muscle_parameters,
+                                           number_descriptor, params_file_arguments)
+from hill_muscle_ros.nodes.limb import require_muscles
+from hill_muscle_ros.params_file import load_muscle_params, load_plant
 
 HILL_MUSCLE = Path(sys.executable).with_name('hill-muscle')
 
@@ -72,8 +81,6 @@ def test_an_unparsable_p_override_still_gets_the_quoting_hint():
 
 
 # -- protocol names ------------------------------------------------------------------
-
-from hill_muscle_ros import cli, resources  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 KNEE = REPO / 'config' / 'knee.yaml'
@@ -149,9 +156,6 @@ def test_a_malformed_muscle_protocol_keeps_its_own_message(tmp_path, capsys):
 
 # -- the limb nodes without a plant file ----------------------------------------------
 
-from hill_muscle_ros.model.limb import LimbPlant  # noqa: E402
-from hill_muscle_ros.nodes.limb import require_muscles  # noqa: E402
-
 
 def test_a_plant_without_muscles_stops_start_up_naming_params_file_and_the_knee_preset():
     with pytest.raises(StartupError) as err:
@@ -163,7 +167,6 @@ def test_a_plant_without_muscles_stops_start_up_naming_params_file_and_the_knee_
 
 
 def test_the_named_knee_preset_is_a_plant_file_with_muscles():
-    from hill_muscle_ros.params_file import load_plant
     plant, _ = load_plant(resources.knee_plant_file())
     require_muscles(plant)   # no error
     assert plant.joint.name == 'knee' and plant.muscles
@@ -181,14 +184,6 @@ def test_a_limb_node_started_without_a_plant_file_exits_1_saying_how_to_give_one
 
 
 # -- integers for floating-point parameters -------------------------------------------
-
-import rclpy  # noqa: E402
-from rclpy.parameter import Parameter  # noqa: E402
-
-from hill_muscle_ros.model import MuscleParams  # noqa: E402
-from hill_muscle_ros.nodes._common import (declare_checked, declare_muscle_parameters,  # noqa: E402
-                                           number_descriptor)
-from hill_muscle_ros.params_file import load_muscle_params  # noqa: E402
 
 #: What a ROS user writes: integers for double parameters, and for a double array.
 INTEGER_PARAMS = ('/**:\n  ros__parameters:\n    f_iso_max_n: 45\n    rate_hz: 500\n'
