@@ -180,7 +180,7 @@ def test_log_line_says_the_localhost_range_the_user_set_not_what_rmw_is_handed(
 def test_log_line_says_the_subnet_range_and_where_it_comes_from(tmp_path, env, origin):
     note = use_udp_transport(env, profile_dir=tmp_path)
     assert note.startswith(f'DDS: discovery range SUBNET ({origin}) on UDPv4 only '
-                           '(FASTDDS_BUILTIN_TRANSPORTS=UDPv4): ')
+                           '(FASTDDS_BUILTIN_TRANSPORTS=UDPv4')
 
 
 def test_log_line_says_why_udp_only_and_how_to_keep_shared_memory(tmp_path):
