@@ -20,7 +20,9 @@ process and before ``rclpy.init``, what makes rmw_fastrtps create a UDPv4-only
 participant with the discovery scope the user asked for:
 
 - ``ROS_AUTOMATIC_DISCOVERY_RANGE`` unset or ``SUBNET``: Fast DDS's own
-  ``FASTDDS_BUILTIN_TRANSPORTS=UDPv4``.
+  ``FASTDDS_BUILTIN_TRANSPORTS=UDPv4``, and a profile (:func:`subnet_profile`)
+  with only the reliable endpoints' timing below (the participant keeps Fast
+  DDS's discovery).
 - ``LOCALHOST`` (also the deprecated ``ROS_LOCALHOST_ONLY=1``, and a value rcl
   does not know, which rcl reads as localhost): rmw_fastrtps replaces the
   transports with shared memory plus UDP in this mode, so the node asks rmw
@@ -29,8 +31,7 @@ participant with the discovery scope the user asked for:
   no multicast, the unicast discovery port, 127.0.0.1 and the
   ``ROS_STATIC_PEERS`` as initial peers over 32 participant ports, on UDPv4;
   and a participant announcement every :data:`ANNOUNCEMENT_PERIOD_S` in
-  place of Fast DDS's 3 s, and a reliable writer's heartbeat every
-  :data:`HEARTBEAT_PERIOD_S` in place of Fast DDS's 3 s (both below).
+  place of Fast DDS's 3 s, and the reliable endpoints' timing below.
 - ``OFF`` and ``SYSTEM_DEFAULT``: nothing (no other process to wait for, or
   Fast DDS exactly as the user configured it).
 
@@ -65,6 +66,23 @@ with the 3 s period they took 2.93-3.17 s to arrive whole; with 0.1 s,
 0.17-0.32 s. Fast DDS sends periodic heartbeats only while a writer holds
 samples some reader has not acknowledged, so an idle or fully acknowledged
 writer sends nothing more.
+
+Acknowledgements. A reader acknowledges samples only when a heartbeat asks,
+and the writer adds one to its data only when its send buffer fills: on a
+quiet link every acknowledgement waits for the next periodic heartbeat.
+Measured on an idle machine, a sample published to a simulator that had
+matched long before was acknowledged after 100.2-101.1 ms with the 0.1 s
+period (5 tries), 2999-3001 ms with Fast DDS's 3 s (the default of the
+unset range, 3 tries). The protocol player waits for acknowledgements to
+start and to end (issue 34: its handshake took 150 ms, 3 s with the range
+unset, and its final zero went unacknowledged after 2 s). Hence
+:data:`HEARTBEAT_PERIOD_S` of 10 ms, and 1 ms in place of Fast DDS's 5 ms
+for a reader's answer to a heartbeat (:data:`HEARTBEAT_RESPONSE_DELAY_S`) and
+a writer's answer to a negative acknowledgement
+(:data:`NACK_RESPONSE_DELAY_S`): an acknowledgement then takes at most about
+11 ms and a repair about 12 ms, under 20 ms. The cost, only while a writer
+holds unacknowledged samples, is a heartbeat and its answer per 10 ms and
+reader, against 1000 samples a second from the nodes' 1 kHz writers.
 
 What it costs: shared memory saves copies of large messages; the package's
 messages are a few hundred bytes. Reliability, history and every other QoS are
@@ -117,10 +135,17 @@ LOCALHOST_MAX_INITIAL_PEERS = 32
 #: DDS's default is 3 s): the longest a participant that missed a node's answer
 #: to its own announcement waits to discover the node (module docstring).
 ANNOUNCEMENT_PERIOD_S = 0.5
-#: [s] period of a reliable writer's heartbeats in the localhost profile (Fast
-#: DDS's default is 3 s): bounds how late a reader learns of samples UDP lost at
-#: the end of a burst (module docstring).
-HEARTBEAT_PERIOD_S = 0.1
+#: [s] period of a reliable writer's heartbeats in both profiles (Fast DDS's
+#: default is 3 s): bounds how late a reader acknowledges a sample, and learns
+#: of samples UDP lost at the end of a burst (module docstring).
+HEARTBEAT_PERIOD_S = 0.01
+#: [s] how long a reliable reader waits to answer a heartbeat (Fast DDS: 5 ms),
+#: so that one answer covers a burst of heartbeats; part of every acknowledgement.
+HEARTBEAT_RESPONSE_DELAY_S = 0.001
+#: [s] how long a reliable writer waits to resend what a reader reported
+#: missing (Fast DDS: 5 ms), so that one repair covers several readers; part
+#: of every repair.
+NACK_RESPONSE_DELAY_S = 0.001
 #: Where the localhost profile's file goes when no directory is given.
 PROFILE_FILE_PREFIX = 'hill_muscle_ros_fastdds_udp_'
 
@@ -156,6 +181,45 @@ def static_peer_addresses(environ: MutableMapping[str, str]) -> list[str]:
     return addresses
 
 
+def _duration_xml(tag: str, seconds: float) -> str:
+    """``<tag><sec>..</sec><nanosec>..</nanosec></tag>``: a Fast DDS XML duration."""
+    sec, nanosec = divmod(round(seconds * 1e9), 1_000_000_000)
+    return f'<{tag}><sec>{sec}</sec><nanosec>{nanosec}</nanosec></{tag}>'
+
+
+def _endpoint_profiles() -> str:
+    """The default data writer and data reader profiles of both profiles: the
+    reliable endpoints' timing (module docstring, "Acknowledgements").
+    rmw_fastrtps starts every endpoint from them and sets only the ROS QoS on
+    top."""
+    return f'''  <data_writer profile_name="hill_muscle_ros_writer" is_default_profile="true">
+    <times>
+      {_duration_xml('heartbeatPeriod', HEARTBEAT_PERIOD_S)}
+      {_duration_xml('nackResponseDelay', NACK_RESPONSE_DELAY_S)}
+    </times>
+  </data_writer>
+  <data_reader profile_name="hill_muscle_ros_reader" is_default_profile="true">
+    <times>
+      {_duration_xml('heartbeatResponseDelay', HEARTBEAT_RESPONSE_DELAY_S)}
+    </times>
+  </data_reader>
+'''
+
+
+def subnet_profile() -> str:
+    """A Fast DDS XML profile for the unset or ``SUBNET`` range: the reliable
+    endpoints' timing only (:func:`_endpoint_profiles`). No participant
+    profile, so discovery is Fast DDS's own and ``FASTDDS_BUILTIN_TRANSPORTS``
+    still chooses the transports (measured: with both set, a node maps no
+    Fast DDS shared-memory segment)."""
+    return f'''<?xml version="1.0" encoding="UTF-8" ?>
+<!-- Written by hill_muscle_ros (dds_transport.py): the reliable endpoints'
+     timing for the SUBNET discovery range. -->
+<profiles xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
+{_endpoint_profiles()}</profiles>
+'''
+
+
 def localhost_profile(static_peers: list[str]) -> str:
     """A Fast DDS XML profile: rmw_fastrtps's localhost discovery, on UDPv4 only.
 
@@ -163,16 +227,13 @@ def localhost_profile(static_peers: list[str]) -> str:
     metatraffic locator instead), initial peers 127.0.0.1 and ``static_peers``,
     one UDPv4 transport with :data:`LOCALHOST_MAX_INITIAL_PEERS` in place of
     the built-in shared memory and UDP transports, an announcement every
-    :data:`ANNOUNCEMENT_PERIOD_S`; and a default data writer profile with a
-    heartbeat every :data:`HEARTBEAT_PERIOD_S` (rmw_fastrtps starts from it
-    and sets only the ROS QoS on top).
+    :data:`ANNOUNCEMENT_PERIOD_S`; and the default data writer and reader
+    profiles of :func:`_endpoint_profiles`.
 
     :param static_peers: IPv4 addresses of ``ROS_STATIC_PEERS``
     """
     peers = ''.join(f'\n          <locator><udpv4><address>{escape(address, quote=False)}</address></udpv4>'
                     '</locator>' for address in static_peers)
-    announce_s, announce_ns = divmod(round(ANNOUNCEMENT_PERIOD_S * 1e9), 1_000_000_000)
-    heartbeat_s, heartbeat_ns = divmod(round(HEARTBEAT_PERIOD_S * 1e9), 1_000_000_000)
     return f'''<?xml version="1.0" encoding="UTF-8" ?>
 <!-- Written by hill_muscle_ros (dds_transport.py): rmw_fastrtps's
      ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST discovery, on UDPv4 only. -->
@@ -188,7 +249,7 @@ def localhost_profile(static_peers: list[str]) -> str:
     <rtps>
       <builtin>
         <discovery_config>
-          <leaseAnnouncement><sec>{announce_s}</sec><nanosec>{announce_ns}</nanosec></leaseAnnouncement>
+          {_duration_xml('leaseAnnouncement', ANNOUNCEMENT_PERIOD_S)}
         </discovery_config>
         <metatrafficUnicastLocatorList><locator/></metatrafficUnicastLocatorList>
         <initialPeersList>{peers}
@@ -199,12 +260,7 @@ def localhost_profile(static_peers: list[str]) -> str:
       <useBuiltinTransports>false</useBuiltinTransports>
     </rtps>
   </participant>
-  <data_writer profile_name="hill_muscle_ros_writer" is_default_profile="true">
-    <times>
-      <heartbeatPeriod><sec>{heartbeat_s}</sec><nanosec>{heartbeat_ns}</nanosec></heartbeatPeriod>
-    </times>
-  </data_writer>
-</profiles>
+{_endpoint_profiles()}</profiles>
 '''
 
 
@@ -251,7 +307,7 @@ def use_udp_transport(environ: MutableMapping[str, str] | None = None,
     Call before ``rclpy.init``. See the module docstring for when and how.
 
     :param environ: the environment to change (default: ``os.environ``)
-    :param profile_dir: where the localhost profile is written (see :func:`write_profile`)
+    :param profile_dir: where the profile is written (see :func:`write_profile`)
     :return: one line saying what was set and why, or ``None`` if nothing was
     :raises ValueError: on an unknown :data:`TRANSPORT_ENV` value or a
         ``ROS_STATIC_PEERS`` entry that does not resolve
@@ -277,7 +333,12 @@ def use_udp_transport(environ: MutableMapping[str, str] | None = None,
            f'when another process joins ({TRANSPORT_ENV}=rmw keeps it)')
     if scope == 'SUBNET':
         environ['FASTDDS_BUILTIN_TRANSPORTS'] = 'UDPv4'
-        return f'{heading} (FASTDDS_BUILTIN_TRANSPORTS=UDPv4): {why}'
+        # The endpoints' timing; replaces a profile of the package a parent
+        # process set up for its own range (_is_own_profile).
+        profile = write_profile(subnet_profile(), profile_dir)
+        environ['FASTRTPS_DEFAULT_PROFILES_FILE'] = str(profile)
+        return (f'{heading} (FASTDDS_BUILTIN_TRANSPORTS=UDPv4, Fast DDS profile {profile}): '
+                f'{why}')
     # rcl ignores the static peers under the deprecated ROS_LOCALHOST_ONLY=1.
     peers = [] if environ.get(LOCALHOST_ONLY_ENV) == '1' else static_peer_addresses(environ)
     profile = write_profile(localhost_profile(peers), profile_dir)

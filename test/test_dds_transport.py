@@ -5,8 +5,9 @@ writes. That a node set up so talks to the rest of the graph is what every
 node test checks (all nodes start through ``run_node``); that it keeps the
 simulator's steps going while tools join is ``test_sim_tool_churn.py``. The
 last two tests are over DDS: a participant that joins finds a node that has
-run for a while within about one announcement period, and a burst whose tail
-UDP dropped is repaired within a few heartbeat periods.
+run for a while within about one announcement period, a burst whose tail
+UDP dropped is repaired within a few heartbeat periods, and (a ``realtime``
+claim) a sample is acknowledged within 20 ms.
 """
 from __future__ import annotations
 
@@ -19,11 +20,15 @@ from pathlib import Path
 import pytest
 from rcl_interfaces.srv import ListParameters
 
+from rclpy.duration import Duration
+from std_msgs.msg import Float64
+
 from hill_muscle_ros.dds_transport import (ANNOUNCEMENT_PERIOD_S, HEARTBEAT_PERIOD_S,
-                                           TRANSPORT_ENV,
+                                           HEARTBEAT_RESPONSE_DELAY_S,
+                                           NACK_RESPONSE_DELAY_S, TRANSPORT_ENV,
                                            USER_FASTDDS_SETTINGS, discovery_range,
-                                           localhost_profile, use_udp_transport,
-                                           write_profile)
+                                           localhost_profile, subnet_profile,
+                                           use_udp_transport, write_profile)
 from ros_helpers import DEFAULT_TIMEOUT_S, Probe, ProcessGroup, node_command, ros_env
 
 NS = {'p': 'http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles'}
@@ -47,12 +52,31 @@ def _initial_peers(profile_xml: str) -> list[str]:
 
 
 @pytest.mark.parametrize('scope', [None, '', 'SUBNET'])
-def test_subnet_discovery_gets_fast_dds_builtin_udpv4_only(tmp_path, scope):
+def test_subnet_discovery_gets_fast_dds_builtin_udpv4_and_the_endpoint_profile(tmp_path,
+                                                                                 scope):
     env = {} if scope is None else {'ROS_AUTOMATIC_DISCOVERY_RANGE': scope}
     before = dict(env)
     note = use_udp_transport(env, profile_dir=tmp_path)
-    assert env == {**before, 'FASTDDS_BUILTIN_TRANSPORTS': 'UDPv4'}
-    assert 'UDPv4 only' in note
+    profile = env.get('FASTRTPS_DEFAULT_PROFILES_FILE')
+    assert env == {**before, 'FASTDDS_BUILTIN_TRANSPORTS': 'UDPv4',
+                   'FASTRTPS_DEFAULT_PROFILES_FILE': profile}
+    assert Path(profile).read_text() == subnet_profile()
+    assert 'UDPv4 only' in note and profile in note
+
+
+def test_subnet_profile_leaves_the_participant_to_fast_dds(tmp_path):
+    # Discovery and transports stay Fast DDS's (FASTDDS_BUILTIN_TRANSPORTS).
+    root = ET.fromstring(subnet_profile())
+    assert root.find('p:participant', NS) is None
+    assert root.find('p:transport_descriptors', NS) is None
+
+
+def test_a_localhost_profile_inherited_from_a_process_of_the_package_gives_way_to_subnet(
+        tmp_path):
+    parent, _ = _localhost(tmp_path)
+    child = {'FASTRTPS_DEFAULT_PROFILES_FILE': parent['FASTRTPS_DEFAULT_PROFILES_FILE']}
+    use_udp_transport(child, profile_dir=tmp_path)
+    assert Path(child['FASTRTPS_DEFAULT_PROFILES_FILE']).read_text() == subnet_profile()
 
 
 def test_localhost_discovery_becomes_a_udpv4_profile_rmw_leaves_alone(tmp_path):
@@ -223,14 +247,58 @@ def test_a_joining_participant_finds_a_running_node_within_an_announcement_perio
     assert max(took_s) < DISCOVERY_BOUND_S, took_s
 
 
-def test_localhost_profile_heartbeats_reliable_writers_every_heartbeat_period(tmp_path):
-    env, _ = _localhost(tmp_path)
+def _duration_s(element) -> float:
+    return (int(element.findtext('p:sec', namespaces=NS))
+            + int(element.findtext('p:nanosec', namespaces=NS)) / 1e9)
+
+
+@pytest.mark.parametrize('range_', ['LOCALHOST', 'SUBNET'])
+def test_profile_times_reliable_writers_and_readers_for_quick_acknowledgements(tmp_path,
+                                                                               range_):
+    env = {'ROS_AUTOMATIC_DISCOVERY_RANGE': range_}
+    use_udp_transport(env, profile_dir=tmp_path)
     root = ET.parse(env['FASTRTPS_DEFAULT_PROFILES_FILE']).getroot()
     [writer] = root.findall('p:data_writer', NS)
-    assert writer.get('is_default_profile') == 'true'
-    period = writer.find('p:times/p:heartbeatPeriod', NS)
-    assert (int(period.findtext('p:sec', namespaces=NS))
-            + int(period.findtext('p:nanosec', namespaces=NS)) / 1e9) == HEARTBEAT_PERIOD_S
+    [reader] = root.findall('p:data_reader', NS)
+    assert writer.get('is_default_profile') == 'true' == reader.get('is_default_profile')
+    assert _duration_s(writer.find('p:times/p:heartbeatPeriod', NS)) == HEARTBEAT_PERIOD_S
+    assert _duration_s(writer.find('p:times/p:nackResponseDelay', NS)) == NACK_RESPONSE_DELAY_S
+    assert (_duration_s(reader.find('p:times/p:heartbeatResponseDelay', NS))
+            == HEARTBEAT_RESPONSE_DELAY_S)
+
+
+#: Samples published one at a time, each once the one before is acknowledged.
+ACKED_SAMPLES = 20
+#: [s] issue 34: a reliable sample is acknowledged within 20 ms on an idle
+#: machine. Measured: 100.2-101.1 ms with the 0.1 s heartbeat period, 3.0 s
+#: with Fast DDS's default (every acknowledgement waits for a heartbeat).
+ACK_BOUND_S = 0.02
+
+
+@pytest.mark.ros
+@pytest.mark.realtime
+def test_a_reliable_sample_to_a_running_node_is_acknowledged_within_20_ms(tmp_path,
+                                                                          realtime_claim):
+    with ProcessGroup(tmp_path) as procs, Probe('ack_probe') as probe:
+        sim = procs.start('simulator', node_command('simulator', ns='/acked'))
+        pub = probe.publisher('/acked/pulse_width', Float64)
+        probe.spin_until(lambda: pub.get_subscription_count() >= 1, 'the simulator to match',
+                         procs=[sim])
+        # Discovery both ways: the first sample is acknowledged only once the
+        # simulator has matched this writer too.
+        pub.publish(Float64(data=0.0))
+        assert pub.wait_for_all_acked(Duration(seconds=DEFAULT_TIMEOUT_S))
+        took_s = []
+        for _ in range(ACKED_SAMPLES):
+            start_s = time.monotonic()
+            pub.publish(Float64(data=0.0))
+            assert pub.wait_for_all_acked(Duration(seconds=DEFAULT_TIMEOUT_S))
+            took_s.append(time.monotonic() - start_s)
+    realtime_claim('reliable sample acknowledged', f'{max(took_s) * 1e3:.1f} ms',
+                   f'{ACK_BOUND_S * 1e3:g} ms')
+    print(f'\nMEASURED acknowledgements of {ACKED_SAMPLES} samples: '
+          f'{", ".join(f"{t * 1e3:.1f}" for t in took_s)} ms')
+    assert max(took_s) < ACK_BOUND_S, took_s
 
 
 #: Messages per burst (a ramp's knots sent ahead) and bursts.
