@@ -57,7 +57,7 @@ kernels: $(STAMP) bytecode
 TEST_WORKERS ?= 4
 
 test: $(STAMP) bytecode kernels
-	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadgroup --durations=15
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadscope --durations=15
 
 test-serial: $(STAMP) bytecode kernels
 	$(BIN)/python -m pytest -q -p no:xdist --durations=15

@@ -7,10 +7,11 @@ session never cross-talk; discovery stays on this host
 (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``). Subprocesses inherit both.
 
 **Two kinds of test.** ``make test`` runs the behaviour: every test not
-marked ``realtime``, on pytest-xdist workers with ``--dist loadgroup``. The
-tests of a module go to one worker together unless they name an
-``xdist_group`` of their own (:func:`pytest_collection_modifyitems`), so
-that the nodes a module starts in a module-scoped fixture start once. ``make check-realtime`` runs the tests
+marked ``realtime``, on pytest-xdist workers with ``--dist loadscope``: the
+tests of a module go to one worker together, so that the nodes a module
+starts in a module-scoped fixture start once. (``--dist loadgroup`` with an
+``xdist_group`` marker a module did not keep a module on one worker under
+pytest 9.2 and xdist 3.8.) ``make check-realtime`` runs the tests
 marked ``realtime`` (claims on milliseconds of wall time) alone and
 serially, each under the :class:`~stall_watch.StallWatcher`, and prints one
 table of claims (:func:`pytest_terminal_summary`).
@@ -76,15 +77,8 @@ def pytest_configure(config):
     use_udp_transport()
 
 
-@pytest.hookimpl(tryfirst=True)   # before xdist reads the groups off the markers
 def pytest_collection_modifyitems(config, items):
-    """Group each module's tests on one xdist worker (its module fixtures,
-    the nodes they start and the kernels they load, are then set up once)
-    unless a test names an ``xdist_group`` of its own, and keep the
-    ``realtime`` tests out of a run that does not ask for them by ``-m``."""
-    for item in items:
-        if not item.get_closest_marker('xdist_group'):
-            item.add_marker(pytest.mark.xdist_group(item.module.__name__))
+    """Keep the ``realtime`` tests out of a run that does not ask for them by ``-m``."""
     if 'realtime' in (config.option.markexpr or ''):
         return
     kept = [item for item in items if not item.get_closest_marker('realtime')]

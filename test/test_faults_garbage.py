@@ -33,8 +33,9 @@ from hill_muscle_ros.control import ControllerParams, ForceController
 from hill_muscle_ros.model import Muscle, MuscleParams
 from ros_helpers import Probe, ProcessGroup, node_command
 
-# alone: pacing keeps the node's keep-last-10 queue from dropping a bad value
-# only while no other ROS test loads the machine (publish_acked).
+# Pacing keeps the node's keep-last-10 queue from dropping a bad value only
+# while no other test loads the machine (publish_acked): that every bad value
+# is warned or counted is a realtime claim; the rest is behaviour.
 pytestmark = [pytest.mark.faults, pytest.mark.ros]
 
 _RUNS = itertools.count()
@@ -146,14 +147,33 @@ def accounted(lines: list[str]) -> int:
 
 def assert_logged_throttled(log: str, topic: str, first_bad: float, sent: int,
                             elapsed_s: float) -> None:
+    """A warning names the topic and its first bad value, at most one a
+    throttle period, and no more bad values are counted than were sent."""
     lines = warnings_for(log, topic)
     assert lines, f'no warning for {topic}'
     assert repr(first_bad) in lines[0]
     assert len(lines) <= elapsed_s / THROTTLE_S + 1, lines
-    assert accounted(lines) == sent, lines
+    assert accounted(lines) <= sent, lines
 
 
-def test_simulator_ignores_garbage_on_every_input_and_keeps_the_last_good_value(tmp_path):
+def assert_every_bad_value_accounted(run: dict, realtime_claim) -> None:
+    """Every bad value sent is in the log, warned or counted: a claim on the
+    pacing (:func:`publish_acked`) keeping the node's keep-last queue from
+    overflowing, which holds only while the machine gives the node a CPU
+    within a few of :data:`PACE_S`."""
+    for topic, sent in run['sent'].items():
+        seen = accounted(warnings_for(run['log'], f"{run['ns']}/{topic}"))
+        realtime_claim(f'{run["node"]}: bad values on {topic} warned or counted, paced '
+                       f'{PACE_S * 1e3:g} ms apart', f'{seen} of {sent}', f'{sent} of {sent}')
+    for topic, sent in run['sent'].items():
+        lines = warnings_for(run['log'], f"{run['ns']}/{topic}")
+        assert accounted(lines) == sent, lines
+
+
+@pytest.fixture(scope='module')
+def simulator_run(tmp_path_factory) -> dict:
+    """The simulator fed garbage on every input (checked as it runs), and its log."""
+    tmp_path = tmp_path_factory.mktemp('garbage_simulator')
     ns = f'/garbage_{os.getpid()}_{next(_RUNS)}'
     with ProcessGroup(tmp_path) as procs, Probe('garbage_probe') as probe:
         sim = procs.start('simulator', node_command('simulator', ns=ns, params={
@@ -196,7 +216,17 @@ def test_simulator_ignores_garbage_on_every_input_and_keeps_the_last_good_value(
                       f'{sent[t]} bad values' for t in pubs))
     for topic in pubs:
         assert_logged_throttled(log, f'{ns}/{topic}', BAD[topic][0], sent[topic], elapsed)
-    assert final == pytest.approx(expected, abs=STEADY_TOL_N)
+    return {'node': 'simulator', 'ns': ns, 'log': log, 'sent': sent, 'final': final,
+            'expected': expected}
+
+
+def test_simulator_ignores_garbage_on_every_input_and_keeps_the_last_good_value(simulator_run):
+    assert simulator_run['final'] == pytest.approx(simulator_run['expected'], abs=STEADY_TOL_N)
+
+
+@pytest.mark.realtime
+def test_simulator_warns_or_counts_every_paced_bad_value(simulator_run, realtime_claim):
+    assert_every_bad_value_accounted(simulator_run, realtime_claim)
 
 
 #: [s] the controller's ``feedback_timeout_s`` in its garbage test: the
@@ -206,7 +236,10 @@ def test_simulator_ignores_garbage_on_every_input_and_keeps_the_last_good_value(
 CONTROLLER_FEEDBACK_TIMEOUT_S = 30.0
 
 
-def test_controller_ignores_garbage_on_every_input_and_keeps_the_last_good_value(tmp_path):
+@pytest.fixture(scope='module')
+def controller_run(tmp_path_factory) -> dict:
+    """The controller fed garbage on every input (checked as it runs), and its log."""
+    tmp_path = tmp_path_factory.mktemp('garbage_controller')
     ns = f'/garbage_ctrl_{os.getpid()}_{next(_RUNS)}'
     target_n = 10.0
     # The controller's defaults: model feedforward with the default muscle.
@@ -248,4 +281,15 @@ def test_controller_ignores_garbage_on_every_input_and_keeps_the_last_good_value
                       f'{sent[t]} bad values' for t in pubs))
     for topic in pubs:
         assert_logged_throttled(log, f'{ns}/{topic}', BAD[topic][0], sent[topic], elapsed)
-    assert set(after) == {expected_pw}
+    return {'node': 'force controller', 'ns': ns, 'log': log, 'sent': sent, 'after': after,
+            'expected_pw': expected_pw}
+
+
+def test_controller_ignores_garbage_on_every_input_and_keeps_the_last_good_value(
+        controller_run):
+    assert set(controller_run['after']) == {controller_run['expected_pw']}
+
+
+@pytest.mark.realtime
+def test_controller_warns_or_counts_every_paced_bad_value(controller_run, realtime_claim):
+    assert_every_bad_value_accounted(controller_run, realtime_claim)

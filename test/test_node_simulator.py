@@ -143,7 +143,8 @@ def test_rejected_live_parameter_gives_reason_naming_it_and_the_value(sim, name,
 
 def test_wrong_live_parameter_type_is_rejected_by_rclpy(sim):
     # rclpy's type check runs before any callback; its reason names the types.
-    results = sim['probe'].set_parameters('/left/simulator', {'f_iso_max_n': 45},
+    # (An integer is read as the double: test_new_user_messages.)
+    results = sim['probe'].set_parameters('/left/simulator', {'f_iso_max_n': '45'},
                                           procs=sim['procs'])
     assert not results[0].successful
     assert 'Wrong parameter type' in results[0].reason
@@ -340,7 +341,7 @@ def test_namespaced_simulators_do_not_cross_talk(sim):
     ('k_se_n_per_m:=-3.0', "parameter `k_se_n_per_m` must be positive and finite, got -3.0"),
     ('l_opt_m:=0.001', 'l_rest_m = 0.125 / l_opt_m = 0.001'),
     ("frame_id:=''", "parameter `frame_id` must be a non-empty frame name"),
-    ('f_iso_max_n:=45', '`f_iso_max_n`: got 45'),
+    ('f_iso_max_n:=true', '`f_iso_max_n`: got True (bool), expected a float'),
     ('units:=triple', "`units` must be one of multi, single, got 'triple'"),
 ])
 def test_bad_startup_parameter_exits_nonzero_naming_it(tmp_path, override, needle):
