@@ -1,4 +1,4 @@
-"""What a new user meets first (issue 34, section 3): each mistake gets a message
+"""What a new user meets first: each mistake gets a message
 that says what to do, or the behaviour the user expected.
 
 Offline where it can be: the CLI's ``main()`` in this process, a node's
