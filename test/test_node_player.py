@@ -100,14 +100,16 @@ def test_player_replays_protocol_then_sends_zero(tmp_path, output, pw_max_s, sca
                          'the final zero stimulation and the final length')
     assert player.returncode == 0, player.describe()
     values = np.array([m.data for m in stim.messages])
-    assert values[0] == pytest.approx(protocol.recruitment(0.0, pw_max_s) * scale)
+    # The rest state first, then the protocol from its time 0.
+    assert values[0] == 0.0 and length.messages[0].data == protocol.dl_mt(0.0)
+    assert values[1] == pytest.approx(protocol.recruitment(0.0, pw_max_s) * scale)
     assert values[-1] == 0.0
     allowed = {0.0, *(r * scale for r in protocol.stimulation.values)}
     assert all(any(math.isclose(v, a) for a in allowed) for v in values)
     assert length.messages[-1].data == pytest.approx(protocol.dl_mt(protocol.duration_s))
 
 
-#: Polls of the player (every 50 ms) that must see the first sample
+#: Polls of the player (every 50 ms) that must see the rest state
 #: unacknowledged, and so not start the protocol.
 UNACKED_POLLS = 5
 
@@ -150,22 +152,23 @@ def player_in_process(tmp_path):
         spinner.join(timeout=5.0)
 
 
-def test_the_protocol_starts_only_once_every_subscriber_has_its_first_sample(
+def test_the_protocol_starts_only_once_every_subscriber_has_the_rest_state(
         player_in_process):
     # A subscriber matched on the player's side may not yet have matched back:
-    # the first sample then reaches it only with the next heartbeat, and the
-    # protocol's time must not run meanwhile.
+    # what the player sends then reaches it only with the next heartbeat, so
+    # the rest state goes first and the protocol waits for its acknowledgement.
     player, acked, polls = player_in_process
     protocol = Protocol.from_mapping(SHORT)
     with Probe() as probe:
         stim = probe.record('/handshake/recruitment', Float64)
         probe.record('/handshake/length_command', Float64)
         probe.wait_for_messages(stim)
-        assert stim.messages[0].data == pytest.approx(protocol.recruitment(0.0, 1.0))
+        assert stim.messages[0].data == 0.0
         seen = polls[0]
-        probe.spin_until(lambda: polls[0] >= seen + UNACKED_POLLS or player._t0 is not None,
+        probe.spin_until(lambda: polls[0] >= seen + UNACKED_POLLS
+                         or player._playback.t0_ns is not None,
                          f'{UNACKED_POLLS} more polls of the player, or its start')
-        assert player._t0 is None, 'the protocol started without an acknowledgement'
+        assert player._playback.t0_ns is None, 'the protocol started without an acknowledgement'
         assert len(stim.messages) == 1
         acked_at_s = time.monotonic()
         acked.set()
@@ -174,6 +177,7 @@ def test_the_protocol_starts_only_once_every_subscriber_has_its_first_sample(
     assert player.done.result() == 0
     assert len(stim.messages) > 2
     assert stim.times_s[1] >= acked_at_s
+    assert stim.messages[1].data == pytest.approx(protocol.recruitment(0.0, 1.0))
     assert stim.messages[-1].data == 0.0
 
 
@@ -357,8 +361,9 @@ def test_player_with_lookahead_sends_the_protocol_length_ahead_as_stamped_knots(
     # knots is the protocol exactly.
     for corner in protocol.dl_mt_m.breakpoints_s:
         assert np.min(np.abs(tau - corner)) < 1e-9, corner
-    # The whole first window was sent before the first stimulation.
-    first_stim_s = stim.times_s[0]
+    # The rest state, then the whole first window before the protocol's first stimulation.
+    assert stim.messages[0].data == 0.0
+    first_stim_s = stim.times_s[1]
     sent_before = tau[np.array(knots.times_s) < first_stim_s]
     assert sent_before.max() >= LOOKAHEAD_S - 1e-9
     assert np.all(np.diff(sent_before) <= 1.0 / PLAYER_RATE_HZ + 1e-9)

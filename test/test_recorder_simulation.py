@@ -164,9 +164,9 @@ def test_player_inputs_come_back_exactly(live_run):
     bag = read_bag(live_run['bag'])
     pw_max = MuscleParams().pw_max_s
     pulse = bag.topic(f'{live_run["ns"]}/pulse_width').values()
-    # Protocol II holds R = 0.5, then 1.0, and ends with zero stimulation.
+    # The rest state (zero), then Protocol II: R = 0.5, then 1.0, and zero stimulation at the end.
     assert set(np.unique(pulse)) == {0.0, 0.5 * pw_max, pw_max}
-    assert pulse[0] == 0.5 * pw_max and pulse[-1] == 0.0
+    assert pulse[0] == 0.0 and pulse[1] == 0.5 * pw_max and pulse[-1] == 0.0
     length = bag.topic(f'{live_run["ns"]}/length_command_stamped').values()
     assert length.min() == 0.0 and length.max() == 0.010
 

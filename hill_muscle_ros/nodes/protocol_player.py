@@ -4,10 +4,11 @@ It waits until each of its outputs has ``min_subscribers`` subscribers (up to
 ``wait_for_subscribers_s``), then publishes ``length_command`` [m] and
 ``pulse_width`` [s] or ``recruitment`` [-] (std_msgs/Float64) at ``rate_hz``
 against its own clock, which follows ``/clock`` when ``use_sim_time`` is set.
-The protocol's time starts when every subscriber has acknowledged its first
-sample, not at the match, which can come before the subscriber has matched
-back (the first sample would then arrive a heartbeat late).
-At the end it publishes zero stimulation and exits with status 0.
+Time 0 of the protocol is when its first sample acts: the player first sends
+the rest state (zero stimulation at the protocol's starting length), waits
+until every subscriber has acknowledged it, and then starts the protocol's
+clock with its first sample (:mod:`hill_muscle_ros.playback`, the timeline
+without ROS). At the end it publishes zero stimulation and exits with status 0.
 
 With ``lookahead_s`` > 0 the length goes ahead of time instead: the player
 publishes ``length_command_stamped`` (geometry_msgs/PointStamped, dl_MT [m]
@@ -31,7 +32,6 @@ from __future__ import annotations
 import dataclasses
 import math
 
-import numpy as np
 from geometry_msgs.msg import PointStamped
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.clock import Clock, ClockType
@@ -44,6 +44,7 @@ from std_msgs.msg import Float64
 from ..model import MuscleParams, Protocol, ProtocolError
 from ..model.params import CURVE_FIELDS
 from ..model.protocol import STIMULATION_OUTPUTS
+from ..playback import LENGTH, LENGTH_STAMPED, STIMULATION, Playback, Send
 from ..resources import BUILTIN_PROTOCOLS, find_protocol
 from ..timebase import NS_PER_S
 from ._common import (EXIT_FAILURE, EXIT_SUCCESS, OUTPUT_QOS, DiagnosticReport,
@@ -60,8 +61,11 @@ DEFAULT_RATE_HZ = 1000.0
 RATE_HZ_RANGE = (1.0, 100_000.0)
 DEFAULT_WAIT_FOR_SUBSCRIBERS_S = 10.0
 WAIT_RANGE_S = (0.0, 3600.0)
-#: [s] how often the player checks for subscribers and for a running clock.
+#: [s] how often the player checks for subscribers and for a running clock;
+#: also the longest it blocks at a time waiting for the rest state's
+#: acknowledgement, which it takes as soon as it comes.
 POLL_PERIOD_S = 0.05
+NS_PER_MS = 1_000_000
 #: [s] how long the player waits, at the end, for subscribers to acknowledge
 #: the last messages before it exits (reliable QoS).
 ACK_TIMEOUT_S = 2.0
@@ -72,13 +76,6 @@ LOOKAHEAD_RANGE_S = (0.0, 10.0)
 #: recorder that must not miss the start makes it 2).
 DEFAULT_MIN_SUBSCRIBERS = 1
 MIN_SUBSCRIBERS_RANGE = (1, 100)
-#: Most knots sent at once for the first look-ahead window. The simulator's
-#: queue for them holds 1000 (its STAMPED_QUEUE_DEPTH; a burst larger than a
-#: keep-last queue loses its oldest knots), and each costs both sides some
-#: 20-50 us of Python. A longer window is sent at a coarser spacing than the
-#: period: the protocol's corners are always among the knots, so the
-#: interpolated length is the same.
-MAX_INITIAL_KNOTS = 100
 
 
 
@@ -146,18 +143,15 @@ class ProtocolPlayer(Node):
                         if self._stamped
                         else overridable_publisher(self, Float64, 'length_command', OUTPUT_QOS))
         self.done = Future()
-        self._finished = False   # the protocol ran to its end
         self._failure = ''       # why the player gave up, if it did
         self._period_s = 1.0 / rate_hz
-        self._t0 = None
-        self._first_sample_sent = False   # plain mode: the handshake of _first_sample_acked
-        # [s] protocol time of the newest knot sent (stamped mode)
-        self._knots_sent_to_s = -math.inf
-        self._corners_s = self._protocol.dl_mt_m.breakpoints_s
+        self._playback = Playback(self._protocol, self._output, self._curve, self._period_s,
+                                  self._lookahead_s)
         # Waiting is in wall time: the sim clock may not run yet.
         self._steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._wait_deadline_ns = (self._steady.now().nanoseconds
                                   + round(self._wait_s * NS_PER_S))
+        self._rest_sent_ns = 0   # [ns] steady clock: when the rest state went out
         self._poll = self.create_timer(POLL_PERIOD_S, self._on_poll, clock=self._steady)
         self._timer = None
         self._diagnostics = NodeDiagnostics(self, 'protocol playback', self._diagnose)
@@ -174,12 +168,10 @@ class ProtocolPlayer(Node):
         # With use_sim_time the clock reads 0 until the first /clock message.
         clock_running = self.get_clock().now().nanoseconds > 0
         if matched and clock_running:
-            if not self._stamped and not self._first_sample_sent:
-                # The protocol's first sample doubles as a handshake: its time
-                # starts once every subscriber has it (see _first_sample_acked).
-                self._publish(0.0)
-                self._first_sample_sent = True
-            if self._stamped or self._first_sample_acked():
+            if not self._playback.rest_sent:
+                self._send(self._playback.rest())
+                self._rest_sent_ns = self._steady.now().nanoseconds
+            if self._rest_acked():
                 self._poll.cancel()
                 self._start()
                 return
@@ -193,7 +185,7 @@ class ProtocolPlayer(Node):
             elif not clock_running:
                 what = 'no /clock message (use_sim_time is set)'
             else:
-                what = ('the protocol\'s first sample not acknowledged by every subscriber '
+                what = ('the rest state not acknowledged by every subscriber '
                         f'({", ".join(p.topic_name for p in self._unacked())})')
             self.get_logger().error(f'{what} after {self._wait_s:g} s '
                                     '(wait_for_subscribers_s): is the simulator (and any '
@@ -209,18 +201,18 @@ class ProtocolPlayer(Node):
         return [pub for pub in (self._pub_stim, self._pub_dl)
                 if not pub.wait_for_all_acked(Duration())]
 
-    def _first_sample_acked(self) -> bool:
-        """Whether every subscriber has the protocol's first sample.
+    def _rest_acked(self) -> bool:
+        """Whether every subscriber has the rest state; waits for it up to
+        :data:`POLL_PERIOD_S`, so that the protocol starts as soon as it is.
 
         A subscriber counts as matched as soon as this side has discovered it,
         which can be before it has discovered this side; a message sent then
-        reaches it only with the next heartbeat, 0.1 s later with the nodes'
-        transport (3 s with Fast DDS's defaults). Starting the protocol's time
-        at the acknowledgement, rather than at the match, keeps that delay out
-        of the protocol: the subscribers hold the first sample from when it
-        arrived, at most one round trip before time zero.
+        reaches it only with the writer's next heartbeat. Starting the
+        protocol once the rest state is acknowledged keeps that delay out of
+        the protocol (:mod:`hill_muscle_ros.playback`).
         """
-        return not self._unacked()
+        slice_ = Duration(nanoseconds=round(POLL_PERIOD_S * NS_PER_S))
+        return all(pub.wait_for_all_acked(slice_) for pub in (self._pub_stim, self._pub_dl))
 
     def _diagnose(self, report: DiagnosticReport) -> None:
         """/diagnostics: waiting for subscribers, playing (protocol time and
@@ -233,24 +225,25 @@ class ProtocolPlayer(Node):
         report.add('min_subscribers', self._min_subscribers)
         for pub in (self._pub_stim, self._pub_dl):
             report.add(f'subscribers[{pub.topic_name}]', pub.get_subscription_count())
-        if self._t0 is None:
+        playback = self._playback
+        if playback.t0_ns is None:
             t_s = 0.0
-        elif self._finished:
+        elif playback.finished:
             t_s = float(p.duration_s)
         else:
-            t_s = (self.get_clock().now() - self._t0).nanoseconds / NS_PER_S
+            t_s = playback.protocol_time_s(self.get_clock().now().nanoseconds)
         report.add('protocol_time_s', t_s)
         report.add('progress', min(max(t_s / p.duration_s, 0.0), 1.0) if p.duration_s > 0 else 1.0)
         if self._failure:
             report.add('state', 'failed')
             report.error(self._failure)
-        elif self._finished:
+        elif playback.finished:
             report.add('state', 'done')
             report.ok(f'{p.name} done: zero stimulation sent')
-        elif self._t0 is None and self._first_sample_sent:
+        elif playback.t0_ns is None and playback.rest_sent:
             report.add('state', 'waiting for acknowledgement')
-            report.ok('waiting for every subscriber to acknowledge the first sample')
-        elif self._t0 is None:
+            report.ok('waiting for every subscriber to acknowledge the rest state')
+        elif playback.t0_ns is None:
             report.add('state', 'waiting for subscribers')
             report.ok(f'waiting for {self._min_subscribers} subscriber(s) on each output '
                       '(and a running clock)')
@@ -262,63 +255,40 @@ class ProtocolPlayer(Node):
             report.ok(f'playing {p.name}: {t_s:.3f} of {p.duration_s:g} s')
 
     def _start(self) -> None:
-        now = self.get_clock().now()
+        # How long the handshake took says whether acknowledgements are quick
+        # (a slow one once delayed the protocol by a Fast DDS heartbeat period).
+        acked_ms = (self._steady.now().nanoseconds - self._rest_sent_ns) / NS_PER_MS
+        self.get_logger().info(f'{self._protocol.name} starts: every subscriber acknowledged '
+                               f'the rest state {acked_ms:.1f} ms after it was sent')
         # The node's own clock, so that with use_sim_time it follows /clock.
+        self._send(self._playback.start(self.get_clock().now().nanoseconds))
         self._timer = self.create_timer(self._period_s, self._on_tick)
-        if not self._stamped:
-            self._t0 = now   # the first sample went out in _on_poll
-            return
-        # Time 0 is one look-ahead from now, so that the first window's knots
-        # are all sent before their time.
-        self._t0 = now + Duration(nanoseconds=round(self._lookahead_s * NS_PER_S))
-        n = min(MAX_INITIAL_KNOTS, math.floor(self._lookahead_s / self._period_s) + 1)
-        self._send_knots(np.linspace(0.0, self._lookahead_s, max(n, 2)))
 
-    def _send_knots(self, times_s) -> None:
-        """Publish the knots at protocol times ``times_s`` not yet sent, with the
-        protocol's corners among them, in time order."""
-        p = self._protocol
-        end_s = min(float(times_s[-1]), p.duration_s)
-        corners = self._corners_s[(self._corners_s > self._knots_sent_to_s)
-                                  & (self._corners_s < end_s)]
-        times = np.union1d(np.append(times_s, corners), [end_s])
-        times = times[(times > self._knots_sent_to_s) & (times <= end_s)]
-        t0_ns = self._t0.nanoseconds
-        for t, dl in zip(times.tolist(), np.atleast_1d(p.dl_mt(times)).tolist()):
-            msg = PointStamped()
-            msg.header.stamp = Time(nanoseconds=t0_ns + round(t * NS_PER_S)).to_msg()
-            msg.point.x = dl
-            self._pub_dl.publish(msg)
-        if len(times):
-            self._knots_sent_to_s = float(times[-1])
-
-    def _publish(self, t_s: float) -> None:
-        p = self._protocol
-        if not self._stamped:
-            self._pub_dl.publish(Float64(data=float(p.dl_mt(t_s))))
-        self._pub_stim.publish(Float64(data=p.stimulation_command(t_s, self._output,
-                                                                  self._curve)))
+    def _send(self, sends: list[Send]) -> None:
+        """Publish the playback's messages, in order."""
+        for send in sends:
+            if send.topic == STIMULATION:
+                self._pub_stim.publish(Float64(data=float(send.value)))
+            elif send.topic == LENGTH:
+                self._pub_dl.publish(Float64(data=float(send.value)))
+            else:
+                assert send.topic == LENGTH_STAMPED, send.topic
+                msg = PointStamped()
+                msg.header.stamp = Time(nanoseconds=send.stamp_ns).to_msg()
+                msg.point.x = float(send.value)
+                self._pub_dl.publish(msg)
 
     def _on_tick(self) -> None:
-        t_s = (self.get_clock().now() - self._t0).nanoseconds / NS_PER_S
-        if self._stamped:
-            self._send_knots([t_s + self._lookahead_s])
-        if t_s < 0.0:
-            return    # the first look-ahead window: the protocol has not started
-        if t_s < self._protocol.duration_s:
-            self._publish(t_s)
+        now_ns = self.get_clock().now().nanoseconds
+        self._send(self._playback.tick(now_ns))
+        if not self._playback.finished:
             return
         self._timer.cancel()
-        if not self._stamped:
-            self._pub_dl.publish(Float64(data=float(
-                self._protocol.dl_mt(self._protocol.duration_s))))
-        self._pub_stim.publish(Float64(data=0.0))
         timeout = Duration(seconds=ACK_TIMEOUT_S)
         acked = all(pub.wait_for_all_acked(timeout) for pub in (self._pub_stim, self._pub_dl))
         self.get_logger().info(
-            f'{self._protocol.name} done at t = {t_s:.3f} s; zero stimulation sent'
-            + ('' if acked else ' (not acknowledged by every subscriber)'))
-        self._finished = True
+            f'{self._protocol.name} done at t = {self._playback.protocol_time_s(now_ns):.3f} s; '
+            'zero stimulation sent' + ('' if acked else ' (not acknowledged by every subscriber)'))
         self._diagnostics.publish_final()   # the last status: the node exits now
         self.done.set_result(EXIT_SUCCESS)
 

@@ -20,6 +20,7 @@ from typing import Sequence
 import numpy as np
 
 from ..model import MuscleParams, Protocol, simulate
+from ..playback import FIRST_SAMPLE_SEQUENCE
 from ..timebase import NS_PER_S
 from .reader import Bag, read_bag
 
@@ -60,31 +61,51 @@ def protocol_start_ns(bag: Bag, sim_time: bool = False) -> int:
     stamp, up to the first non-zero one: this start may be up to n - 1 steps
     early.
 
-    The player's first message, if the bag has it (its sequence number is 1).
-    If the recorder matched the player late (slow DDS discovery) and the
-    protocol starts with stimulation, the simulator's first non-zero force
-    marks the start instead, to within a step and the DDS latency. Otherwise
-    the first recorded message minus the missed periods (approximate).
+    The protocol's first stimulation sample, if the bag has it (its sequence
+    number is :data:`~hill_muscle_ros.playback.FIRST_SAMPLE_SEQUENCE`, after
+    the rest state). If the recorder matched the player late (slow DDS
+    discovery) and the protocol starts with stimulation, the simulator's first
+    non-zero force marks the start instead, to within a step and the DDS
+    latency. Otherwise the first recorded sample minus the missed periods
+    (approximate).
     """
     knots = stamped_length(bag)
     if knots is not None and (not len(knots.sequence) or knots.sequence[0] <= 1):
         return int(knots.stamps_ns()[0])
     stim = stimulation_topic(bag)
-    if sim_time and stim.values()[0] > 0.0:
+    first = first_sample_index(stim)
+    if first is None:
+        raise BagContentError(f'{bag.path}: no protocol sample on {stim.name}, only the rest '
+                              'state')
+    if sim_time and stim.values()[first] > 0.0:
         wrench = bag.topic('wrench')
         active = np.flatnonzero(wrench.values() > 0.0)
         if len(active) and active[0] > 0:
             return int(wrench.stamps_ns()[active[0] - 1])
-    first_seq = int(stim.sequence[0]) if len(stim.sequence) else 1
-    if first_seq <= 1:
-        return int(stim.log_time_ns[0])
+    first_seq = int(stim.sequence[first]) if len(stim.sequence) else FIRST_SAMPLE_SEQUENCE
+    if first_seq <= FIRST_SAMPLE_SEQUENCE:
+        return int(stim.log_time_ns[first])
     wrench = bag.topic('wrench')
     active = np.flatnonzero(wrench.values() > 0.0)
     # Valid only if the bag holds the muscle at rest before the onset.
-    if stim.values()[0] > 0.0 and len(active) and active[0] > 0:
+    if stim.values()[first] > 0.0 and len(active) and active[0] > 0:
         return int(wrench.stamps_ns()[active[0]])
-    period_ns = int(np.median(np.diff(stim.log_time_ns))) if stim.count > 1 else 0
-    return int(stim.log_time_ns[0]) - (first_seq - 1) * period_ns
+    samples_ns = stim.log_time_ns[first:]
+    period_ns = int(np.median(np.diff(samples_ns))) if len(samples_ns) > 1 else 0
+    return int(samples_ns[0]) - (first_seq - FIRST_SAMPLE_SEQUENCE) * period_ns
+
+
+def first_sample_index(stim) -> int | None:
+    """Index in ``stim`` of the protocol's first recorded sample: the first
+    message past the player's rest state (sequence numbers from
+    :data:`~hill_muscle_ros.playback.FIRST_SAMPLE_SEQUENCE`); ``None`` if
+    the bag has only the rest state. A topic recorded without sequence
+    numbers (0) is taken as all samples."""
+    seq = np.asarray(stim.sequence)
+    if not len(seq):
+        return 0 if stim.count else None
+    past_rest = np.flatnonzero((seq >= FIRST_SAMPLE_SEQUENCE) | (seq == 0))
+    return int(past_rest[0]) if len(past_rest) else None
 
 
 def stimulation_topic(bag: Bag):
@@ -133,7 +154,7 @@ def live_samples_at(bag: Bag, times_s: Sequence[float],
 
 
 def simulator_lag_s(bag: Bag) -> float | None:
-    """[s] from the player's first non-zero stimulation to the simulator's first force.
+    """[s] from the protocol's first stimulation sample, if non-zero, to the first force.
 
     A healthy run reacts within a few steps. The player starts when *a*
     subscriber matches, which may be the recorder; if DDS discovery between
@@ -142,14 +163,15 @@ def simulator_lag_s(bag: Bag) -> float | None:
     ``None`` if the protocol does not start with stimulation.
     """
     stim = stimulation_topic(bag)
-    values = stim.values()
-    if not len(values) or values[0] <= 0.0 or stim.sequence[0] > 1:
+    first = first_sample_index(stim)
+    if (first is None or stim.values()[first] <= 0.0
+            or stim.sequence[first] > FIRST_SAMPLE_SEQUENCE):
         return None
     wrench = bag.topic('wrench')
     active = np.flatnonzero(wrench.values() > 0.0)
     if not len(active):
         return float('inf')
-    return (int(wrench.log_time_ns[active[0]]) - int(stim.log_time_ns[0])) / NS_PER_S
+    return (int(wrench.log_time_ns[active[0]]) - int(stim.log_time_ns[first])) / NS_PER_S
 
 
 #: [s] a simulator reacting later than this to the first stimulation missed the start.
