@@ -12,6 +12,8 @@ from pathlib import Path
 import pytest
 from rosbags.rosbag2 import Reader
 
+from stall_watch import repeat_only_on_external_stall
+
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 REPO = Path(__file__).resolve().parents[1]
@@ -19,6 +21,12 @@ REPO = Path(__file__).resolve().parents[1]
 DEMO_TIMEOUT_S = 300
 PNG_MAGIC = b'\x89PNG\r\n\x1a\n'
 POLL_S = 0.1
+#: The demo's verdict when live misses offline (hill_muscle_ros.demo): a
+#: stalled node shifts the live run, so a run that fails on it is repeated
+#: only when the stall watcher measured the machine holding a process up.
+VERDICT_MARK = 'live force differs from the offline simulation'
+#: Runs of one demo in all, at most (see VERDICT_MARK).
+MAX_ATTEMPTS = 3
 
 
 def _env(marker: str) -> dict:
@@ -55,10 +63,26 @@ def _make_demo(tmp_path, *make_vars, marker=None):
     return proc, marker
 
 
+def _verdict_failure(run) -> str | None:
+    """The demo's verdict line if it failed on it, else None (the tests judge the rest)."""
+    proc = run[0]
+    if proc.returncode != 0 and VERDICT_MARK in proc.stderr:
+        return proc.stderr.strip().splitlines()[0]
+    return None
+
+
+def _make_demo_judged(tmp_path_factory, stall_watcher, name, *make_vars):
+    """:func:`_make_demo` in a new directory, repeated only on a measured stall."""
+    def one_run():
+        tmp = tmp_path_factory.mktemp(name)
+        return (*_make_demo(tmp, *make_vars), tmp)
+    return repeat_only_on_external_stall(one_run, _verdict_failure, stall_watcher,
+                                         MAX_ATTEMPTS)
+
+
 @pytest.fixture(scope='module')
-def demo(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp('demo')
-    proc, marker = _make_demo(tmp)
+def demo(tmp_path_factory, stall_watcher):
+    proc, marker, tmp = _make_demo_judged(tmp_path_factory, stall_watcher, 'demo')
     return proc, tmp, marker
 
 
@@ -94,8 +118,9 @@ def test_demo_leaves_no_process(demo):
     assert _processes_with(marker) == []
 
 
-def test_demo_passes_protocol_units_and_length_through(tmp_path):
-    proc, _ = _make_demo(tmp_path, 'PROTOCOL=I', 'UNITS=single', 'LENGTH=instantaneous')
+def test_demo_passes_protocol_units_and_length_through(tmp_path_factory, stall_watcher):
+    proc, *_ = _make_demo_judged(tmp_path_factory, stall_watcher, 'demo_options', 'PROTOCOL=I',
+                                 'UNITS=single', 'LENGTH=instantaneous')
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert 'Protocol I: units=single, length=instantaneous' in proc.stdout
 

@@ -15,7 +15,7 @@ and needs no ROS installation; matplotlib is imported only to plot.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Sequence
+from typing import NamedTuple, Sequence
 
 import numpy as np
 
@@ -192,9 +192,31 @@ def summary_times(duration_s: float) -> list[float]:
     return [round(s - END_OF_SECOND_MARGIN_S, 6) for s in seconds]
 
 
+class Checkpoint(NamedTuple):
+    """One row of the summary: the live force next to the offline one."""
+    #: [s] the checkpoint (the end of a second of the protocol)
+    t_s: float
+    #: [N] the recorded force read there (NaN before the first wrench)
+    live_n: float
+    #: [N] the offline force at the recorded sample's own time
+    offline_n: float
+
+    @property
+    def diff_n(self) -> float:
+        """[N] live minus offline."""
+        return self.live_n - self.offline_n
+
+
+class LiveRunSummary(NamedTuple):
+    """What :func:`analyse` found: the text to print and the checkpoints in it."""
+    text: str
+    checkpoints: list[Checkpoint]
+
+
 def analyse(bag_dir: Path, protocol: Protocol, params: MuscleParams,
-            rate_hz: float, plot_path: Path, real_time_factor: float | None = None) -> str:
-    """Read a live run's bag, write its plot, and return the summary text.
+            rate_hz: float, plot_path: Path,
+            real_time_factor: float | None = None) -> LiveRunSummary:
+    """Read a live run's bag, write its plot, and return the summary.
 
     The summary is the recorded force at the end of each second next to the
     offline simulation of the same protocol, warnings about a late start,
@@ -226,9 +248,11 @@ def analyse(bag_dir: Path, protocol: Protocol, params: MuscleParams,
     lines = [f'{protocol.name}: units={params.units}, length={params.length}; live run over '
              f'ROS 2{on_sim_time} vs the offline simulation',
              f'{"t_s":>6}  {"live_force_n":>12}  {"offline_force_n":>15}  {"diff_n":>7}']
+    checkpoints = []
     for t, (t_live, live) in zip(times, samples):
         # The offline force at the recorded sample's own time (see live_samples_at).
         off = float(offline.force_n[offline.at(t_live if np.isfinite(t_live) else t)])
+        checkpoints.append(Checkpoint(t, live, off))
         lines.append(f'{t:6.3f}  {live:12.3f}  {off:15.3f}  {live - off:+7.3f}')
     age_ms = max((t - t_live for t, (t_live, _) in zip(times, samples)
                   if np.isfinite(t_live)), default=float('nan')) * 1e3
@@ -257,7 +281,7 @@ def analyse(bag_dir: Path, protocol: Protocol, params: MuscleParams,
           stim.values(), stim_name, t_length, length, offline)
     lines.append(f'bag:  {bag_dir}  (open with `ros2 bag info`, Foxglove, PlotJuggler, rosbags)')
     lines.append(f'plot: {plot_path}')
-    return '\n'.join(lines)
+    return LiveRunSummary('\n'.join(lines), checkpoints)
 
 
 def _plot_live_run(path: Path, protocol: Protocol, t_force, force, t_stim, stim, stim_name,
