@@ -13,8 +13,9 @@ without ROS). At the end it publishes zero stimulation and exits with status 0.
 With ``lookahead_s`` > 0 the length goes ahead of time instead: the player
 publishes ``length_command_stamped`` (geometry_msgs/PointStamped, dl_MT [m]
 in ``point.x``, ``header.stamp`` = when it is to be reached, on the player's
-clock). The protocol starts ``lookahead_s`` after the player does (time 0 is
-the stamp of the first knot); before that it sends the knots covering the
+clock). The protocol starts ``lookahead_s`` after the rest state is
+acknowledged (time 0 is the stamp of the first knot; that topic carries no
+rest state, as a knot acts at its stamp); before that it sends the knots covering the
 first ``lookahead_s`` of the protocol, and at each tick at protocol time t the
 knot for t + ``lookahead_s``, plus every corner of the protocol's dl_MT in
 between, so the simulator's linear interpolation reproduces the protocol's
