@@ -196,7 +196,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help='length used in the force-length relation: initial (at '
                           'recruitment) or instantaneous (overrides the parameters file)')
     sim.add_argument('--rate', type=_positive_rate, metavar='HZ',
-                     help=f'step rate in Hz, dt = 1/HZ (default: `{RATE_KEY}` of the '
+                     help=f'output rate in Hz: a sample every 1/HZ s, inputs sampled and '
+                          f'held there; the model integrates substeps of at most 1 ms '
+                          f'whatever the rate (default: `{RATE_KEY}` of the '
                           f'parameters file, else {DEFAULT_RATE_HZ:g})')
     sim.add_argument('--params', type=Path, metavar='YAML',
                      help='ROS 2 parameters file (`/**:` or `simulator:`, then '

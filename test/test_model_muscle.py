@@ -177,7 +177,7 @@ def test_a_ce_freed_back_inside_the_fl_range_resists_again():
     p = MuscleParams(f_iso_max_n=31.0, k_se_n_per_m=1000.0, l_rest_m=0.125, l_opt_m=0.125,
                      fv_a_n=2.0, fv_b_m_per_s=1.0, length='instantaneous')
     m = Muscle(p)
-    out = m.step(1.0, 0.0, 1e-2)
+    out = m.run((1.0,), (0.0,), 1e-2)   # one RK4 step (step would cut it into 1 ms substeps)
     assert out.l_ce_m == p.l_rest_m                   # freed: the tendon is slack
     assert out.eff_f_iso_n == pytest.approx(p.f_iso_max_n * force_length(1.0), rel=1e-12)
     assert out.v_ce_m_per_s == pytest.approx(-out.eff_f_iso_n * p.fv_b_m_per_s / p.fv_a_n,

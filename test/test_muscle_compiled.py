@@ -132,7 +132,8 @@ def test_a_freed_ce_back_inside_the_fl_range_resists_again_in_every_loop():
     r = np.ones(len(dl))
     reference, compiled, stepped = Muscle(params), Muscle(params), Muscle(params)
     expected = python_run(reference, r, dl, 1e-2, None)
-    one_call_a_step = np.array([stepped.step(1.0, d, 1e-2) for d in dl]).T
+    # One RK4 step of 10 ms per call (run: step cuts it into 1 ms substeps).
+    one_call_a_step = np.array([stepped.run((1.0,), (d,), 1e-2) for d in dl]).T
     # The case is reached: a CE at its free length (slack tendon) with force on.
     free = expected[FIELDS.index('l_ce_m')] == params.l_rest_m + dl
     assert (free & (expected[FIELDS.index('eff_f_iso_n')] > 0.0)).any()

@@ -21,6 +21,7 @@ from . import fes_kernels
 from .fes_kernels import N_OUT, S_DL, FesBundle
 from .muscle import MuscleOutputs, check_dl_mt, check_recruitment
 from .params import MuscleParams
+from .substeps import length_ramp, substeps_for
 
 #: Index of ``n_recruited`` in :class:`MuscleOutputs` (an int there, a float in the kernels').
 _N_RECRUITED = MuscleOutputs._fields.index('n_recruited')
@@ -74,7 +75,8 @@ class CompiledFesMuscle:
         return _as_outputs(self._bundle.outputs(0, self._kernels))
 
     def step(self, recruitment: float, dl_mt_m: float, dt_s: float) -> MuscleOutputs:
-        """Advance one step with command u = ``recruitment`` given at its start.
+        """Advance one step with command u = ``recruitment`` given at its start,
+        in n = ceil(dt / 1 ms) substeps (:mod:`.substeps`), as ``FesMuscle.step``.
 
         :param recruitment: [-] recruitment command u in [0, 1]
         :param dl_mt_m: [m] MTU length change at the end of the step (dl_MT)
@@ -86,18 +88,26 @@ class CompiledFesMuscle:
         u, dl = check_recruitment(recruitment), check_dl_mt(dl_mt_m)
         if not (math.isfinite(dt_s) and dt_s > 0.0):
             raise ValueError(f'`dt_s` must be positive and finite, got {dt_s!r}')
-        if dt_s != self._dt_ready_s:
+        # n = ceil(dt / 1 ms) substeps of dt / n (model/substeps.py): one at 1 kHz.
+        n = substeps_for(dt_s)
+        h = float(dt_s) / n
+        if h != self._dt_ready_s:
             # Grows the delay line for a shorter step; the arrays move, so the
             # view of the state is taken anew.
-            self._bundle.ensure_delay(dt_s)
+            self._bundle.ensure_delay(h)
             self._fs = self._bundle.view(0, 'fs')
-            self._dt_ready_s = dt_s
-        self._r[0] = u
-        self._dl[0] = dl
+            self._dt_ready_s = h
+        if n == 1:
+            r, dls, out = self._r, self._dl, self._out
+            r[0] = u
+            dls[0] = dl
+        else:
+            r = np.full(n, u)
+            dls = np.array(length_ramp(self.dl_mt_m, dl, n))
+            out = np.empty((n, N_OUT))
         bundle = self._bundle
-        done = self._kernels.muscle_run(bundle.F, bundle.I, 0, self._r, self._dl, float(dt_s),
-                                        self._r, False, self._out)
-        if done != 1:   # delay_capacity bounds the commands pending
+        done = self._kernels.muscle_run(bundle.F, bundle.I, 0, r, dls, h, r, False, out)
+        if done != n:   # delay_capacity bounds the commands pending
             raise RuntimeError(f'the delay line of the compiled muscle overflowed '
                                f'(emd_s {self.params.emd_s!r}, dt_s {dt_s!r})')
-        return _as_outputs(self._out[0])
+        return _as_outputs(out[-1])

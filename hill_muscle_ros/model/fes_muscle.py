@@ -33,6 +33,7 @@ from .memory import recruited_units
 from .muscle import Muscle, MuscleOutputs, check_dl_mt, check_recruitment
 from .params import MuscleParams
 from .stimulus import DelayLine, activation_at, command_from_pulse_width, time_to_reach
+from .substeps import length_ramp, substeps_for
 from .unit_pool import UnitPool
 
 #: Most recruitment events resolved one by one within a piece of a step. With
@@ -597,6 +598,19 @@ class FesMuscle(Muscle):
 
     # -- stepping --------------------------------------------------------------------
 
+    def _substeps(self, u: float, dl1: float, dt: float) -> None:
+        """One output step of :meth:`step` or :meth:`advance`: :meth:`_advance` in
+        n = ceil(dt / 1 ms) equal substeps (:mod:`.substeps`; one at 1 kHz),
+        dl_MT ramping linearly across them."""
+        n = substeps_for(dt)
+        if n == 1:
+            self._advance(u, dl1, dt)
+            return
+        for dl in length_ramp(self.dl_mt_m, dl1, n):
+            # Giving u again at a substep's start changes nothing: the delay
+            # line keeps a command only where it differs from the last one.
+            self._advance(u, dl, dt / n)
+
     def _advance(self, u: float, dl1: float, dt: float) -> None:
         """One step: command ``u`` given at its start, dl_MT ramping to ``dl1``."""
         t0, dl0 = self.t_s, self.dl_mt_m
@@ -637,6 +651,8 @@ class FesMuscle(Muscle):
 
         ``r_start[k]`` is the command given at the start of step k, ``r_end[k]``
         the one given at its end (the next step's start), before the outputs.
+        As :meth:`Muscle.run`, each step is integrated whole (:meth:`step` and
+        :func:`.simulate` cut a step longer than 1 ms into substeps first).
         """
         out = None
         for k, dl1 in enumerate(dl_mt_end_m):
@@ -651,7 +667,7 @@ class FesMuscle(Muscle):
 
     def advance(self, dl_mt_end_m: float, dt_s: float) -> None:
         """Integrate one step with the command held; see :meth:`Muscle.advance`."""
-        self._advance(self.command, dl_mt_end_m, dt_s)
+        self._substeps(self.command, dl_mt_end_m, dt_s)
 
     def step(self, recruitment: float, dl_mt_m: float, dt_s: float) -> MuscleOutputs:
         """Advance one step with command u = ``recruitment`` given at its start.
@@ -666,5 +682,5 @@ class FesMuscle(Muscle):
         u, dl = check_recruitment(recruitment), check_dl_mt(dl_mt_m)
         if not (math.isfinite(dt_s) and dt_s > 0.0):
             raise ValueError(f'`dt_s` must be positive and finite, got {dt_s!r}')
-        self._advance(u, dl, dt_s)
+        self._substeps(u, dl, dt_s)
         return self.outputs()

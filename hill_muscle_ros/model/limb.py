@@ -44,6 +44,7 @@ from .params import _FLOAT_MAX, MuscleParams, _float, _spec, finite_float
 from .protocol import (Knots, ProtocolError, _parse_knots, check_protocol_keys,
                        commands_from_pulse_widths, safe_load_yaml)
 from .simulate import sample_times, step_count
+from .substeps import substeps_for
 
 ACTIONS = {'extensor': 1.0, 'flexor': -1.0}
 #: [rad] Largest |angle| parameter: two turns; a larger one is a unit error
@@ -470,6 +471,10 @@ class Limb:
              dt_s: float) -> LimbOutputs:
         """Advance one step: each muscle's command and the external torque held over it.
 
+        A step longer than 1 ms is integrated in n = ceil(dt / 1 ms) equal
+        substeps with the inputs held (:mod:`.substeps`): ``dt_s`` is how
+        often the caller samples, not the integrator's step.
+
         :param commands: [-] recruitment command u of each muscle, in [0, 1]
         :param external_torque_n_m: [N m] external torque (tau_ext)
         :param dt_s: [s] step length, > 0
@@ -477,6 +482,16 @@ class Limb:
         :raises ValueError: naming the input on a bad value; the state is unchanged
         """
         us, tau = check_step_inputs(self.plant, commands, external_torque_n_m, dt_s)
+        n = substeps_for(dt_s)
+        for _ in range(n):
+            self._advance(us, tau, dt_s / n)
+        return self.outputs()
+
+    def _advance(self, us: Sequence[float], tau: float, dt_s: float) -> None:
+        """One substep of :meth:`step` (at most 1 ms), the inputs checked.
+
+        :raises ValueError: when a muscle is stretched out of range (the substep taken)
+        """
         t0, t1 = self.t_s, self.t_s + dt_s
         self.external_torque_n_m = tau
         timeline = []
@@ -504,7 +519,6 @@ class Limb:
             if not abs(dl) <= DL_MT_LIMIT_M:
                 raise ValueError(stretch_message(self.plant.muscles[i].name, dl,
                                                  self.theta_rad))
-        return self.outputs()
 
     def outputs(self) -> LimbOutputs:
         """The outputs at the current instant."""

@@ -44,6 +44,7 @@ from .fes_kernels import (A_END, DELAY_FULL, H_DQT, H_EVT, H_FP, H_FS, H_IP, H_J
                           set_piece, settle_now, tau_for, velocity)
 from .memory import recruited_units
 from .stimulus import activation_at
+from .substeps import repeat_rows, substeps_for
 
 # Entries of the limb's float array ``L``: the joint, its state, an RK4 step's
 # angular velocities and accelerations at its four stages (scratch of
@@ -722,9 +723,15 @@ def simulate_limb_compiled(plant, protocol, rate_hz: float = 1000.0, kernels=Non
     if not (np.all((u >= 0.0) & (u <= 1.0)) and np.all(np.abs(tau) <= TORQUE_LIMIT_N_M)):
         return None
     dt = 1.0 / rate_hz
-    arrays = LimbArrays(plant, dt, _POOL)
+    # Substeps of at most 1 ms with the samples' inputs held (model/substeps.py),
+    # as Limb.step takes them; the samples are every n-th row.
+    n = substeps_for(dt)
+    h = dt / n
+    if n > 1:
+        u, tau = repeat_rows(u, n), repeat_rows(tau, n)
+    arrays = LimbArrays(plant, h, _POOL)
     try:
-        rows = run_limb(arrays, u, tau, dt, compiled() if kernels is None else kernels)
+        rows = run_limb(arrays, u, tau, h, compiled() if kernels is None else kernels)[::n]
     finally:
         arrays.give_back()
     rows[:, 0] = t
@@ -845,13 +852,17 @@ class CompiledLimb:
 
         :raises ValueError: as Limb.step, on a muscle stretched out of range
         """
+        # n = ceil(dt / 1 ms) substeps of dt / n, inputs held (model/substeps.py),
+        # as Limb.step; one at 1 kHz.
+        n = substeps_for(dt_s)
+        h = dt_s / n
         a = self.arrays
-        if dt_s != self._dt:
-            a.ensure_delay(dt_s)
-            self._dt = dt_s
+        if h != self._dt:
+            a.ensure_delay(h)
+            self._dt = h
         self._us[:] = us
         self._tau[0] = tau
-        status = self._entry(MODE_HOLD, dt_s, 1, 0.0)   # one step: limb_step, limb_record
+        status = self._entry(MODE_HOLD, h, n, 0.0)   # n steps: limb_step, limb_record
         if status != OK:
             self._failed(status)
 

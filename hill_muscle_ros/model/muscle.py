@@ -17,6 +17,7 @@ from .curves import (ECC_PLATEAU, FL_A, FL_B, FL_C, force_length, force_velocity
                      parallel_force, series_force)
 from .memory import UnitMemory, recruited_units
 from .params import MuscleParams
+from .substeps import MAX_SUBSTEP_S, length_ramp, substeps_for
 
 #: Largest |dl_mt| accepted as an input: far beyond the range where FL is
 #: non-zero (l_ce / l_opt outside about 0.4..1.6), so anything larger is
@@ -283,7 +284,9 @@ class Muscle:
 
         :param r_start: [-] recruitment R in [0, 1] held over each step
         :param dl_mt_end_m: [m] MTU length change at the end of each step
-        :param dt_s: [s] step length, > 0
+        :param dt_s: [s] step length, > 0: the integrator's own step, taken
+            whole (:meth:`step` and :func:`.simulate` cut a longer one into
+            substeps of at most 1 ms first)
         :param r_end: [-] recruitment applied after each step, before the outputs
         :param columns: if given, twelve preallocated lists in the order of
             :class:`MuscleOutputs`; step k writes index k of each
@@ -295,19 +298,23 @@ class Muscle:
         """Integrate the CE length over one step with the recruitment held.
 
         The MTU length ramps linearly from its current value to
-        ``dl_mt_end_m``; see :meth:`run`.
+        ``dl_mt_end_m``; see :meth:`run`. A step longer than 1 ms is
+        integrated in substeps, as :meth:`step`'s.
 
         :param dl_mt_end_m: [m] MTU length change at the end of the step
         :param dt_s: [s] step length, > 0
         """
-        r = (self.recruitment,)
-        self._run(r, (dl_mt_end_m,), dt_s, None, None)
+        self._substeps(self.recruitment, dl_mt_end_m, dt_s)
 
     def step(self, recruitment: float, dl_mt_m: float, dt_s: float) -> MuscleOutputs:
         """Advance one step: recruit now, then integrate with R held.
 
         The memory changes only at the start of the step, from the CE length of
-        that instant (doc/model.md section 4).
+        that instant (doc/model.md section 4). A step longer than
+        :data:`~.substeps.MAX_SUBSTEP_S` (1 ms) is integrated in n = ceil(dt / 1 ms)
+        equal substeps, R held and dl_MT ramping linearly across them
+        (:mod:`.substeps`): ``dt_s`` is how often the caller samples, not the
+        integrator's step.
 
         :param recruitment: [-] recruitment R in [0, 1], held over the step
         :param dl_mt_m: [m] MTU length change at the end of the step (dl_MT)
@@ -325,7 +332,22 @@ class Muscle:
             if not (math.isfinite(dt_s) and dt_s > 0.0):
                 raise ValueError(f'`dt_s` must be positive and finite, got {dt_s!r}')
             check_recruitment(recruitment)
-        return self._run((r,), (dl,), dt_s, None, None)
+        return self._substeps(r, dl, dt_s)
+
+    def _substeps(self, r: float, dl_mt_end_m: float, dt_s: float) -> MuscleOutputs:
+        """One output step of ``dt_s`` as n = ceil(dt / 1 ms) substeps of the hot
+        loop (:mod:`.substeps`), R held and dl_MT ramping linearly across them.
+
+        :param r: [-] recruitment R, validated, held over the step
+        :param dl_mt_end_m: [m] dl_MT at the end of the step, validated
+        :param dt_s: [s] step length, validated
+        :return: the outputs at the end of the step
+        """
+        if dt_s <= MAX_SUBSTEP_S:   # the node's 1 kHz tick: no lists to build
+            return self._run((r,), (dl_mt_end_m,), dt_s, None, None)
+        n = substeps_for(dt_s)
+        return self._run((r,) * n, length_ramp(self.dl_mt_m, dl_mt_end_m, n), dt_s / n,
+                         None, None)
 
 
 def _hot_loop(muscle: Muscle) -> Callable[..., MuscleOutputs]:

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import engine, fes_kernels, kernels
+from .substeps import output_rows, substep_inputs, substeps_for
 from .fes_muscle import FesMuscle
 from .muscle import Muscle
 from .params import MuscleParams
@@ -95,7 +96,7 @@ def sample_times(duration_s: float, rate_hz: float) -> np.ndarray:
 
 def simulate(protocol: Protocol, params: MuscleParams | None = None,
              rate_hz: float = 1000.0) -> SimulationResult:
-    """Run a protocol from the resting state at a fixed step of 1 / ``rate_hz``.
+    """Run a protocol from the resting state, sampled every 1 / ``rate_hz``.
 
     The sample at t_k shows the state at t_k with the command of t_k already
     given (in the paper's model: the recruitment of t_k applied to the
@@ -114,9 +115,15 @@ def simulate(protocol: Protocol, params: MuscleParams | None = None,
     FES muscle (:func:`.fes_kernels.run_muscle`) by the same rule, from
     :data:`FES_RUN_MIN_STEPS` steps.
 
+    The rate is that of the samples, not the integrator's: a step longer than
+    :data:`.substeps.MAX_SUBSTEP_S` (1 ms) is integrated in
+    n = ceil(dt / 1 ms) equal substeps, the command held and dl_MT ramping
+    across them, so any rate gives the same force at the same instants; at
+    1 kHz and above n = 1.
+
     :param protocol: the protocol to replay
     :param params: muscle parameters (paper defaults if omitted)
-    :param rate_hz: [Hz] step rate, 1 / dt
+    :param rate_hz: [Hz] sample rate, 1 / dt
     :return: the time series, ``round(duration * rate) + 1`` samples
     """
     muscle = Muscle(params)
@@ -131,51 +138,66 @@ def simulate(protocol: Protocol, params: MuscleParams | None = None,
     muscle.set_recruitment(float(r[0]))
     first = muscle.outputs()
     n_steps = len(t) - 1
-    if type(muscle) is FesMuscle and engine.use_compiled(n_steps, FES_RUN_MIN_STEPS,
+    # The engines integrate substeps of at most 1 ms (model/substeps.py): the
+    # rate sets the samples only. With n = 1 the inputs are the samples'.
+    n = substeps_for(dt)
+    r_start, dl_end, r_end = substep_inputs(r, dl, n)
+    h = dt / n
+    work = n_steps * n
+    rows = output_rows(n, n_steps)
+    if type(muscle) is FesMuscle and engine.use_compiled(work, FES_RUN_MIN_STEPS,
                                                          fes_kernels.loaded()):
-        return _simulate_fes_compiled(muscle.params, t, r, dl, dt, first)
-    if type(muscle) is Muscle and engine.use_compiled(n_steps, kernels.RUN_MIN_STEPS,
+        return _simulate_fes_compiled(muscle.params, t, r_start, dl_end, h, r_end, rows,
+                                      first)
+    if type(muscle) is Muscle and engine.use_compiled(work, kernels.RUN_MIN_STEPS,
                                                       kernels.run_loaded()):
         # The same loop compiled (model/kernels.py), when it is loaded or the
         # run repays loading it (HILL_MUSCLE_ENGINE: model/engine.py). It
         # writes straight into the result's rows, after the first sample.
-        out = np.empty((kernels.N_RUN_OUTPUTS, n_steps + 1))
+        out = np.empty((kernels.N_RUN_OUTPUTS, work + 1))
         out[:, 0] = first
-        kernels.run_compiled(muscle, r[:-1], dl[1:], dt, r[1:], out=out, first=1)
+        kernels.run_compiled(muscle, r_start, dl_end, h, r_end, out=out, first=1)
+        if n > 1:
+            out = np.concatenate([out[:, :1], out[:, 1:][:, rows]], axis=1)
         fields = dict(zip(first._fields, out))
         fields['n_recruited'] = out[kernels.RUN_M].astype(type(first.n_recruited))
         fields['t_s'] = t   # the sample times are the inputs themselves
         return SimulationResult(**fields)
     # Plain lists of Python floats: indexing them is several times cheaper
     # than indexing NumPy arrays in the hot loop.
-    columns = [[0.0] * n_steps for _ in first]
-    r_list = r.tolist()
-    muscle.run(r_list[:-1], dl.tolist()[1:], dt, r_end=r_list[1:], columns=columns)
+    columns = [[0.0] * work for _ in first]
+    muscle.run(r_start.tolist(), dl_end.tolist(), h, r_end=r_end.tolist(), columns=columns)
     # The sample times are the inputs themselves.
     fields = {'t_s': t}
     for name, value, col in zip(first._fields, first, columns):
         if name not in fields:
             array = np.empty(n_steps + 1, dtype=type(value))
             array[0] = value
-            array[1:] = col
+            array[1:] = col[rows]
             fields[name] = array
     return SimulationResult(**fields)
 
 
-def _simulate_fes_compiled(params: MuscleParams, t: np.ndarray, r: np.ndarray, dl: np.ndarray,
-                           dt: float, first) -> SimulationResult:
+def _simulate_fes_compiled(params: MuscleParams, t: np.ndarray, r_start: np.ndarray,
+                           dl_end: np.ndarray, h: float, r_end: np.ndarray, rows: slice,
+                           first) -> SimulationResult:
     """:meth:`FesMuscle.run <hill_muscle_ros.model.fes_muscle.FesMuscle.run>`'s
     loop of :func:`simulate` on the compiled FES muscle (:func:`.fes_kernels.run_muscle`).
 
-    :param first: the outputs at t = 0, after the command ``r[0]``
+    :param r_start: [-] the command at each substep's start (:func:`.substeps.substep_inputs`)
+    :param dl_end: [m] dl_MT at each substep's end
+    :param h: [s] the substep
+    :param r_end: [-] the command given at each substep's end
+    :param rows: the substeps that end at the samples after the first
+    :param first: the outputs at t = 0, after the command ``r_start[0]``
     """
     # From rest: the first step gives r[0] at t = 0 itself, which is all that
     # set_recruitment(r[0]) did to the reference before its first step.
-    bundle = fes_kernels.FesBundle([params], dt_s=dt)
-    rows = fes_kernels.run_muscle(bundle, 0, r[:-1], dl[1:], dt, r[1:],
-                                  kernels=fes_kernels.compiled())
+    bundle = fes_kernels.FesBundle([params], dt_s=h)
+    out = fes_kernels.run_muscle(bundle, 0, r_start, dl_end, h, r_end,
+                                 kernels=fes_kernels.compiled())[rows]
     fields = {'t_s': t}   # the sample times are the inputs themselves
-    for name, value, column in zip(first._fields, first, rows.T):
+    for name, value, column in zip(first._fields, first, out.T):
         if name not in fields:
             array = np.empty(len(t), dtype=type(value))
             array[0] = value
