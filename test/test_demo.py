@@ -98,7 +98,7 @@ def test_demo_writes_a_readable_bag_and_the_plot_inside_it(demo):
     assert (bag / 'force.png').read_bytes()[:8] == PNG_MAGIC
     with Reader(bag) as reader:
         counts = {c.topic: c.msgcount for c in reader.connections}
-    for topic in ('/pulse_width', '/length_command', '/force', '/ce_length', '/wrench'):
+    for topic in ('/pulse_width', '/length_command_stamped', '/force', '/ce_length', '/wrench'):
         assert counts[topic] > 1000, counts
         # The summary prints the counts it read back from the bag.
         assert re.search(rf'^\s+{re.escape(topic)}\s+{counts[topic]}$', proc.stdout, re.M)
