@@ -9,9 +9,13 @@ process, however it ends.
 from __future__ import annotations
 
 import fcntl
+import os
 import tempfile
 from pathlib import Path
 from typing import IO, Iterable
+
+#: A new lock file is readable by every user (less the umask): all a claim needs.
+_LOCK_FILE_MODE = 0o644
 
 
 def lock_free_domain(candidates: Iterable[int], pattern: str) -> tuple[int, IO] | None:
@@ -23,7 +27,14 @@ def lock_free_domain(candidates: Iterable[int], pattern: str) -> tuple[int, IO] 
         claim), or None if every candidate is held
     """
     for domain in candidates:
-        lock = open(Path(tempfile.gettempdir()) / pattern.format(domain), 'w')
+        path = Path(tempfile.gettempdir()) / pattern.format(domain)
+        try:
+            # Read-only, readable by all: ``flock`` needs no write access, so a
+            # file another user's run left behind does not lock this user out.
+            fd = os.open(path, os.O_RDONLY | os.O_CREAT, _LOCK_FILE_MODE)
+        except OSError:
+            continue   # not ours to read: count it as held
+        lock = os.fdopen(fd, 'r')
         try:
             fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
