@@ -74,7 +74,7 @@ Measured on an idle machine, a sample published to a simulator that had
 matched long before was acknowledged after 100.2-101.1 ms with the 0.1 s
 period (5 tries), 2999-3001 ms with Fast DDS's 3 s (the default of the
 unset range, 3 tries). The protocol player waits for acknowledgements to
-start and to end (issue 34: its handshake took 150 ms, 3 s with the range
+start and to end (measured before: its handshake took 150 ms, 3 s with the range
 unset, and its final zero went unacknowledged after 2 s). Hence
 :data:`HEARTBEAT_PERIOD_S` of 10 ms, and 1 ms in place of Fast DDS's 5 ms
 for a reader's answer to a heartbeat (:data:`HEARTBEAT_RESPONSE_DELAY_S`) and

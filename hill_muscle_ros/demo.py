@@ -97,8 +97,8 @@ DEMO_MIN_SUBSCRIBERS = 2
 #: [N] most the live force may differ from the offline simulation at a
 #: checkpoint (the end of each second) for the demo to pass. Healthy runs
 #: agree within 0.004 N on the wall clock and exactly on sim time (the length
-#: sent ahead); a protocol shifted by 150 ms missed by 1.5 N and exited 0
-#: (issue 34).
+#: sent ahead); a protocol shifted by 150 ms missed by 1.5 N and, before
+#: this check, exited 0.
 LIVE_OFFLINE_TOLERANCE_N = 0.1
 
 

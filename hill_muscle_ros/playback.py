@@ -4,7 +4,7 @@ clock its caller reads (the node's, or a test's).
 **Time 0 is when the protocol's first sample acts.** A subscriber acts on a
 message as it arrives. One that the player has matched may not have matched
 the player back yet, and a message sent then arrives with the writer's next
-heartbeat (issue 34: 151.6 ms in the demo, about 3 s with the discovery range
+heartbeat (measured: 151.6 ms in the demo, about 3 s with the discovery range
 unset), while the protocol's clock runs. So the player first sends the rest
 state (:meth:`Playback.rest`), waits until every subscriber has acknowledged
 it, and only then starts the protocol's clock, with the first sample

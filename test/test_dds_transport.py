@@ -269,7 +269,7 @@ def test_profile_times_reliable_writers_and_readers_for_quick_acknowledgements(t
 
 #: Samples published one at a time, each once the one before is acknowledged.
 ACKED_SAMPLES = 20
-#: [s] issue 34: a reliable sample is acknowledged within 20 ms on an idle
+#: [s] a reliable sample is acknowledged within 20 ms on an idle
 #: machine. Measured: 100.2-101.1 ms with the 0.1 s heartbeat period, 3.0 s
 #: with Fast DDS's default (every acknowledgement waits for a heartbeat).
 ACK_BOUND_S = 0.02

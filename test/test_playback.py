@@ -1,7 +1,7 @@
 """The protocol player's timeline (:mod:`hill_muscle_ros.playback`) on a clock
 the test drives, over a model of one reliable DDS link: no ROS, no DDS.
 
-The link is the case of issue 34: the player has matched the subscriber, but
+The link is the measured case of a late handshake: the player has matched the subscriber, but
 the subscriber matches the player back only a heartbeat later, so what is sent
 before arrives then; later messages arrive one latency after they leave, and
 the player sees a message acknowledged one latency after it arrived.
@@ -22,7 +22,7 @@ SHORT = {'name': 'short', 'duration_s': 0.5,
          'recruitment': [[0.0, 0.3], [0.25, 0.3], [0.25, 0.7]],
          'dl_mt_m': [[0.0, 0.001], [0.5, 0.002]]}
 #: [ns] when the subscriber matches the player back: the demo's measured
-#: acknowledgement of issue 34 (151.6 ms).
+#: acknowledgement before the heartbeat fix (151.6 ms).
 MATCHED_BACK_NS = 151_600_000
 #: [ns] one delivery, and one acknowledgement back
 LATENCY_NS = 1_000_000
