@@ -9,7 +9,7 @@ from hill_muscle_ros.demo import (LIVE_OFFLINE_TOLERANCE_N, DemoError,
                                   check_live_against_offline)
 from hill_muscle_ros.recording.analysis import Checkpoint, LiveRunSummary
 
-#: Issue 34's live run, shifted 150 ms: 1.5 N off at 1.95 s and 4.95 s.
+#: The measured live run shifted 150 ms: 1.5 N off at 1.95 s and 4.95 s.
 SHIFTED = [Checkpoint(0.95, 18.595, 18.595), Checkpoint(1.95, 30.159, 31.659),
            Checkpoint(4.95, 27.378, 25.896)]
 #: A healthy live run: within 0.031 N.

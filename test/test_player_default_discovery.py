@@ -3,7 +3,7 @@
 unset (every other test sets ``LOCALHOST``), the test run's private
 ``ROS_DOMAIN_ID`` kept.
 
-Issue 34: there the writers' heartbeat was Fast DDS's 3 s, every
+Before the heartbeat fix, the writers' heartbeat was Fast DDS's 3 s, every
 acknowledgement waited for one, the first sample acted 3 s before the
 protocol's second, the simulator's watchdog fired, and the 6 s protocol took
 11.6 s, ending with "zero stimulation sent (not acknowledged by every subscriber)".
