@@ -38,8 +38,6 @@ DEFAULT_RATE_HZ = 1000.0
 RATE_KEY = 'rate_hz'
 #: The key that makes a protocol file a limb protocol (inputs per muscle).
 LIMB_PROTOCOL_KEY = 'muscles'
-#: printf format that round-trips a float64 exactly (17 significant digits).
-CSV_FLOAT_FORMAT = '%.17g'
 #: [s] spacing of the rows of the summary table printed without ``--csv``.
 TABLE_INTERVAL_S = 1.0
 #: Columns of the summary table: result attribute, header, printf format.
@@ -299,21 +297,40 @@ def load_inputs(args: argparse.Namespace) -> tuple[Protocol, MuscleParams, float
     return protocol, params, rate
 
 
+def write_csv_table(path: Path, header: Sequence[str], columns: Sequence[np.ndarray]) -> int:
+    """Write a header line and one row per sample, each number in its shortest
+    exact form: Python's ``repr`` of the float, the fewest digits that read back
+    as the same float64 (``0.0005``, where a fixed 17 digits writes
+    ``0.00050000000000000001``).
+
+    :param path: the CSV file; missing parent directories are created
+    :param header: the column names
+    :param columns: one array per column, all of the same length
+    :return: the number of data rows written
+    """
+    rows = zip(*(np.asarray(c, dtype=float).tolist() for c in columns))
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with path.open('w', encoding='utf-8', newline='') as f:
+            f.write(','.join(header) + '\n')
+            count = 0
+            for row in rows:
+                f.write(','.join(map(repr, row)) + '\n')
+                count += 1
+    except OSError as err:
+        raise UserError(f'{path}: cannot write CSV: {err.strerror or err}') from None
+    return count
+
+
 def write_csv(path: Path, result: SimulationResult) -> int:
-    """Write one row per sample with full float precision.
+    """Write one row per sample, the columns of :data:`~.model.COLUMNS`, each
+    number in its shortest exact form (:func:`write_csv_table`).
 
     :param path: the CSV file; missing parent directories are created
     :return: the number of data rows written
     """
-    data = np.column_stack([getattr(result, attr) for attr, _ in COLUMNS])
-    header = ','.join(name for _, name in COLUMNS)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        np.savetxt(path, data, fmt=CSV_FLOAT_FORMAT, delimiter=',', header=header,
-                   comments='')
-    except OSError as err:
-        raise UserError(f'{path}: cannot write CSV: {err.strerror or err}') from None
-    return len(data)
+    return write_csv_table(path, [name for _, name in COLUMNS],
+                           [getattr(result, attr) for attr, _ in COLUMNS])
 
 
 def summary_times(duration_s: float) -> list[float]:

@@ -3,7 +3,9 @@
 ``hill-muscle simulate --plant PLANT.yaml --protocol P.yaml`` runs a limb
 protocol offline (no ROS): with ``--csv`` it writes one row per step with the
 columns of :func:`~hill_muscle_ros.model.limb.limb_columns`, without it prints
-the joint angle in degrees and each muscle's force at the end of each second.
+the joint angle in degrees and each muscle's force at the end of each second;
+``--bag`` also writes the run with the limb node's topics
+(:func:`~hill_muscle_ros.recording.offline.write_limb_bag`).
 ``hill-muscle animate`` draws the same run as a stick-figure GIF
 (:mod:`hill_muscle_ros.animation`).
 
@@ -20,15 +22,14 @@ from pathlib import Path
 import numpy as np
 
 from . import resources
-from .cli import (CSV_FLOAT_FORMAT, DEFAULT_RATE_HZ, PROG, UserError, _positive_rate,
-                  _rate_from_file, bounded_number, summary_times)
+from .cli import (DEFAULT_RATE_HZ, PROG, UserError, _positive_rate, _rate_from_file,
+                  bounded_number, summary_times, write_csv_table)
 from .model.limb import LimbPlant, LimbProtocol, LimbResult, limb_columns, simulate_limb
 from .model.protocol import safe_load_yaml
 from .params_file import load_plant
 
 #: Options of ``simulate`` that configure the single muscle, not a limb.
-MUSCLE_ONLY_OPTIONS = (('params', '--params'), ('units', '--units'), ('length', '--length'),
-                       ('bag', '--bag'))
+MUSCLE_ONLY_OPTIONS = (('params', '--params'), ('units', '--units'), ('length', '--length'))
 #: [frames/s] default frame rate of ``animate``: smooth, and a GIF of a few seconds
 #: stays small.
 DEFAULT_FPS = 25.0
@@ -140,19 +141,13 @@ def _is_muscle_protocol(path: Path) -> bool:
 
 
 def write_limb_csv(path: Path, run: LimbRun) -> int:
-    """Write one row per step, full float precision, columns of :func:`limb_columns`.
+    """Write one row per step, columns of :func:`limb_columns`, each number in its
+    shortest exact form (:func:`~hill_muscle_ros.cli.write_csv_table`).
 
     :return: the number of data rows written
     """
     columns = limb_columns(run.plant)
-    data = np.column_stack([run.result[c] for c in columns])
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        np.savetxt(path, data, fmt=CSV_FLOAT_FORMAT, delimiter=',', header=','.join(columns),
-                   comments='')
-    except OSError as err:
-        raise UserError(f'{path}: cannot write CSV: {err.strerror or err}') from None
-    return len(data)
+    return write_csv_table(path, columns, [run.result[c] for c in columns])
 
 
 def format_limb_table(run: LimbRun) -> str:
@@ -181,6 +176,14 @@ def cmd_simulate_limb(args: argparse.Namespace) -> int:
         raise UserError(f'{given[0]} applies to the single muscle, not to a limb (--plant): '
                         'set each muscle\'s parameters in the plant file')
     run = load_limb_run(args.plant, Path(args.protocol), args.rate)
+    if args.bag is not None:
+        from .recording import BagOutputError   # rclpy and the bag writer only here
+        from .recording.offline import write_limb_bag
+        try:
+            write_limb_bag(args.bag, run.result, run.plant, run.protocol)
+        except BagOutputError as err:
+            raise UserError(str(err)) from None
+        print(f'wrote bag {args.bag}')
     if args.csv is not None:
         rows = write_limb_csv(args.csv, run)
         print(f'wrote {rows} rows to {args.csv}')
