@@ -112,3 +112,25 @@ def test_bad_batch_input_raises_and_leaves_the_state_unchanged(kwargs, name):
 def test_empty_batch_is_rejected():
     with pytest.raises(ValueError, match='`params`'):
         MuscleBatch([])
+
+
+@pytest.mark.parametrize('engine', ['numpy', 'compiled'])
+def test_a_step_longer_than_1_ms_is_substepped_as_separate_muscles_do(engine):
+    """Steps of 2.5 ms and 4 ms (3 and 4 substeps): every muscle of the batch,
+    the paper's four variants and an FES muscle (delay, activation), ends each
+    step where its own Muscle.step / FesMuscle.step (which substep) ends."""
+    from hill_muscle_ros.model.fes_muscle import FesMuscle
+    params = [MuscleParams(units=u, length=length)
+              for u in ('multi', 'single') for length in ('initial', 'instantaneous')]
+    params.append(MuscleParams(emd_s=0.005, tau_act_s=0.02, tau_deact_s=0.03, n_units=50))
+    batch = MuscleBatch(params, engine=engine)
+    muscles = [Muscle(p) for p in params[:4]] + [FesMuscle(params[4])]
+    for k in range(200):
+        dt = 2.5e-3 if k % 3 else 4e-3
+        r = (0.3, 0.8, 0.0)[(k // 40) % 3]
+        dl = 0.01 * math.sin(0.05 * k)
+        out = batch.step(r, dl, dt)
+        refs = [m.step(r, dl, dt) for m in muscles]
+        np.testing.assert_allclose(out.force_n, [x.force_n for x in refs], rtol=0, atol=ATOL_N)
+        np.testing.assert_allclose(out.l_ce_m, [x.l_ce_m for x in refs], rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(out.n_recruited, [x.n_recruited for x in refs])

@@ -49,6 +49,7 @@ and outputs cover every muscle alike.
 """
 from __future__ import annotations
 
+import math
 from typing import NamedTuple, Sequence
 
 import numpy as np
@@ -60,6 +61,7 @@ from .fes_muscle import FesMuscle
 from .memory import UnitMemory
 from .muscle import DL_MT_LIMIT_M
 from .params import MuscleParams, check_instances
+from .substeps import MAX_SUBSTEP_S, substeps_for
 
 #: Rounding offset of M = floor(N R + 0.5) (doc/model.md section 2).
 _ROUND_HALF = 0.5
@@ -434,7 +436,10 @@ class MuscleBatch:
         """Advance every muscle one step: recruit now, then integrate with R held.
 
         Muscle i does exactly what ``Muscle(params[i]).step(recruitment[i],
-        dl_mt_m[i], dt_s)`` does.
+        dl_mt_m[i], dt_s)`` does (``FesMuscle`` for a muscle with FES features
+        on): a step longer than 1 ms is integrated in n = ceil(dt / 1 ms)
+        equal substeps, R held and dl_MT ramping linearly across them
+        (:mod:`.substeps`), on both engines alike.
 
         :param recruitment: [-] R in [0, 1] per muscle, shape (K,) or a scalar
         :param dl_mt_m: [m] MTU length change at the end of the step, (K,) or scalar
@@ -443,6 +448,27 @@ class MuscleBatch:
         :raises ValueError: on a NaN, infinite or out-of-range input; the state
             is unchanged
         """
+        dt = float(dt_s) if isinstance(dt_s, (int, float, np.floating)) else math.nan
+        if not (math.isfinite(dt) and dt > MAX_SUBSTEP_S):
+            return self._step_one(recruitment, dl_mt_m, dt_s)   # n = 1 (or a bad dt)
+        dl1 = self._vector(dl_mt_m, 'dl_mt_m')
+        if not (dl1.min() >= -DL_MT_LIMIT_M and dl1.max() <= DL_MT_LIMIT_M):  # and NaN
+            raise self._bad_dl_mt(dl1)
+        n = substeps_for(dt)
+        dl0 = np.array(self.dl_mt_m, dtype=float)
+        change = dl1 - dl0
+        # The first substep checks the recruitment before changing anything;
+        # the later ones give the same R again, which changes nothing. dl_MT
+        # as substeps.length_ramp, per muscle, ending exactly at dl1.
+        self._step_one(recruitment, dl0 + change * (1 / n), dt / n)
+        held = self.command.copy()
+        for j in range(2, n):
+            self._step_one(held, dl0 + change * (j / n), dt / n)
+        return self._step_one(held, dl1, dt / n)
+
+    def _step_one(self, recruitment, dl_mt_m, dt_s: float) -> BatchOutputs:
+        """:meth:`step` integrated whole: one substep of at most 1 ms (any
+        ``dt_s`` is checked here)."""
         dl1 = self._vector(dl_mt_m, 'dl_mt_m')
         if self._kernels is not None:
             return self._step_compiled(recruitment, dl1, dt_s)
@@ -490,7 +516,11 @@ class MuscleBatch:
             self._v_ce = v_ce.copy()
             f0 = f0.copy()
             for i, muscle in self._fes.items():
-                out = muscle.step(float(self.command[i]), float(dl1[i]), dt)
+                # FesMuscle.step's one substep, integrated whole as the compiled
+                # engine's step_all does (step() above made the substeps; the
+                # command is already given and the inputs checked).
+                muscle._advance(float(self.command[i]), float(dl1[i]), dt)
+                out = muscle.outputs()
                 self._copy_state(i, muscle)
                 self._v_ce[i] = out.v_ce_m_per_s
                 f0[i] = out.eff_f_iso_n
