@@ -65,6 +65,7 @@ from ..model import limb_kernels
 from ..model.limb import TORQUE_LIMIT_N_M, Limb, LimbPlant
 from ..model.muscle import check_recruitment
 from ..timebase import NS_PER_S
+from ..watchdog import watchdog_trips
 from ._common import (OUTPUT_QOS, QOS_OVERRIDES_PREFIX, RELIABLE_QOS, BadInputWarner,
                       DiagnosticReport, NodeDiagnostics, StartupError, StepSchedule,
                       check_qos_overrides, declare_checked, declare_plant, load_engine,
@@ -279,11 +280,9 @@ class LimbNode(Node):
 
     def _watchdog(self) -> None:
         """Stimulation watchdog, per muscle: u -> 0 when its inputs have gone quiet."""
-        if self._input_timeout_s <= 0.0:
-            return
         now_s = self.sim_time_s
         for i, u in enumerate(self._commands):
-            if u > 0.0 and now_s - self._last_stim_t_s[i] > self._input_timeout_s:
+            if watchdog_trips(now_s, self._last_stim_t_s[i], self._input_timeout_s, u > 0.0):
                 self.get_logger().warning(
                     f'no {self._names[i]}/pulse_width or recruitment message for '
                     f'{self._input_timeout_s:g} s (input_timeout_s): command {u:g} -> 0 '

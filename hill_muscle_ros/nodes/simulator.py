@@ -76,6 +76,7 @@ from ..model import compiled_muscle
 from ..model.muscle import check_dl_mt, check_recruitment
 from ..model.stimulus import command_from_pulse_width
 from ..timebase import NS_PER_S
+from ..watchdog import watchdog_trips
 from ._common import (LIVE_RESETS, OUTPUT_HISTORY_DEPTH, OUTPUT_QOS, RELIABLE_QOS,
                       BadInputWarner, DiagnosticReport, NodeDiagnostics,
                       overridable_publisher, overridable_subscription,
@@ -480,8 +481,8 @@ class Simulator(Node):
 
     def _watchdog(self) -> None:
         """Stimulation watchdog: R -> 0 when the controller has gone quiet."""
-        if (self._input_timeout_s > 0.0 and self._recruitment > 0.0
-                and self.sim_time_s - self._last_stim_t_s > self._input_timeout_s):
+        if watchdog_trips(self.sim_time_s, self._last_stim_t_s, self._input_timeout_s,
+                          self._recruitment > 0.0):
             self.get_logger().warning(
                 f'no pulse_width or recruitment message for {self._input_timeout_s:g} s '
                 f'(input_timeout_s): recruitment {self._recruitment:g} -> 0 until the next one')
