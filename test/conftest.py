@@ -19,6 +19,7 @@ table of claims (:func:`pytest_terminal_summary`).
 import gc
 import os
 import random
+import time
 from pathlib import Path
 
 import pytest
@@ -117,6 +118,41 @@ def stall_watcher():
         yield watcher
 
 
+@pytest.fixture(autouse=True)
+def _stalls_of_a_realtime_test(request):
+    """Under a ``realtime`` test, the stall watcher runs and the test's span is
+    kept, so that a failure can be told from a stall of the machine
+    (:func:`pytest_runtest_makereport`)."""
+    if request.node.get_closest_marker('realtime') is None:
+        yield
+        return
+    watcher = request.getfixturevalue('stall_watcher')
+    request.node.stall_span = (watcher, time.monotonic())
+    yield
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item, call):
+    """A ``realtime`` claim that failed while the stall watcher measured an
+    external stall is reported as skipped (STALLED in the table), naming the
+    stall: the machine, not the product, was measured. Without one it fails."""
+    outcome = yield
+    report = outcome.get_result()
+    span = getattr(item, 'stall_span', None)
+    if call.when != 'call' or not report.failed or span is None:
+        return
+    watcher, start_s = span
+    stalls = watcher.stalls(start_s, time.monotonic())
+    if stalls:
+        worst = max(stalls, key=lambda stall: stall[2])
+        why = (f'STALLED: the claim failed while the machine kept {len(stalls)} process(es) '
+               f'of the test from a CPU, worst {worst[0]} waiting {worst[2] * 1e3:.0f} ms '
+               f'within {worst[3] * 1e3:.0f} ms')
+        _repeats.append((item.nodeid, why))
+        report.outcome = 'skipped'
+        report.longrepr = (str(item.path), item.location[1] or 0, why)
+
+
 #: The rows of the real-time table: (test, claim) -> (measured, limit); a
 #: repeated run's row replaces the earlier one's.
 _claims: dict[tuple[str, str], tuple[str, str]] = {}
@@ -160,7 +196,8 @@ def pytest_terminal_summary(terminalreporter, exitstatus, config):
             terminalreporter.write_line('  '.join(cell.ljust(width) for cell, width
                                                   in zip(row, widths)) + '  ' + row[4])
     terminalreporter.write_line(
-        f'runs repeated on a measured external stall: {len(_repeats)}'
+        f'runs repeated, or claims judged STALLED, on a measured external stall: '
+        f'{len(_repeats)}'
         + ''.join(f'\n  {nodeid}: {why}' for nodeid, why in _repeats))
 
 
