@@ -20,6 +20,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
 from hill_muscle_ros import cli, fit, resources
+from hill_muscle_ros.model import engine
 from hill_muscle_ros.model.limb import LimbProtocol, simulate_limb
 from hill_muscle_ros.params_file import load_plant
 from hill_muscle_ros.recording.bag_writer import BagWriter
@@ -117,6 +118,19 @@ def near_truth_yaml(tmp_path_factory):
     return path
 
 
+@pytest.fixture
+def compiled_limb(monkeypatch):
+    """The fits' runs on the compiled limb (HILL_MUSCLE_ENGINE=compiled, inherited
+    by the worker processes and the console script): a fit's 4-plant evaluations
+    of the 1 s ankle are below the compiled limb's threshold, so ``auto`` ran
+    them on the Python loop, 0.35 s each (29 CPU-s for this module). What these
+    tests claim is the fit's (recovery, standard errors, the file written, the
+    names refused), whichever engine predicts the angle; the compiled limb
+    equals the Python one (test_limb_compiled). The replay's exactness tests
+    stay on the default engine."""
+    monkeypatch.setenv(engine.ENV_VAR, 'compiled')
+
+
 def _fit(capsys, *args):
     status = cli.main(['fit', *map(str, args)])
     out, err = capsys.readouterr()
@@ -155,7 +169,7 @@ def test_knee_replay_of_two_muscles_and_a_torque_is_exact(tmp_path):
                                   result['theta_rad'])
 
 
-def test_worker_processes_predict_the_same_angles_as_one(ankle_run):
+def test_worker_processes_predict_the_same_angles_as_one(compiled_limb, ankle_run):
     recording = fit.load_limb_recording(ankle_run['bag'], _ankle_start())
     plants = [ankle_run['truth'], _ankle_start(), dataclasses.replace(
         ankle_run['truth'], joint=dataclasses.replace(ankle_run['truth'].joint,
@@ -173,7 +187,7 @@ def test_jobs_must_be_a_positive_integer(ankle_run):
 
 # --------------------------------------------------------------------------- recovery
 
-def test_recovers_three_parameters_within_one_percent_without_noise(ankle_run, tmp_path,
+def test_recovers_three_parameters_within_one_percent_without_noise(compiled_limb, ankle_run, tmp_path,
                                                                     capsys):
     status, out, err = _fit(capsys, '--bag', ankle_run['bag'], '--plant', ANKLE_YAML,
                             '--fit', FITTED, '--out', tmp_path / 'fitted.yaml')
@@ -188,7 +202,7 @@ def test_recovers_three_parameters_within_one_percent_without_noise(ankle_run, t
     assert 'residual RMS' in out and ' rad (at the start' in out
 
 
-def test_fitted_plant_file_is_the_start_file_with_the_values_in_place(ankle_run, tmp_path,
+def test_fitted_plant_file_is_the_start_file_with_the_values_in_place(compiled_limb, ankle_run, tmp_path,
                                                                       near_truth_yaml, capsys):
     status, _, err = _fit(capsys, '--bag', ankle_run['bag'], '--plant', near_truth_yaml,
                           '--fit', 'joint.damping_n_m_s_per_rad',
@@ -211,7 +225,7 @@ def test_fitted_plant_file_is_the_start_file_with_the_values_in_place(ankle_run,
     assert changed[0][1].startswith(f'      damping_n_m_s_per_rad: {damping!r}  # fitted')
 
 
-def test_parameter_the_file_omits_is_added_to_its_muscle_section(ankle_run, tmp_path,
+def test_parameter_the_file_omits_is_added_to_its_muscle_section(compiled_limb, ankle_run, tmp_path,
                                                                  near_truth_yaml, capsys):
     # A start file without `fv_a_n` (the default, 10 N, then applies): the fitted
     # value gets a line of its own in the muscle's section.
@@ -232,7 +246,7 @@ def test_parameter_the_file_omits_is_added_to_its_muscle_section(ankle_run, tmp_
     assert fitted.joint == expected.joint
 
 
-def test_noisy_estimates_lie_within_three_standard_errors(ankle_run, tmp_path, capsys):
+def test_noisy_estimates_lie_within_three_standard_errors(compiled_limb, ankle_run, tmp_path, capsys):
     # Three standard errors: for correct errors each estimate lies outside with
     # probability 0.27 %; the seed is fixed, so the test is deterministic.
     status, _, err = _fit(capsys, '--bag', ankle_run['noisy_bag'], '--plant', ANKLE_YAML,
@@ -257,7 +271,7 @@ def test_noisy_estimates_lie_within_three_standard_errors(ankle_run, tmp_path, c
 
 # --------------------------------------------------------------------------- identifiability
 
-def test_mass_and_centre_of_mass_distance_are_named_not_identifiable(ankle_run, tmp_path,
+def test_mass_and_centre_of_mass_distance_are_named_not_identifiable(compiled_limb, ankle_run, tmp_path,
                                                                     capsys):
     # Gravity's torque is m g l_c sin(theta): the angle fixes the product only.
     status, out, err = _fit(capsys, '--bag', ankle_run['bag'], '--plant', ANKLE_YAML,
@@ -271,7 +285,7 @@ def test_mass_and_centre_of_mass_distance_are_named_not_identifiable(ankle_run, 
     assert not (tmp_path / 'fitted.yaml').exists()
 
 
-def test_parameter_the_angle_does_not_depend_on_is_named(ankle_run, tmp_path, capsys):
+def test_parameter_the_angle_does_not_depend_on_is_named(compiled_limb, ankle_run, tmp_path, capsys):
     # Over 1 s of stimulation from full fitness the recovery constant acts on nothing.
     status, _, err = _fit(capsys, '--bag', ankle_run['bag'], '--plant', ANKLE_YAML,
                           '--fit', 'joint.damping_n_m_s_per_rad,tibialis_anterior.tau_recovery_s',
@@ -380,7 +394,7 @@ def test_help_names_the_plant_options(capsys):
                                             'joint.damping_n_m_s_per_rad'))
 
 
-def test_console_script_fits_a_limb_and_writes_the_report(ankle_run, tmp_path,
+def test_console_script_fits_a_limb_and_writes_the_report(compiled_limb, ankle_run, tmp_path,
                                                          near_truth_yaml):
     proc = subprocess.run(
         [sys.executable, '-m', 'hill_muscle_ros.cli', 'fit', '--bag', str(ankle_run['bag']),
