@@ -3,6 +3,7 @@ process left behind, even when it is interrupted. Runs in `make test` (marked
 ros and slow, not skipped)."""
 import os
 import re
+import shlex
 import signal
 import subprocess
 import time
@@ -11,6 +12,11 @@ from pathlib import Path
 
 import pytest
 from rosbags.rosbag2 import Reader
+
+from hill_muscle_ros import demo as demo_module
+from hill_muscle_ros.params_file import load_muscle_params
+from hill_muscle_ros.resources import default_params_file
+from hill_muscle_ros.supervisor import StopSignals
 
 from stall_watch import repeat_only_on_external_stall
 
@@ -118,11 +124,55 @@ def test_demo_leaves_no_process(demo):
     assert _processes_with(marker) == []
 
 
-def test_demo_passes_protocol_units_and_length_through(tmp_path_factory, stall_watcher):
-    proc, *_ = _make_demo_judged(tmp_path_factory, stall_watcher, 'demo_options', 'PROTOCOL=I',
-                                 'UNITS=single', 'LENGTH=instantaneous')
-    assert proc.returncode == 0, proc.stdout + proc.stderr
-    assert 'Protocol I: units=single, length=instantaneous' in proc.stdout
+def test_demo_summary_names_the_protocol_and_the_muscle(demo):
+    proc, *_ = demo
+    params, _ = load_muscle_params(default_params_file())
+    assert f'Protocol II: units={params.units}, length={params.length}; live run' in proc.stdout
+
+
+def _demo_argv(tmp_path, *make_vars) -> list[str]:
+    """The arguments ``make demo`` gives ``python -m hill_muscle_ros.demo``
+    (``make -n``: printed, not run)."""
+    proc = subprocess.run(['make', '-n', '--no-print-directory', 'demo',
+                           f'RUNS_DIR={tmp_path}', *make_vars],
+                          cwd=REPO, capture_output=True, text=True, check=True)
+    lines = proc.stdout.replace('\\\n', ' ').splitlines()
+    words = shlex.split(next(line for line in lines if '-m hill_muscle_ros.demo ' in line))
+    return words[words.index('hill_muscle_ros.demo') + 1:]
+
+
+def test_demo_passes_protocol_units_and_length_through(tmp_path, monkeypatch):
+    """Make variables -> the demo's options -> the nodes' parameters and the
+    muscle of the summary. The live run and the summary, the same code
+    whatever the options, are the default run's (the module's ``demo``); here
+    the demo's own ``main`` runs up to them, in this process."""
+    argv = _demo_argv(tmp_path, 'PROTOCOL=I', 'UNITS=single', 'LENGTH=instantaneous')
+    seen = {}
+
+    def record_live_run(config, bag_dir, protocol, log_dir):
+        seen['protocol'] = protocol.name
+        seen['nodes'] = demo_module._node_args(config, bag_dir)
+
+    def analyse(bag_dir, protocol, params, *rest):
+        seen['muscle'] = (params.units, params.length)
+        raise demo_module.BagContentError('stopped by the test before the analysis')
+
+    monkeypatch.setattr(demo_module, 'record_live_run', record_live_run)
+    monkeypatch.setattr(demo_module, 'analyse', analyse)
+    handlers = {sig: signal.getsignal(sig) for sig in StopSignals.SIGNALS}
+    try:
+        assert demo_module.main(argv) == 1
+    finally:
+        for sig, handler in handlers.items():
+            signal.signal(sig, handler)
+    sim_args, _, player_args = seen['nodes']
+    assert seen['protocol'] == 'Protocol I'
+    assert seen['muscle'] == ('single', 'instantaneous')
+    assert ' '.join(sim_args).endswith('-p units:=single -p length:=instantaneous'), sim_args
+    assert 'protocol:=I' in player_args
+    # Without the variables the options are empty: config/muscle.yaml's muscle.
+    plain = _demo_argv(tmp_path)
+    assert plain[plain.index('--units') + 1] == '' and plain[plain.index('--length') + 1] == ''
 
 
 def test_bad_protocol_fails_clearly_without_starting_anything(tmp_path):
