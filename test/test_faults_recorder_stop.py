@@ -5,9 +5,12 @@ and is the witness of what was sent: each message it receives is identified
 by the publisher's sequence number (``MessageInfo``), which the recorder also
 writes with every message (MCAP ``sequence``).
 
-- SIGINT or SIGTERM (alternating), at a random moment 0.3-1.5 s after the
-  recorder subscribed, 20 times (in parallel batches, to keep the suite
-  short): every recorder exits 0, every bag opens with rosbags (``Reader``
+- SIGINT or SIGTERM, at a random moment 0.3-1.5 s after the recorder
+  subscribed, 10 times (in parallel batches, to keep the suite short): the
+  range is cut into 10 equal slices and each recorder draws its moment in a
+  slice of its own, the signals alternating from slice to slice, so every
+  stretch of the range is covered and each signal is sent early, midway and
+  late in it (:func:`signal_moments`). Every recorder exits 0, every bag opens with rosbags (``Reader``
   and ``AnyReader``), the count the recorder reports lost is exactly the
   number of sequence numbers missing between the bag's first and last
   message, and the bag reaches at least the newest wrench the witness had
@@ -56,7 +59,9 @@ from ros_helpers import Probe, ProcessGroup, node_command
 pytestmark = [pytest.mark.faults, pytest.mark.ros]
 
 _RUNS = itertools.count()
-REPEATS = 20
+#: Recorders stopped with SIGINT or SIGTERM, one in each of as many equal
+#: slices of :data:`SIGNAL_AFTER_S`.
+REPEATS = 10
 #: Recorders run side by side; 2 cores, so a few at a time.
 BATCH = 5
 #: [s] range of the random moment of the signal after the recorder subscribed.
@@ -127,18 +132,44 @@ def witness_between(sim, first_ns: int, last_ns: int) -> np.ndarray:
     return stamps[(stamps >= first_ns) & (stamps <= last_ns)]
 
 
+def signal_moments(rng: random.Random) -> list[tuple[signal.Signals, float]]:
+    """(signal, [s] delay after subscribing) of each of :data:`REPEATS` runs, in
+    run order: one random delay in each equal slice of :data:`SIGNAL_AFTER_S`,
+    SIGINT in the even slices and SIGTERM in the odd ones, the slices in random
+    order so that each batch mixes early and late signals."""
+    lo, hi = SIGNAL_AFTER_S
+    width = (hi - lo) / REPEATS
+    slices = list(range(REPEATS))
+    rng.shuffle(slices)
+    return [(signal.SIGINT if s % 2 == 0 else signal.SIGTERM, lo + (s + rng.random()) * width)
+            for s in slices]
+
+
+def test_signal_moments_cover_the_range_for_each_signal():
+    moments = signal_moments(random.Random(SEED))
+    lo, hi = SIGNAL_AFTER_S
+    width = (hi - lo) / REPEATS
+    assert sorted(int((d - lo) // width) for _, d in moments) == list(range(REPEATS))
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        delays = sorted(d for s, d in moments if s == sig)
+        assert len(delays) == REPEATS // 2
+        # One moment in every two slices, from the range's start to its end.
+        assert delays[0] < lo + 2 * width and delays[-1] > hi - 2 * width
+        assert max(np.diff(delays)) < 4 * width
+
+
 def test_sigint_or_sigterm_at_a_random_moment_loses_nothing_received(sim):
     probe, wrench = sim['probe'], sim['wrench']
-    rng = random.Random(SEED)
+    moments = signal_moments(random.Random(SEED))
     results = []
     for batch in range(REPEATS // BATCH):
         runs = []
         for i in range(BATCH):
             k = batch * BATCH + i
-            sig = signal.SIGINT if k % 2 == 0 else signal.SIGTERM
+            sig, delay = moments[k]
             proc, bag = start_recorder(sim, f'rec_{k:02d}')
             runs.append({'k': k, 'sig': sig, 'proc': proc, 'bag': bag,
-                         'delay': rng.uniform(*SIGNAL_AFTER_S), 'subscribed': None})
+                         'delay': delay, 'subscribed': None})
         pending = list(runs)
         while pending:
             def ready():
