@@ -274,20 +274,6 @@ def test_local_cluster_of_two_worker_processes_gives_the_local_numbers(tmp_path,
               f'with cluster start-up {len(spec.sets) / wall:.1f} sets/s')
 
 
-@pytest.mark.slow
-def test_sweeps_back_to_back_on_one_cluster_all_complete():
-    # The second sweep's copy of the same protocol must not share a key with
-    # the first's, which the scheduler is releasing (its tasks were cancelled).
-    from distributed import Client, LocalCluster
-
-    spec = parse_spec({**TIMED, 'sample_times_s': [0.2]})
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                      dashboard_address=None) as cluster, Client(cluster) as client:
-        for _ in range(3):
-            result = run_on_client(spec, client, chunk=TIMED_CHUNK)
-            assert result.complete and result.n_sets == len(spec.sets)
-
-
 def wait_for(condition, what: str, deadline_s: float = DEADLINE_S):
     end = time.monotonic() + deadline_s
     while time.monotonic() < end:
@@ -442,20 +428,6 @@ def test_the_dropped_heartbeat_message_is_the_one_the_pinned_distributed_logs():
 
     from distributed.worker import Worker
     assert f'"{HEARTBEAT_FAILED}.' in inspect.getsource(Worker.heartbeat)
-
-
-def test_the_sweep_plugin_puts_the_filter_in_every_worker_process():
-    from distributed import Client, LocalCluster
-
-    def filters():
-        return [type(f).__name__ for f in logging.getLogger('distributed.worker').filters]
-
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                      dashboard_address=None) as cluster, Client(cluster) as client:
-        client.register_plugin(quiet_heartbeat_on_close(), name=QUIET_HEARTBEAT_PLUGIN)
-        found = client.run(filters)
-    assert len(found) == 2
-    assert all(names.count('HeartbeatOnCloseFilter') == 1 for names in found.values()), found
 
 
 # --------------------------------------------------------------------------- README
@@ -638,14 +610,19 @@ KNEE_CLUSTER = {**KNEE, 'sample_times_s': [0.3, 0.6]}
 
 
 @pytest.mark.slow
-def test_limb_sweep_on_a_local_cluster_of_two_workers_gives_the_local_numbers(tmp_path):
+def test_limb_sweep_on_a_local_cluster_of_two_workers_gives_the_local_numbers(
+        tmp_path, two_worker_cluster):
+    # The command sends the sets to the shared two-worker LocalCluster
+    # (--scheduler); a cluster the command starts itself (--workers 2) is
+    # test_local_cluster_of_two_worker_processes_gives_the_local_numbers' claim.
     doc = {**KNEE_CLUSTER, 'plant': str(CONFIG / 'knee.yaml'),
            'protocol': str(CONFIG / 'protocols' / 'knee_extension.yaml')}
     spec = parse_spec(doc)
     local = run_sweep(spec, workers=0, chunk=2)
     out = tmp_path / 'out.parquet'
     assert cli.main(['sweep', str(write_spec(tmp_path, doc)), '--out', str(out),
-                     '--workers', '2', '--chunk', '2']) == 0
+                     '--scheduler', two_worker_cluster.scheduler_address,
+                     '--chunk', '2']) == 0
     table = pq.read_table(out)
     assert table.column_names == KNEE_COLUMNS
     theta, force = limb_columns_of(table, spec)
@@ -658,6 +635,49 @@ def test_limb_sweep_on_a_local_cluster_of_two_workers_gives_the_local_numbers(tm
     np.testing.assert_allclose(force, want_force, rtol=0, atol=ATOL_N)
     workers = set(table.column('worker').to_pylist())
     assert 1 <= len(workers) <= 2 and all(w.startswith('tcp://127.0.0.1:') for w in workers)
+
+
+# The tests on the shared cluster last but the README's: the cluster's idle workers
+# cost about 0.1 CPU-s a second until the module ends.
+
+@pytest.fixture(scope='module')
+def two_worker_cluster():
+    """A LocalCluster of two worker processes, as ``--workers 2`` starts, shared
+    by the tests that need a cluster but not its start by the command (each
+    start costs about 2.5 CPU-s); test_local_cluster_of_two_worker_processes...
+    keeps ``--workers 2`` starting its own. Its workers are fresh: nothing but
+    test_the_sweep_plugin_puts_the_filter_in_every_worker_process registers the
+    sweep's plugin on them."""
+    from distributed import LocalCluster
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                      dashboard_address=None, silence_logs=logging.ERROR) as cluster:
+        yield cluster
+
+
+@pytest.mark.slow
+def test_sweeps_back_to_back_on_one_cluster_all_complete(two_worker_cluster):
+    # The second sweep's copy of the same protocol must not share a key with
+    # the first's, which the scheduler is releasing (its tasks were cancelled).
+    from distributed import Client
+
+    spec = parse_spec({**TIMED, 'sample_times_s': [0.2]})
+    with Client(two_worker_cluster) as client:
+        for _ in range(3):
+            result = run_on_client(spec, client, chunk=TIMED_CHUNK)
+            assert result.complete and result.n_sets == len(spec.sets)
+
+
+def test_the_sweep_plugin_puts_the_filter_in_every_worker_process(two_worker_cluster):
+    from distributed import Client
+
+    def filters():
+        return [type(f).__name__ for f in logging.getLogger('distributed.worker').filters]
+
+    with Client(two_worker_cluster) as client:
+        client.register_plugin(quiet_heartbeat_on_close(), name=QUIET_HEARTBEAT_PLUGIN)
+        found = client.run(filters)
+    assert len(found) == 2
+    assert all(names.count('HeartbeatOnCloseFilter') == 1 for names in found.values()), found
 
 
 # --------------------------------------------------------------------------- README, limb
