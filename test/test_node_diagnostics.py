@@ -187,12 +187,44 @@ def test_simulator_stall_is_an_error_then_a_catch_up_warning(tmp_path):
 # -- force controller -------------------------------------------------------------
 
 
-def test_controller_without_target_reports_idle_ok(tmp_path):
+#: [s] the lone controller's ``feedback_timeout_s``: its one force message goes
+#: stale after this long.
+STALE_TIMEOUT_S = 0.2
+
+
+@pytest.fixture(scope='module')
+def lone_controller(tmp_path_factory):
+    """One force controller without a simulator (report period
+    :data:`FAST_PERIOD_S`, ``feedback_timeout_s`` :data:`STALE_TIMEOUT_S`),
+    taken through its states by the probe, each state's test judging its
+    status: its first status (no target yet); six statuses, with no input (the
+    report period); then a force_target (no feedback yet); then one force
+    message, which goes stale.
+
+    :return: ``ns``, ``first``, ``stamps`` (of the statuses before any input),
+        ``no_feedback`` and ``stale`` (statuses)
+    """
     ns = unique_namespace()
-    with ProcessGroup(tmp_path) as procs, Probe('diag_probe') as probe:
-        ctrl = procs.start('ctrl', node_command('force_controller', ns=ns, params=FAST))
+    with ProcessGroup(tmp_path_factory.mktemp('lone_controller')) as procs, \
+            Probe('diag_probe') as probe:
+        ctrl = procs.start('ctrl', node_command('force_controller', ns=ns, params={
+            'feedback_timeout_s': STALE_TIMEOUT_S, **FAST}))
         st = Statuses(probe, f'{ns}/force_controller: force control')
-        status = wait_status(probe, st, lambda s: True, 'a status', [ctrl])
+        first = wait_status(probe, st, lambda s: True, 'a status', [ctrl])
+        probe.spin_until(lambda: len(st.list) >= 6, '6 statuses', procs=[ctrl])
+        stamps = list(st.stamps)
+        probe.publish_when_matched(f'{ns}/force_target', Float64(data=10.0), procs=[ctrl])
+        no_feedback = wait_status(probe, st, lambda s: values(s)['target_received'] == 'true',
+                                  'the target received', [ctrl])
+        probe.publish_when_matched(f'{ns}/force', Float64(data=1.0), procs=[ctrl])
+        stale = wait_status(probe, st, lambda s: values(s)['state'] == 'force feedback stale',
+                            'stale feedback', [ctrl])
+    return {'ns': ns, 'first': first, 'stamps': stamps, 'no_feedback': no_feedback,
+            'stale': stale}
+
+
+def test_controller_without_target_reports_idle_ok(lone_controller):
+    ns, status = lone_controller['ns'], lone_controller['first']
     v = values(status)
     assert status.level == OK and status.hardware_id == f'{ns}/force_controller'
     assert v['state'] == 'no force_target received yet'
@@ -201,34 +233,19 @@ def test_controller_without_target_reports_idle_ok(tmp_path):
     assert 'idle' in status.message
 
 
-def test_controller_with_a_target_but_no_feedback_warns(tmp_path):
-    ns = unique_namespace()
-    with ProcessGroup(tmp_path) as procs, Probe('diag_probe') as probe:
-        ctrl = procs.start('ctrl', node_command('force_controller', ns=ns, params=FAST))
-        st = Statuses(probe, f'{ns}/force_controller: force control')
-        probe.publish_when_matched(f'{ns}/force_target', Float64(data=10.0), procs=[ctrl])
-        status = wait_status(probe, st, lambda s: values(s)['target_received'] == 'true',
-                             'the target received', [ctrl])
+def test_controller_with_a_target_but_no_feedback_warns(lone_controller):
+    status = lone_controller['no_feedback']
     v = values(status)
     assert status.level == WARN
     assert v['state'] == 'no force feedback received yet' and v['target_n'] == '10'
     assert v['feedback_received'] == 'false' and v['stimulating'] == 'false'
 
 
-def test_controller_stale_feedback_warns_with_its_age(tmp_path):
-    ns = unique_namespace()
-    timeout_s = 0.2
-    with ProcessGroup(tmp_path) as procs, Probe('diag_probe') as probe:
-        ctrl = procs.start('ctrl', node_command('force_controller', ns=ns, params={
-            'feedback_timeout_s': timeout_s, **FAST}))
-        st = Statuses(probe, f'{ns}/force_controller: force control')
-        probe.publish_when_matched(f'{ns}/force_target', Float64(data=10.0), procs=[ctrl])
-        probe.publish_when_matched(f'{ns}/force', Float64(data=1.0), procs=[ctrl])
-        status = wait_status(probe, st, lambda s: values(s)['state'] == 'force feedback stale',
-                             'stale feedback', [ctrl])
+def test_controller_stale_feedback_warns_with_its_age(lone_controller):
+    status = lone_controller['stale']
     v = values(status)
     assert status.level == WARN
-    assert float(v['feedback_age_s']) > timeout_s == float(v['feedback_timeout_s'])
+    assert float(v['feedback_age_s']) > STALE_TIMEOUT_S == float(v['feedback_timeout_s'])
     assert v['force_n'] == '1' and v['stimulating'] == 'false'
     assert 'feedback_timeout_s' in status.message
 
@@ -340,15 +357,12 @@ def test_player_reports_waiting_then_progress_then_done(tmp_path):
 # -- the period ---------------------------------------------------------------------
 
 
-def test_diagnostic_updater_period_sets_the_time_between_reports(tmp_path):
+def test_diagnostic_updater_period_sets_the_time_between_reports(lone_controller):
     """``diagnostic_updater.period`` (diagnostic_updater's name) 0.2 s: reports come
     about five a second, where the default period gives one."""
-    ns = unique_namespace()
-    with ProcessGroup(tmp_path) as procs, Probe('diag_probe') as probe:
-        ctrl = procs.start('ctrl', node_command('force_controller', ns=ns, params=FAST))
-        st = Statuses(probe, f'{ns}/force_controller: force control')
-        probe.spin_until(lambda: len(st.list) >= 6, '6 statuses', procs=[ctrl])
-    gaps = sorted(b - a for a, b in zip(st.stamps, st.stamps[1:]))
+    stamps = lone_controller['stamps']
+    assert len(stamps) >= 6
+    gaps = sorted(b - a for a, b in zip(stamps, stamps[1:]))
     median = gaps[len(gaps) // 2]
     assert 0.5 * FAST_PERIOD_S < median < 0.5 * (FAST_PERIOD_S + DIAGNOSTICS_PERIOD_S), gaps
 
