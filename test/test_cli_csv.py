@@ -1,4 +1,4 @@
-"""``simulate --csv``: every number in its shortest exact form, and the README's header is the real one.
+"""``simulate --csv``: every number in its shortest exact form, and the header doc/cli.md gives is the real one.
 
 Each CSV field must read back as the very float the simulation gave (exact),
 and no representation with fewer significant digits may read back as it
@@ -21,8 +21,8 @@ RATE_HZ = 2000.0
 HALF_MILLISECOND_TEXT = '0.0005'
 #: [Hz] the limb's rate here: a fifth of 1 kHz, to keep the Python limb quick.
 LIMB_RATE_HZ = 200.0
-README = resources.config_dir().parent / 'README.md'
-#: The sentence of the README that gives the single muscle's CSV header.
+README = resources.config_dir().parent / 'doc' / 'cli.md'
+#: The sentence of doc/cli.md (the README's CLI reference) that gives the single muscle's CSV header.
 README_HEADER = re.compile(r'The CSV header is\s+`([^`]+)`')
 
 
@@ -75,7 +75,7 @@ def test_the_readme_gives_the_real_csv_header(muscle_csv):
     path, _ = muscle_csv
     header, _ = _read(path)
     stated = README_HEADER.search(README.read_text(encoding='utf-8'))
-    assert stated is not None, 'README: "The CSV header is `...`" not found'
+    assert stated is not None, 'doc/cli.md: "The CSV header is `...`" not found'
     assert stated.group(1).split(',') == header
 
 

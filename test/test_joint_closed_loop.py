@@ -16,7 +16,7 @@ states' stamps (the limb's own step times):
 
 Both the ``initial`` and the ``instantaneous`` length memory are run, on
 both muscles; the pulse widths they need are printed (``pytest -s``) and
-reported in the README. A failed run is repeated only if the stall watcher
+reported in doc/control.md. A failed run is repeated only if the stall watcher
 measured the machine leaving a process of the test unscheduled during it.
 """
 from __future__ import annotations

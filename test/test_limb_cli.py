@@ -369,7 +369,7 @@ def test_limb_figure_initial_length_ends_far_above_instantaneous(limb_figure):
     # With instantaneous length single and multiple units coincide (M / N = R up
     # to the rounding of M).
     assert abs(data.spread_deg(single_inst, multi_inst)) < 1.5
-    # The numbers the README quotes (22.6 and 16.9 deg, single 4.6 deg below multi).
+    # The numbers doc/limb.md quotes (22.6 and 16.9 deg, single 4.6 deg below multi).
     assert data.spread_deg(multi_initial, multi_inst) == pytest.approx(22.6, abs=0.05)
     assert data.spread_deg(single_initial, single_inst) == pytest.approx(16.9, abs=0.05)
     assert data.spread_deg(single_initial, multi_initial) == pytest.approx(-4.6, abs=0.05)

@@ -189,7 +189,7 @@ def test_knee_muscles_are_at_their_optimum_at_60_deg_of_flexion(knee):
     for m in knee.muscles:
         assert m.reference_angle_rad == pytest.approx(optimum, abs=1e-4)
         assert m.params.l_rest_m == m.params.l_opt_m
-    # The quadriceps' force-length factor hanging and horizontal (doc and README).
+    # The quadriceps' force-length factor hanging and horizontal (doc/model.md and doc/limb.md).
     q = muscle(knee, 'quadriceps')
     for theta, expected in ((0.0, 0.86), (math.pi / 2, 0.45)):
         x = (q.params.l_rest_m + q.dl_mt(theta)) / q.params.l_opt_m
@@ -308,7 +308,7 @@ def test_knee_extends_from_hanging_to_horizontal_inside_the_stimulators_range(kn
     assert p.pw_threshold_s < pw < p.pw_max_s
     estimate = static_pulse_width(knee, 'quadriceps', horizontal)
     assert pw == pytest.approx(estimate, rel=STATIC_ESTIMATE_TOLERANCE)
-    # The numbers the README quotes: 359 us, the static estimate 351 us.
+    # The numbers doc/limb.md quotes: 359 us, the static estimate 351 us.
     assert pw == pytest.approx(359e-6, abs=2e-6)
     assert estimate == pytest.approx(351e-6, abs=1e-6)
 
@@ -321,7 +321,7 @@ def test_drop_foot_is_lifted_to_the_neutral_ankle_inside_the_stimulators_range(a
     assert p.pw_threshold_s < pw < p.pw_max_s
     estimate = static_pulse_width(ankle, 'tibialis_anterior', neutral)
     assert pw == pytest.approx(estimate, rel=STATIC_ESTIMATE_TOLERANCE)
-    # The numbers the README quotes: 225 us, the static estimate 224 us.
+    # The numbers doc/limb.md quotes: 225 us, the static estimate 224 us.
     assert pw == pytest.approx(225e-6, abs=2e-6)
     assert estimate == pytest.approx(224e-6, abs=1e-6)
 
@@ -361,7 +361,7 @@ def test_relaxed_knee_swings_with_the_pendulum_tests_period(knee, pendulum):
     periods = np.diff(crossings)
     assert len(periods) >= 6
     np.testing.assert_allclose(periods, small_angle, rtol=PERIOD_TOLERANCE)
-    # The number the README quotes: 0.80 s.
+    # The number doc/limb.md quotes: 0.80 s.
     assert small_angle == pytest.approx(0.80, abs=0.005)
 
 
@@ -375,4 +375,4 @@ def test_relaxed_knee_decays_with_the_pendulum_tests_damping(knee, pendulum):
     measured = decrement / np.sqrt(4.0 * math.pi ** 2 + decrement ** 2)
     assert len(measured) >= 5
     np.testing.assert_allclose(measured, zeta, rtol=DAMPING_TOLERANCE)
-    assert zeta == pytest.approx(0.061, abs=0.0005)   # the README's number
+    assert zeta == pytest.approx(0.061, abs=0.0005)   # doc/limb.md's number

@@ -1,5 +1,5 @@
-"""The simulator and the protocol player started by hand, as the README's
-"Running them" says, in ROS's default environment: ``ROS_AUTOMATIC_DISCOVERY_RANGE``
+"""The simulator and the protocol player started by hand, as the README and
+doc/nodes.md's "Running them" say, in ROS's default environment: ``ROS_AUTOMATIC_DISCOVERY_RANGE``
 unset (every other test sets ``LOCALHOST``), the test run's private
 ``ROS_DOMAIN_ID`` kept.
 
