@@ -6,6 +6,7 @@ be checked without the muscle in the loop.
 """
 from __future__ import annotations
 
+import contextlib
 import itertools
 import os
 import signal
@@ -38,8 +39,8 @@ def _wait_target_acknowledged(probe, ns, proc) -> None:
                      'the controller to acknowledge the target', procs=[proc])
 
 
-@pytest.fixture
-def ctrl(tmp_path):
+@contextlib.contextmanager
+def stimulating_controller(tmp_path):
     """A controller in its own namespace, stimulating against a fake force of 0 N."""
     ns = unique_namespace()
     with ProcessGroup(tmp_path) as procs, Probe('ctrl_probe') as probe:
@@ -60,6 +61,22 @@ def ctrl(tmp_path):
         force_pub.publish(Float64(data=0.0))
         probe.wait_for_value(pw, lambda v: v > 0.0, 'stimulation', procs=[proc])
         yield {'ns': ns, 'proc': proc, 'probe': probe, 'pw': pw, 'force_pub': force_pub}
+
+
+@pytest.fixture
+def ctrl(tmp_path):
+    """A :func:`stimulating_controller` of its own, for a test that takes it
+    through feedback timeouts or stops it."""
+    with stimulating_controller(tmp_path) as ctrl:
+        yield ctrl
+
+
+@pytest.fixture(scope='module')
+def params_ctrl(tmp_path_factory):
+    """One :func:`stimulating_controller` for the tests of run-time parameters:
+    each reads the parameters before and after its own change."""
+    with stimulating_controller(tmp_path_factory.mktemp('params_ctrl')) as ctrl:
+        yield ctrl
 
 
 def test_without_force_feedback_the_controller_publishes_zero(tmp_path):
@@ -244,9 +261,10 @@ def test_stop_signal_publishes_zero_stimulation_last(ctrl, sig):
 
 @pytest.mark.parametrize('name, bad', [('kp_s_per_n', -1.0), ('rate_hz', 50.0),
                                        ('pw_max_s', 0.0), ('ki_s_per_n_s', float('nan'))])
-def test_bad_parameter_at_run_time_is_rejected_by_name_and_nothing_changes(ctrl, name, bad):
-    probe, proc = ctrl['probe'], ctrl['proc']
-    node = f'{ctrl["ns"]}/force_controller'
+def test_bad_parameter_at_run_time_is_rejected_by_name_and_nothing_changes(params_ctrl, name,
+                                                                          bad):
+    probe, proc = params_ctrl['probe'], params_ctrl['proc']
+    node = f'{params_ctrl["ns"]}/force_controller'
     names = [f for f in ControllerParams.__dataclass_fields__]
     before = probe.get_parameters(node, names, procs=[proc])
     (result,) = probe.set_parameters(node, {name: bad}, procs=[proc])
@@ -256,9 +274,9 @@ def test_bad_parameter_at_run_time_is_rejected_by_name_and_nothing_changes(ctrl,
     assert proc.returncode is None
 
 
-def test_good_parameter_at_run_time_is_applied(ctrl):
-    probe, proc = ctrl['probe'], ctrl['proc']
-    node = f'{ctrl["ns"]}/force_controller'
+def test_good_parameter_at_run_time_is_applied(params_ctrl):
+    probe, proc = params_ctrl['probe'], params_ctrl['proc']
+    node = f'{params_ctrl["ns"]}/force_controller'
     (result,) = probe.set_parameters(node, {'kp_s_per_n': 1e-5}, procs=[proc])
     assert result.successful
     assert probe.get_parameters(node, ['kp_s_per_n'], procs=[proc]) == {'kp_s_per_n': 1e-5}
