@@ -214,7 +214,13 @@ def write_section(add, m: dict) -> None:
         '`fv_scaling: relative` shrinks the Hill constants with F0 and the CE\'s relaxation '
         'rate grows as 1 / F0; below 1e5 /s RK4 takes up to 200 steps a millisecond '
         '(h lambda <= 0.5), above it the CE is quasi-static (doc/model.md 7.6). The rows '
-        'above show the run with and without that release.')
+        'above show the run with and without that release. While the activation rises or '
+        'falls, units join or leave within a step, and each unit\'s instant bounds an RK4 '
+        'interval of the joint and both CEs; the rest of the time goes to the step\'s fixed '
+        'work for two muscles of 1000 units with every FES feature (the RK4 stages of the '
+        'joint and both CEs, F0 from each unit pool with its fatigue, each muscle\'s delay '
+        'line and command). The margin over the goal is small, and the speed of these shared '
+        'machines varies by about as much from one hour to the next.')
     add(f'- Start of the compiled kernels (`limb_kernels.compiled()`, muscle kernels included) '
         f'in a fresh process: cold (empty `NUMBA_CACHE_DIR`) {start["cold"].fmt()} s, '
         f'warm (cache filled) {start["warm"].fmt()} s.')

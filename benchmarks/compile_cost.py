@@ -134,7 +134,15 @@ def write_section(add, m: dict) -> None:
         'them itself, in processes that the controller starts before its workers, which '
         'wait for them after their first modules; '
         'a test that runs the engine in a subprocess on an unwritable cache compiles the '
-        'run once more there.')
+        'run once more there. numba caches the machine code in the package\'s '
+        '`__pycache__` (or `NUMBA_CACHE_DIR`), so this is paid once per clone or edited '
+        'model. What keeps it short: numba inlines only the small leaf equations (its own '
+        'inlining types and lowers a function again at every call site, which had made the '
+        'cold compile about 60 s); the limb and the batch of FES muscles have one compiled '
+        'entry point each, since every entry point optimises the FES muscle it calls again; '
+        'and a function called with constant arguments gets an explicit signature (the '
+        'limb\'s `forces`, the FES muscle\'s `add_event`), which numba otherwise compiles '
+        'once per constant.')
     add('')
 
 

@@ -414,7 +414,10 @@ def write_report(path: Path, runs: int, started: dict, results: dict) -> None:
     add('The load averages above say how busy the 2-core machine was (the benchmark '
         'itself keeps one core busy, and its node and live runs use both). Single runs '
         'are noisy on a shared VM: the medians are the numbers to read, and the max '
-        'shows the interference.')
+        'shows the interference. numba compiles for the CPU it runs on, and the vector '
+        'loops of the batch gain most from wider vector registers (the vector instructions '
+        'row): compare compiled numbers only between machines with the same instructions, '
+        'and rerun `make bench` on your machine before quoting a number.')
     add('')
 
     add('## 1. Cost per model step (Protocol II, 1 kHz, 6000 steps)')
