@@ -111,14 +111,14 @@ bench: $(BENCH_STAMP) bytecode
 	$(BIN)/python benchmarks/profile_simulate.py
 	$(BIN)/python benchmarks/run_all.py --out BENCHMARKS.md --runs 7
 
-# The force controller closed around the simulator (README "Force controller"):
+# The force controller closed around the simulator (doc/control.md, "Force controller"):
 # a target profile through controller, simulator and recorder; a bag and a plot.
 # PROFILE= a target-profile YAML (default config/target_profile.yaml), OUT= a new directory.
 .PHONY: demo-closed-loop
 demo-closed-loop: $(STAMP) bytecode
 	$(BIN)/python -m hill_muscle_ros.demo_closed_loop $(if $(PROFILE),--profile $(PROFILE)) $(if $(OUT),--out $(OUT))
 
-# The joint controller moves the simulated knee (README "Limb"): limb node, joint
+# The joint controller moves the simulated knee (doc/control.md, "make demo-knee"): limb node, joint
 # controller and recorder on config/knee.yaml; angle steps and a sine; a bag, a plot
 # and a stick-figure GIF. KNEE_PROFILE=short (8.5 s) for a quick look, OUT= a new directory.
 .PHONY: demo-knee

@@ -570,7 +570,7 @@ def declare_checked(node: Node, name: str, default: Any,
         raise StartupError(f'parameter `{name}` = {value!r} rejected: {reason}') from None
 
 
-#: What a live change of a muscle parameter does (README "ROS 2 nodes").
+#: What a live change of a muscle parameter does (doc/nodes.md, "Simulator parameters").
 #: The recruitment curve (``pw_max_s`` and the curve's fields) only maps pulse
 #: widths to the command in the node, so it can change with the state kept.
 LIVE_KEEPS_STATE = CURVE_FIELDS

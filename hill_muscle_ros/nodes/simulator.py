@@ -13,7 +13,7 @@ clock (``real_time_factor`` > 1, ``rate_hz`` > 1 kHz) the outputs of every
 n-th step are published by default, on a fixed grid of simulated time, so that
 they stay at 1 kHz; ``publish_every_n_steps:=1`` publishes every step there
 too. A ``reset`` service (std_srvs/Trigger) returns the muscle to rest. See
-README "ROS 2 nodes" for the tables.
+doc/nodes.md for the tables.
 
 Length commands sent ahead: ``length_command_stamped``
 (geometry_msgs/PointStamped) carries dl_MT [m] in ``point.x`` (along +x of the
