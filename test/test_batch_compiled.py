@@ -58,8 +58,28 @@ def batch_case(draw, max_hold: int, params=None):
     return params, r, dl, dt
 
 
+def _within(a, b, tol) -> bool:
+    """|a - b| <= tol everywhere, same shapes: the bound of the asserts below in
+    one array operation (numpy.testing's asserts and pytest.approx per value
+    were most of this module's time). False on NaN: the asserts judge those."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    return a.shape == b.shape and bool(np.all(np.abs(a - b) <= tol))
+
+
+def _agree(out, ref) -> bool:
+    """Whether :func:`assert_outputs_agree` would pass, cheaply; when not, it
+    runs its asserts for the message."""
+    return (out.t_s == ref.t_s
+            and all(_within(getattr(out, n), getattr(ref, n), ATOL_N) for n in FORCE_FIELDS)
+            and all(_within(getattr(out, n), getattr(ref, n), ATOL_STATE)
+                    for n in ('l_ce_m', 'v_ce_m_per_s'))
+            and all(np.array_equal(getattr(out, n), getattr(ref, n)) for n in EXACT_FIELDS))
+
+
 def assert_outputs_agree(out, ref, label=''):
     """Two BatchOutputs (or a batch row and a MuscleOutputs) agree to the bounds."""
+    if _agree(out, ref):
+        return
     for name in FORCE_FIELDS:
         np.testing.assert_allclose(getattr(out, name), getattr(ref, name), rtol=0,
                                    atol=ATOL_N, err_msg=f'{name} {label}')
@@ -81,8 +101,13 @@ def run_three_ways(case):
     for k, (rk, dlk) in enumerate(zip(r, dl)):
         out = compiled.step(rk, dlk, dt)
         assert_outputs_agree(out, reference.step(rk, dlk, dt), f'step {k}')
-        for i, m in enumerate(muscles):
-            ref = m.step(rk[i], dlk[i], dt)
+        refs = [m.step(rk[i], dlk[i], dt) for i, m in enumerate(muscles)]
+        if (_within(out.force_n, [x.force_n for x in refs], ATOL_N)
+                and _within(out.eff_f_iso_n, [x.eff_f_iso_n for x in refs], ATOL_N)
+                and _within(out.l_ce_m, [x.l_ce_m for x in refs], ATOL_STATE)
+                and np.array_equal(out.n_recruited, [x.n_recruited for x in refs])):
+            continue   # the asserts below pass; they run for the message otherwise
+        for i, ref in enumerate(refs):
             assert out.force_n[i] == pytest.approx(ref.force_n, abs=ATOL_N)
             assert out.eff_f_iso_n[i] == pytest.approx(ref.eff_f_iso_n, abs=ATOL_N)
             assert out.l_ce_m[i] == pytest.approx(ref.l_ce_m, abs=ATOL_STATE)
