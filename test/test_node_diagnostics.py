@@ -98,13 +98,37 @@ def wait_status(probe, statuses, predicate, what, procs, start=0, timeout_s=30.0
 # -- simulator -------------------------------------------------------------------
 
 
-def test_simulator_without_input_reports_ok_at_its_step_rate(tmp_path):
+#: NaN recruitment messages the quiet simulator is sent.
+N_BAD = 3
+
+
+@pytest.fixture(scope='module')
+def quiet_simulator(tmp_path_factory):
+    """One simulator at :data:`QUIET_RATE_HZ` with the default report period:
+    its first OK status, with no input yet; then :data:`N_BAD` NaN recruitment
+    messages, and every status up to the one that counts them all.
+
+    :return: ``ns``, ``ok`` (status), ``statuses`` (all, in order)
+    """
     ns = unique_namespace()
-    with ProcessGroup(tmp_path) as procs, Probe('diag_probe') as probe:
+    with ProcessGroup(tmp_path_factory.mktemp('quiet_simulator')) as procs, \
+            Probe('diag_probe') as probe:
         sim = procs.start('sim', node_command('simulator', ns=ns,
                                               params={'rate_hz': QUIET_RATE_HZ}))
         st = Statuses(probe, f'{ns}/simulator: muscle simulation')
-        status = wait_status(probe, st, lambda s: s.level == OK, 'an OK status', [sim])
+        ok = wait_status(probe, st, lambda s: s.level == OK, 'an OK status', [sim])
+        for _ in range(N_BAD):
+            probe.publish_when_matched(f'{ns}/recruitment', Float64(data=float('nan')),
+                                       procs=[sim])
+        key = f'bad_inputs[{ns}/recruitment]'
+        wait_status(probe, st, lambda s: values(s).get(key) == str(N_BAD),
+                    f'{N_BAD} rejected', [sim])
+        statuses = list(st.list)
+    return {'ns': ns, 'ok': ok, 'statuses': statuses}
+
+
+def test_simulator_without_input_reports_ok_at_its_step_rate(quiet_simulator):
+    ns, status = quiet_simulator['ns'], quiet_simulator['ok']
     v = values(status)
     assert status.hardware_id == f'{ns}/simulator'
     assert float(v['achieved_step_rate_hz']) == pytest.approx(QUIET_RATE_HZ,
@@ -132,22 +156,10 @@ def test_simulator_watchdog_trip_is_a_warning(tmp_path):
     assert float(v['stimulation_age_s']) > 0.2
 
 
-def test_simulator_counts_rejected_input_per_topic_and_warns_in_that_period(tmp_path):
-    ns = unique_namespace()
-    n_bad = 3
-    with ProcessGroup(tmp_path) as procs, Probe('diag_probe') as probe:
-        sim = procs.start('sim', node_command('simulator', ns=ns,
-                                              params={'rate_hz': QUIET_RATE_HZ}))
-        st = Statuses(probe, f'{ns}/simulator: muscle simulation')
-        for _ in range(n_bad):
-            probe.publish_when_matched(f'{ns}/recruitment', Float64(data=float('nan')),
-                                       procs=[sim])
-        key = f'bad_inputs[{ns}/recruitment]'
-        wait_status(probe, st, lambda s: values(s).get(key) == str(n_bad),
-                    f'{n_bad} rejected', [sim])
-        statuses = list(st.list)
+def test_simulator_counts_rejected_input_per_topic_and_warns_in_that_period(quiet_simulator):
+    statuses = quiet_simulator['statuses']
     per_period = [int(values(s)['bad_inputs_last_period']) for s in statuses]
-    assert sum(per_period) == n_bad
+    assert sum(per_period) == N_BAD
     for status, n in zip(statuses, per_period):
         if n:
             assert RANK[status.level] >= RANK[WARN], status
