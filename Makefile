@@ -60,7 +60,11 @@ kernels: $(STAMP) bytecode
 # `make check-realtime`: the claims on milliseconds of wall time (tests marked
 # `realtime`), alone and serially, with a table of claim, measured and limit.
 TEST_WORKERS ?= 2
-PYTEST_TEST  := $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadscope --durations=10
+# pytest caches its assertion-rewritten test modules as bytecode, but not
+# where PYTHONDONTWRITEBYTECODE is set (as on this machine): each worker then
+# rewrote every test module again, 5.5 CPU-s each.
+PYTEST       := env -u PYTHONDONTWRITEBYTECODE $(BIN)/python -m pytest
+PYTEST_TEST  := $(PYTEST) -q -n $(TEST_WORKERS) --dist loadscope --durations=10
 
 test: $(STAMP) bytecode kernels
 	@offline_log=$$(mktemp); \
@@ -72,10 +76,10 @@ test: $(STAMP) bytecode kernels
 	test $$ros_status -eq 0 && test $$offline_status -eq 0
 
 test-serial: $(STAMP) bytecode kernels
-	$(BIN)/python -m pytest -q -p no:xdist --durations=15
+	$(PYTEST) -q -p no:xdist --durations=15
 
 check-realtime: $(STAMP) bytecode kernels
-	$(BIN)/python -m pytest -q -p no:xdist -m realtime -rA
+	$(PYTEST) -q -p no:xdist -m realtime -rA
 
 # The live demo: simulator, protocol player and recorder as three ROS 2
 # processes on a DDS domain of their own; the bag is read back, plotted
