@@ -10,8 +10,8 @@ writes with every message (MCAP ``sequence``).
   range is cut into 10 equal slices and each recorder draws its moment in a
   slice of its own, the signals alternating from slice to slice, so every
   stretch of the range is covered and each signal is sent early, midway and
-  late in it (:func:`signal_moments`). Every recorder exits 0, every bag opens with rosbags (``Reader``
-  and ``AnyReader``), the count the recorder reports lost is exactly the
+  late in it (:func:`signal_moments`). Every recorder exits 0, every bag
+  opens with rosbags (``Reader`` and ``AnyReader``), the count the recorder reports lost is exactly the
   number of sequence numbers missing between the bag's first and last
   message, and the bag reaches at least the newest wrench the witness had
   received when the signal was sent. So every wrench the witness received

@@ -33,8 +33,9 @@ NS_PER_MS = 1_000_000
 
 #: Publishes message k (k = 0, 1, ...) on every topic at RATE_HZ: Float64 data = k,
 #: WrenchStamped force.x = k stamped k ms. Starts once every topic has as many
-#: subscribers as asked (argv[4], default 1), prints progress, and stays alive after the last message; on
-#: SIGINT it leaves the graph (a recorder then need not wait for more from it).
+#: subscribers as asked (argv[4], default 1), prints progress, and stays alive
+#: after the last message; on SIGINT it leaves the graph (a recorder then need
+#: not wait for more from it).
 PUBLISHER = r'''
 import sys, time
 import rclpy
