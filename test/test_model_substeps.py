@@ -126,9 +126,31 @@ def test_a_length_ramp_ends_exactly_at_its_end():
 
 # -- offline runs against 10 kHz ------------------------------------------------------------------
 
-def _assert_forces_match_reference(params, value, use_engine):
+@pytest.fixture(scope='module')
+def reference_run():
+    """The 10 kHz run of a model on a protocol, once per module, on the compiled
+    engine: the reference side of both engines' tests. The object of each test
+    is the engine under test at 3 to 1000 Hz; the engines agree to 1e-9 N and
+    rad (test_simulate_fes_compiled, test_limb_compiled, test_muscle_compiled),
+    a millionth of FORCE_TOL_N, and the Python FES muscle and limb took 5 s each
+    to run 10 kHz."""
+    pytest.importorskip('numba')
+    runs = {}
+
+    def run(key, simulate_fn, model, protocol):
+        if key not in runs:
+            with pytest.MonkeyPatch.context() as mp:
+                mp.setenv(engine.ENV_VAR, engine.COMPILED)
+                runs[key] = simulate_fn(protocol, model, REFERENCE_RATE_HZ) \
+                    if simulate_fn is simulate else simulate_fn(model, protocol,
+                                                                REFERENCE_RATE_HZ)
+        return runs[key]
+    return run
+
+
+def _assert_forces_match_reference(params, value, use_engine, reference_run, key):
+    reference = reference_run(key, simulate, params, PROTOCOL_II)
     use_engine(value)
-    reference = simulate(PROTOCOL_II, params, REFERENCE_RATE_HZ)
     seconds = _whole_seconds(PROTOCOL_II.duration_s)
     want = _at(reference.t_s, reference.force_n, seconds)
     for rate in RATES_HZ:
@@ -139,20 +161,22 @@ def _assert_forces_match_reference(params, value, use_engine):
 
 
 @pytest.mark.parametrize('value', ENGINES)
-def test_protocol_ii_gives_the_10_khz_force_at_any_rate(value, use_engine):
-    _assert_forces_match_reference(MuscleParams(), value, use_engine)
+def test_protocol_ii_gives_the_10_khz_force_at_any_rate(value, use_engine, reference_run):
+    _assert_forces_match_reference(MuscleParams(), value, use_engine, reference_run, 'paper')
 
 
 @pytest.mark.parametrize('value', ENGINES)
-def test_the_fes_muscle_gives_the_10_khz_force_at_any_rate(value, use_engine, fes_params):
-    _assert_forces_match_reference(fes_params, value, use_engine)
+def test_the_fes_muscle_gives_the_10_khz_force_at_any_rate(value, use_engine, fes_params,
+                                                          reference_run):
+    _assert_forces_match_reference(fes_params, value, use_engine, reference_run, 'fes')
 
 
 @pytest.mark.parametrize('value', ENGINES)
-def test_the_limb_gives_the_10_khz_angle_and_forces_at_any_rate(value, use_engine, knee):
-    use_engine(value)
+def test_the_limb_gives_the_10_khz_angle_and_forces_at_any_rate(value, use_engine, knee,
+                                                               reference_run):
     protocol = _knee_protocol()
-    reference = simulate_limb(knee, protocol, REFERENCE_RATE_HZ)
+    reference = reference_run('knee', simulate_limb, knee, protocol)
+    use_engine(value)
     seconds = _whole_seconds(KNEE_DURATION_S)
     columns = ['theta_rad'] + [f'{m.name}_force_n' for m in knee.muscles]
     for rate in RATES_HZ:
