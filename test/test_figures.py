@@ -35,8 +35,15 @@ def figure_dir(tmp_path_factory):
     subprocess by :func:`test_figures_into_an_existing_file_exits_2`."""
     out = tmp_path_factory.mktemp('figures') / 'out'
     # At 200 Hz: these tests check the files; each figure's claims are checked
-    # on its data at the figures' own 1 kHz below.
-    assert cli.main(['figures', '--out', str(out), '--rate', str(FIGURES_TEST_RATE_HZ)]) == 0
+    # on its data at the figures' own 1 kHz below. On the compiled engines:
+    # auto ran the knee figure's four 10 s limbs and the 125 s fatigue runs on
+    # the Python loops (most of the command's 8 s); the files are the claim
+    # here, and the engines agree to 1e-9 (test_limb_compiled,
+    # test_simulate_fes_compiled). The data tests below keep the default engine.
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv('HILL_MUSCLE_ENGINE', 'compiled')
+        assert cli.main(['figures', '--out', str(out),
+                         '--rate', str(FIGURES_TEST_RATE_HZ)]) == 0
     return out
 
 
