@@ -28,6 +28,32 @@ FIGURES_TEST_RATE_HZ = 200
 MIN_DISTINCT_COLOURS = 20
 
 
+@pytest.fixture(scope='module', autouse=True)
+def fatigue_data_once():
+    """``figures.fatigue_data`` computed once per rate for the module, on the
+    engine the module was started with: the figures command (through
+    ``write_fatigue_figure``) and the fatigue tests read the same data, as the
+    command draws it. Its per-unit fitness profiles step a Python muscle
+    through the 125 s protocol (1.4 s each time)."""
+    original = figures.fatigue_data
+    engine_before = os.environ.get('HILL_MUSCLE_ENGINE')
+    memo = {}
+
+    def once(rate_hz=figures.RATE_HZ):
+        if rate_hz not in memo:
+            with pytest.MonkeyPatch.context() as mp:
+                if engine_before is None:
+                    mp.delenv('HILL_MUSCLE_ENGINE', raising=False)
+                else:
+                    mp.setenv('HILL_MUSCLE_ENGINE', engine_before)
+                memo[rate_hz] = original(rate_hz)
+        return memo[rate_hz]
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(figures, 'fatigue_data', once)
+        yield
+
+
 @pytest.fixture(scope='module')
 def figure_dir(tmp_path_factory):
     """Run the ``figures`` command once for the module, in this process (its
@@ -39,7 +65,8 @@ def figure_dir(tmp_path_factory):
     # auto ran the knee figure's four 10 s limbs and the 125 s fatigue runs on
     # the Python loops (most of the command's 8 s); the files are the claim
     # here, and the engines agree to 1e-9 (test_limb_compiled,
-    # test_simulate_fes_compiled). The data tests below keep the default engine.
+    # test_simulate_fes_compiled). The data tests below keep the default engine,
+    # and the fatigue figure is drawn from their data (fatigue_data_once).
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv('HILL_MUSCLE_ENGINE', 'compiled')
         assert cli.main(['figures', '--out', str(out),
