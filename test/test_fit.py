@@ -400,6 +400,18 @@ def late_change_bag(tmp_path_factory, protocol_paths):
     return path
 
 
+@pytest.fixture(scope='module')
+def late_change_recording(late_change_bag):
+    """The late-change bag read once (0.4 s a read) for the tests that take the
+    recording itself; its arrays read-only, so no test can change another's."""
+    recording = fit.load_muscle_recording(late_change_bag)
+    for field in dataclasses.fields(recording):
+        value = getattr(recording, field.name)
+        if isinstance(value, np.ndarray):
+            value.flags.writeable = False
+    return recording
+
+
 def test_a_change_stamped_late_biases_the_plain_fit(late_change_bag, tmp_path, capsys):
     # The premise of --edge-search: 5 ms moves the tendon's stiffness by about 1.4 %.
     status, _, err = _fit(capsys, '--bag', late_change_bag, '--fit', FITTED,
@@ -441,9 +453,9 @@ FES_TRUTH = dict(TRUTH, recruitment_curve='exponential', pw_threshold_s=131.4e-6
 
 
 @pytest.mark.parametrize('params', [TRUTH, FES_TRUTH], ids=['paper', 'fes'])
-def test_a_replay_predicts_the_same_force_on_both_engines(late_change_bag, params,
+def test_a_replay_predicts_the_same_force_on_both_engines(late_change_recording, params,
                                                           monkeypatch):
-    recording = fit.load_muscle_recording(late_change_bag)
+    recording = late_change_recording
     sets = [MuscleParams(**params), MuscleParams(**dict(params, f_iso_max_n=60.0))]
     monkeypatch.setenv('HILL_MUSCLE_ENGINE', 'python')
     replay = fit.MuscleReplay(recording, runs=10**6)
@@ -458,9 +470,9 @@ def test_a_replay_predicts_the_same_force_on_both_engines(late_change_bag, param
 
 
 def test_a_replay_loads_the_compiled_muscle_only_for_runs_that_repay_it(
-        late_change_bag, monkeypatch):
+        late_change_recording, monkeypatch):
     from hill_muscle_ros.model import kernels
-    recording = fit.load_muscle_recording(late_change_bag)
+    recording = late_change_recording
     steps = len(recording.stimulation) - 1
     loads = []
     monkeypatch.delenv('HILL_MUSCLE_ENGINE', raising=False)
@@ -474,8 +486,8 @@ def test_a_replay_loads_the_compiled_muscle_only_for_runs_that_repay_it(
 
 
 def test_an_edge_search_is_judged_as_a_whole_and_moves_the_same_on_both_engines(
-        late_change_bag, monkeypatch):
-    recording = fit.load_muscle_recording(late_change_bag)
+        late_change_recording, monkeypatch):
+    recording = late_change_recording
     start = MuscleParams()
     parameters = fit.parse_fit_names(FITTED, start)
     max_shift = round(0.02 * RATE_HZ)
