@@ -50,27 +50,30 @@ kernels: $(STAMP) bytecode
 	$(BIN)/hill-muscle compile
 
 # `make test`: the behaviour, every test but the real-time claims, as two
-# pytest runs side by side, each on TEST_WORKERS xdist workers (a module's
-# tests on one worker, --dist loadscope): the tests marked `ros`, which run
-# nodes in real time, at normal priority; the others under `nice -n 19` (any
-# user may lower their own priority), so that they take the CPU the real-time
-# runs leave idle and never hold a node up. The offline run's report follows
-# the ROS run's; either failing fails the target.
+# pytest runs side by side: the tests marked `ros`, which run nodes in real
+# time, one module after the other (ROS_WORKERS); the others on TEST_WORKERS
+# xdist workers (a module's tests on one worker, --dist loadscope) under
+# `nice -n 19` (any user may lower their own priority), so that they take the
+# CPU the real-time runs leave idle and never hold a node up. With two ROS
+# workers, two modules' nodes held each other up: a service reply lost for
+# 30 s, a recorder's holes, a 10x demo that never stimulated. The offline
+# run's report follows the ROS run's; either failing fails the target.
 # `make test-serial`: the same tests, one after the other, in one run.
 # `make check-realtime`: the claims on milliseconds of wall time (tests marked
 # `realtime`), alone and serially, with a table of claim, measured and limit.
 TEST_WORKERS ?= 2
+ROS_WORKERS  ?= 1
 # pytest caches its assertion-rewritten test modules as bytecode, but not
 # where PYTHONDONTWRITEBYTECODE is set (as on this machine): each worker then
 # rewrote every test module again, 5.5 CPU-s each.
 PYTEST       := env -u PYTHONDONTWRITEBYTECODE $(BIN)/python -m pytest
-PYTEST_TEST  := $(PYTEST) -q -n $(TEST_WORKERS) --dist loadscope --durations=10
+PYTEST_TEST  := $(PYTEST) -q --dist loadscope --durations=10
 
 test: $(STAMP) bytecode kernels
 	@offline_log=$$(mktemp); \
-	nice -n 19 $(PYTEST_TEST) -m 'not ros' > $$offline_log 2>&1 & offline=$$!; \
+	nice -n 19 $(PYTEST_TEST) -n $(TEST_WORKERS) -m 'not ros' > $$offline_log 2>&1 & offline=$$!; \
 	echo "== the ROS tests (-m ros); the offline ones (-m 'not ros') run meanwhile, reported below"; \
-	$(PYTEST_TEST) -m ros; ros_status=$$?; \
+	$(PYTEST_TEST) -n $(ROS_WORKERS) -m ros; ros_status=$$?; \
 	wait $$offline; offline_status=$$?; \
 	echo "== the offline tests (-m 'not ros')"; cat $$offline_log; rm -f $$offline_log; \
 	test $$ros_status -eq 0 && test $$offline_status -eq 0
