@@ -123,7 +123,11 @@ def _stalls_of_a_realtime_test(request):
     """Under a ``realtime`` test, the stall watcher runs and the test's span is
     kept, so that a failure can be told from a stall of the machine
     (:func:`pytest_runtest_makereport`)."""
-    if request.node.get_closest_marker('realtime') is None:
+    marker = request.node.get_closest_marker('realtime')
+    # A test that takes the watcher (repeat_only_on_external_stall) or says it
+    # judges stalls itself (realtime(judges_stalls=True)) is its own judge.
+    if (marker is None or 'stall_watcher' in request.fixturenames
+            or marker.kwargs.get('judges_stalls')):
         yield
         return
     watcher = request.getfixturevalue('stall_watcher')

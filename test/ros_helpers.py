@@ -47,6 +47,9 @@ from hill_muscle_ros.supervisor import (LOG_TAIL_CHARS, SPIN_SLICE_S,  # noqa: F
 #: [s] default deadline of a wait: long, as the 2-core box is shared and a
 #: cold Python + DDS start can take several seconds under load.
 DEFAULT_TIMEOUT_S = 30.0
+#: [s] how long a new service client waits for its first reply before it
+#: sends the request once more (Probe.call): a local reply takes milliseconds.
+FIRST_REPLY_WAIT_S = 5.0
 
 
 def ros_env(**extra: str) -> dict[str, str]:
@@ -164,6 +167,7 @@ class Probe(GraphProbe):
         self._recordings: dict[str, Recording] = {}
         self._publishers: dict[str, Any] = {}
         self._parameter_clients: dict[str, AsyncParameterClient] = {}
+        self._service_clients: dict[tuple[type, str], Any] = {}
 
     # -- waiting ----------------------------------------------------------------
 
@@ -253,15 +257,33 @@ class Probe(GraphProbe):
 
     def call(self, srv_type: type, name: str, request: Any, *,
              timeout_s: float = DEFAULT_TIMEOUT_S, procs: Iterable[NodeProcess] = ()) -> Any:
-        """Call a service once it is available; return the response."""
-        client = self.node.create_client(srv_type, name)
-        try:
-            self.spin_until(client.service_is_ready, f'service {name}', timeout_s, procs)
-            future = client.call_async(request)
-            self.spin_until(future.done, f'response of {name}', timeout_s, procs)
-            return future.result()
-        finally:
-            self.node.destroy_client(client)
+        """Call a service once it is available; return the response.
+
+        One client per service for the probe's life: ``service_is_ready``
+        says the server reads the client's requests, not that the server's
+        reply writer has matched the client's reply reader, so a new client's
+        first reply can be sent to nobody and is then lost for good (a reset
+        that ran, whose reply never came, twice in fresh-clone runs). A first
+        call without a reply after :data:`FIRST_REPLY_WAIT_S` is sent once
+        more, saying so; every later call goes over matched endpoints.
+        """
+        client = self._service_clients.get((srv_type, name))
+        first = client is None
+        if first:
+            client = self._service_clients[(srv_type, name)] = self.node.create_client(
+                srv_type, name)
+        self.spin_until(client.service_is_ready, f'service {name}', timeout_s, procs)
+        future = client.call_async(request)
+        if first:
+            deadline = time.monotonic() + FIRST_REPLY_WAIT_S
+            self.spin_until(lambda: future.done() or time.monotonic() > deadline,
+                            f'first response of {name}', timeout_s, procs)
+            if not future.done():
+                print(f'\nno reply from {name} {FIRST_REPLY_WAIT_S:g} s after a new '
+                      'client\'s first request: sent once more', flush=True)
+                future = client.call_async(request)
+        self.spin_until(future.done, f'response of {name}', timeout_s, procs)
+        return future.result()
 
     def _parameter_client(self, node_name: str, timeout_s: float,
                           procs: Iterable[NodeProcess]) -> AsyncParameterClient:

@@ -466,7 +466,9 @@ def test_gap_breakdown_tells_the_machine_from_the_simulator():
 
 @pytest.mark.ros
 @pytest.mark.slow
-@pytest.mark.realtime
+# Its own judge of stalls: the tick thread's own wait (gap_breakdown), not
+# the tools', which this test starts to load the machine.
+@pytest.mark.realtime(judges_stalls=True)
 def test_simulator_tick_never_pauses_while_cli_tools_join_and_leave(tmp_path, realtime_claim):
     for attempt in range(1, MAX_ATTEMPTS + 1):
         run = _one_run(tmp_path / f'attempt{attempt}')
@@ -493,5 +495,7 @@ def test_simulator_tick_never_pauses_while_cli_tools_join_and_leave(tmp_path, re
                         f'of it by itself, held up by the machine only {machine_s * 1e3:.1f} ms')
         report_repeat(f'REPEATED run {attempt} of {MAX_ATTEMPTS}: the machine held the tick '
                       f'thread up {machine_s * 1e3:.1f} ms of the {gap_s * 1e3:.1f} ms gap')
-    pytest.fail(f'all {MAX_ATTEMPTS} runs had a gap over {MAX_TICK_GAP_S * 1e3:.0f} ms, each '
-                'with the simulator held up by the machine (CPU or disk) for longer than that')
+    # Every run measured the machine, not the simulator: not judged (STALLED).
+    pytest.skip(f'STALLED: all {MAX_ATTEMPTS} runs had a gap over '
+                f'{MAX_TICK_GAP_S * 1e3:.0f} ms, each with the tick thread held up by the '
+                'machine (CPU or disk) for longer than that')
