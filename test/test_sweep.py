@@ -26,7 +26,7 @@ import numpy as np
 import pytest
 import yaml
 
-from hill_muscle_ros import cli
+from hill_muscle_ros import cli, sweep
 from hill_muscle_ros.model import MuscleParams, Protocol, simulate
 from hill_muscle_ros.model.limb import LimbProtocol, simulate_limb
 from hill_muscle_ros.params_file import load_plant
@@ -706,3 +706,28 @@ def test_readme_knee_rows_are_those_of_simulate_limb():
         assert f'{math.degrees(run["theta_rad"][k2]):.2f}' == theta
         assert f'{run["quadriceps_force_n"][k2]:.1f}' == quad
         assert f'{run["hamstrings_force_n"][k2]:.2f}' == ham
+
+
+class _FakeClient:
+    def __init__(self, status: str) -> None:
+        self.status = status
+
+
+def _scheduler_record(message: str) -> logging.LogRecord:
+    return logging.LogRecord('distributed.scheduler', logging.CRITICAL, __file__, 0, message,
+                             None, None)
+
+
+@pytest.mark.parametrize('status', ['closing', 'closed'])
+def test_the_schedulers_report_to_our_closed_client_is_dropped(status):
+    quiet = sweep.ClientGoneFilter()
+    quiet.client = _FakeClient(status)
+    assert not quiet.filter(_scheduler_record(sweep.CLIENT_GONE + " {'op': 'key-in-memory'}"))
+
+
+def test_the_schedulers_report_to_an_open_client_and_other_records_are_kept():
+    quiet = sweep.ClientGoneFilter()
+    quiet.client = _FakeClient('running')
+    assert quiet.filter(_scheduler_record(sweep.CLIENT_GONE + " {'op': 'key-in-memory'}"))
+    quiet.client = _FakeClient('closed')
+    assert quiet.filter(_scheduler_record('Unexpected worker completed task'))
