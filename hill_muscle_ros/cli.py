@@ -354,16 +354,23 @@ def format_table(run: SimulationRun) -> str:
     return '\n'.join(lines)
 
 
+def write_bag(path: Path, write: Callable[[], None]) -> None:
+    """Write a bag to ``path`` with ``write()``: a bag that cannot be written
+    is the user's error (``UserError``, its message); then say where it is."""
+    from .recording import BagOutputError   # rclpy and the bag writer only here
+    try:
+        write()
+    except BagOutputError as err:
+        raise UserError(str(err)) from None
+    print(f'wrote bag {path}')
+
+
 def write_outputs(args: argparse.Namespace, run: SimulationRun) -> None:
     """Write the run where the output options say (:func:`_add_output_options`)."""
     if args.bag is not None:
-        from .recording import BagOutputError
         from .recording.offline import write_simulation_bag
-        try:
-            write_simulation_bag(args.bag, run.result, run.params, run.protocol)
-        except BagOutputError as err:
-            raise UserError(str(err)) from None
-        print(f'wrote bag {args.bag}')
+        write_bag(args.bag, lambda: write_simulation_bag(args.bag, run.result, run.params,
+                                                         run.protocol))
     if args.csv is not None:
         rows = write_csv(args.csv, run.result)
         print(f'wrote {rows} rows to {args.csv}')

@@ -23,7 +23,7 @@ import numpy as np
 
 from . import resources
 from .cli import (DEFAULT_RATE_HZ, PROG, UserError, _positive_rate, _rate_from_file,
-                  bounded_number, summary_times, write_csv_table)
+                  bounded_number, summary_times, write_bag, write_csv_table)
 from .model.limb import LimbPlant, LimbProtocol, LimbResult, limb_columns, simulate_limb
 from .model.protocol import safe_load_yaml
 from .params_file import load_plant
@@ -177,13 +177,9 @@ def cmd_simulate_limb(args: argparse.Namespace) -> int:
                         'set each muscle\'s parameters in the plant file')
     run = load_limb_run(args.plant, Path(args.protocol), args.rate)
     if args.bag is not None:
-        from .recording import BagOutputError   # rclpy and the bag writer only here
-        from .recording.offline import write_limb_bag
-        try:
-            write_limb_bag(args.bag, run.result, run.plant, run.protocol)
-        except BagOutputError as err:
-            raise UserError(str(err)) from None
-        print(f'wrote bag {args.bag}')
+        from .recording.offline import write_limb_bag   # rclpy and the bag writer only here
+        write_bag(args.bag, lambda: write_limb_bag(args.bag, run.result, run.plant,
+                                                   run.protocol))
     if args.csv is not None:
         rows = write_limb_csv(args.csv, run)
         print(f'wrote {rows} rows to {args.csv}')
