@@ -52,7 +52,10 @@ POOL = ('js_first', 'target_only', 'sigint', 'sigterm', 'shared')
 #: test process gets a CPU; a stall past the default feedback_timeout_s
 #: (0.5 s) would rightly make it hold zero, and that test is about the target,
 #: not the timeout (the stale tests below use the shared controller's default).
-POOL_PARAMS = {'js_first': {'feedback_timeout_s': 30.0}}
+#: [s] feedback_timeout_s of a test that feeds joint states from the probe's
+#: timer and is not about the timeout.
+FED_TIMEOUT_S = 30.0
+POOL_PARAMS = {'js_first': {'feedback_timeout_s': FED_TIMEOUT_S}}
 
 #: [rad] an extended knee, inside the range, where the quadriceps must hold it.
 TARGET_RAD = 0.5
@@ -229,7 +232,7 @@ def shared(pool):
     if c.proc.returncode is None:
         c.probe.set_parameters(c.node, {f: getattr(DEFAULTS, f) for f in (
             'kp_n_m_per_rad', 'ki_n_m_per_rad_s', 'kd_n_m_s_per_rad',
-            'reference_rate_rad_per_s')}, procs=c.procs)
+            'reference_rate_rad_per_s', 'feedback_timeout_s')}, procs=c.procs)
 
 
 # -- acting only on inputs it has heard -------------------------------------------
@@ -333,6 +336,13 @@ def test_garbage_on_every_input_is_warned_about_and_the_last_good_inputs_kept(sh
     accepted garbage target or angle would move the output, the reference or
     the integral for good."""
     c = shared
+    # The joint states come from the probe's timer, which runs only while the
+    # test process gets a CPU: a stall past the default 0.5 s rightly stopped
+    # the stimulation in a loaded fresh-clone run. This test is about garbage,
+    # not the timeout (the stale tests have it; the fixture restores it).
+    results = c.probe.set_parameters(c.node, {'feedback_timeout_s': FED_TIMEOUT_S},
+                                     procs=c.procs)
+    assert all(r.successful for r in results), results
     expected = expected_widths(TARGET_RAD, TARGET_RAD)
     c.send_target(TARGET_RAD)
     c.feed(TARGET_RAD)
