@@ -18,8 +18,8 @@ from collections import deque
 import numpy as np
 
 from hill_muscle_ros.model import MuscleParams, NaiveUnitMemory, recruited_units
-from hill_muscle_ros.model.curves import (FL_A, FL_B, FL_C, force_velocity_inverse,
-                                          parallel_force, series_force)
+from hill_muscle_ros.model.equations import (FL_A, FL_B, FL_C, force_velocity_inverse,
+                                             parallel_force, series_force)
 
 
 class NaiveMuscle:

@@ -57,7 +57,7 @@ import math
 
 import numpy as np
 
-from hill_muscle_ros.model.curves import FL_A, FL_B, FL_C
+from hill_muscle_ros.model.equations import FL_A, FL_B, FL_C
 
 #: Parameters the reference reads, with their defaults: the paper's values
 #: and the FES defaults that switch every extension off.

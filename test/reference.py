@@ -9,7 +9,7 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 from hill_muscle_ros.model import NaiveUnitMemory, MuscleParams, Protocol
-from hill_muscle_ros.model.curves import force_length, force_velocity_inverse, series_force
+from hill_muscle_ros.model.equations import force_length, force_velocity_inverse, series_force
 from hill_muscle_ros.model.memory import recruited_units
 
 

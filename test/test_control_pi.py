@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 
 from hill_muscle_ros.control import ControllerParams, ForceController, ImposedLength, LengthRate
 from hill_muscle_ros.model import Muscle, MuscleParams
-from hill_muscle_ros.model.curves import force_length
+from hill_muscle_ros.model.equations import force_length
 
 MUSCLE_DT_S = 1e-3
 #: Feedback delay used in the offline loop: a few DDS hops on a loaded machine.

@@ -42,7 +42,7 @@ from std_msgs.msg import Float64
 
 from conftest import REPO
 from hill_muscle_ros.control.joint import JointController
-from hill_muscle_ros.model.curves import parallel_force
+from hill_muscle_ros.model.equations import parallel_force
 from hill_muscle_ros.model.limb import Limb, LimbProtocol, simulate_limb
 from hill_muscle_ros.model.stimulus import command_from_pulse_width
 from hill_muscle_ros.params_file import load_plant

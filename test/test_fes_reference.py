@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from hill_muscle_ros.model import MuscleParams, Protocol
-from hill_muscle_ros.model.curves import FL_A
+from hill_muscle_ros.model.equations import FL_A
 
 from fes_reference import fes_reference
 from reference import reference_force

@@ -10,7 +10,7 @@ import pytest
 from conftest import REPO
 from hill_muscle_ros.control.joint import (JointController, JointControllerParams,
                                            JointInputs, simulate_joint_control)
-from hill_muscle_ros.model.curves import force_length
+from hill_muscle_ros.model.equations import force_length
 from hill_muscle_ros.params_file import load_plant
 
 KNEE, _ = load_plant(REPO / 'config' / 'knee.yaml')

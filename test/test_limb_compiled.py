@@ -13,8 +13,8 @@ import yaml
 from hypothesis import HealthCheck, given, settings, strategies as st
 
 from hill_muscle_ros.model import engine, limb_kernels
-from hill_muscle_ros.model.limb import (SINE_SERIES_MAX_RAD, LimbPlant, LimbProtocol, LimbResult,
-                                        simulate_limb)
+from hill_muscle_ros.model.limb import (LimbPlant, LimbProtocol, LimbResult, simulate_limb)
+from hill_muscle_ros.model.equations import SINE_SERIES_MAX_RAD
 
 #: [rad], [rad/s], [m], [N]: agreement asked of every column.
 TOL = 1e-9

@@ -6,9 +6,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hill_muscle_ros.model import MuscleParams
-from hill_muscle_ros.model.curves import (force_length, force_velocity,
-                                          force_velocity_inverse, isometric_force_for,
-                                          parallel_force, series_force)
+from hill_muscle_ros.model.equations import (force_length, force_velocity,
+                                             force_velocity_inverse, isometric_force_for,
+                                             parallel_force, series_force)
 
 P = MuscleParams()
 HILL = (P.fv_a_n, P.fv_b_m_per_s, P.fv_a_ecc_n, P.fv_b_ecc_m_per_s)

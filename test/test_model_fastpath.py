@@ -1,8 +1,8 @@
-"""The hot loop (`Muscle.run`) equals the readable model built from curves.py.
+"""The hot loop (`Muscle.run`) equals the readable model built from equations.py.
 
 `Muscle.run` inlines Eq. 1, Eq. 3 and the springs for speed and reuses the
 output velocity as the first RK4 stage. The reference here steps the same
-muscle with the scalar functions of :mod:`hill_muscle_ros.model.curves` and
+muscle with the scalar functions of :mod:`hill_muscle_ros.model.equations` and
 :meth:`Muscle.outputs`, exactly as doc/model.md section 4 describes, so any
 difference is a bug in the fast path.
 """
@@ -12,7 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hill_muscle_ros.model import Muscle, MuscleOutputs, MuscleParams, Protocol, simulate
-from hill_muscle_ros.model.curves import force_velocity_inverse, series_force
+from hill_muscle_ros.model.equations import force_velocity_inverse, series_force
 
 #: Equal up to rounding: the fast path evaluates the same expressions.
 ATOL_N = 1e-12

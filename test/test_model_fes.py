@@ -8,7 +8,8 @@ import pytest
 from hypothesis import given, strategies as st
 
 from hill_muscle_ros.model import Muscle, MuscleParams, Protocol, simulate
-from hill_muscle_ros.model.fes_muscle import FesMuscle, fes_velocity, quasi_static_force
+from hill_muscle_ros.model.fes_muscle import FesMuscle
+from hill_muscle_ros.model.equations import fes_velocity, quasi_static_force
 from hill_muscle_ros.model.protocol import commands_from_pulse_widths
 from hill_muscle_ros.model.stimulus import command_from_pulse_width
 from hill_muscle_ros.resources import protocol_path

@@ -7,7 +7,7 @@ import math
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hill_muscle_ros.model.limb import SINE_SERIES_MAX_RAD, sine_near
+from hill_muscle_ros.model.equations import SINE_SERIES_MAX_RAD, sine_near
 
 #: A double's rounding near 1, twice: the sum of two rounded products.
 ROUNDING = 2 * 2.0 ** -52

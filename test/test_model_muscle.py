@@ -10,7 +10,7 @@ import pytest
 from scipy.optimize import brentq
 
 from hill_muscle_ros.model import Muscle, MuscleParams, Protocol, simulate
-from hill_muscle_ros.model.curves import force_length
+from hill_muscle_ros.model.equations import force_length
 
 from reference import reference_force
 

@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hill_muscle_ros.model import MuscleParams
-from hill_muscle_ros.model.curves import force_length
+from hill_muscle_ros.model.equations import force_length
 from hill_muscle_ros.model.unit_pool import UnitPool
 
 #: [N] two exact evaluations of the same sum, differing in rounding only.

@@ -36,7 +36,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from ..model.curves import force_length, parallel_force
+from ..model.equations import force_length, parallel_force
 from ..model.limb import ANGLE_LIMIT_RAD, Limb, LimbPlant
 from ..model.params import MuscleParams
 from ..model.stimulus import command_from_pulse_width

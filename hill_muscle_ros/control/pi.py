@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..model.command_track import CommandTrack, check_time
-from ..model.curves import force_length, isometric_force_for, parallel_force
+from ..model.equations import force_length, isometric_force_for, parallel_force
 from ..model.muscle import check_dl_mt
 from ..model.params import MuscleParams
 from ..model.stimulus import command_from_pulse_width, pulse_width_for_command
@@ -343,7 +343,7 @@ class ForceController:
         SE the rest (f_SE*); for the SE to keep carrying f_SE* while the PE
         force changes, the CE must move at ``v_MT + k_PE v_MT / k_SE``; Eq. (3)
         solved for F0 at that force and velocity
-        (:func:`~hill_muscle_ros.model.curves.isometric_force_for`) gives the
+        (:func:`~hill_muscle_ros.model.equations.isometric_force_for`) gives the
         effective isometric force to recruit, and ``f_iso_max FL(l_CE / l_opt)``
         per unit of R, at the CE length the measured force implies
         (``l_rest + dl_MT - f_SE / k_SE``), turns it into R. Held at rest

@@ -14,7 +14,7 @@ Two engines, chosen by ``MuscleBatch(params, engine=...)``:
   whole-array operations a step, so it scales with K, not with the number of
   units.
 - ``'compiled'``: the per-muscle step of :mod:`.kernels` (scalar functions on
-  the curves of :mod:`.curves`), compiled by numba into one loop over the
+  the curves of :mod:`.equations`), compiled by numba into one loop over the
   muscles, vectorised and run on numba's threads for large K; several times
   faster than NumPy at K = 10,000 (BENCHMARKS.md section 3). numba is imported
   when the first compiled batch is built, never with the package; the kernel
@@ -56,7 +56,7 @@ import numpy as np
 
 from . import engine as engines
 from . import fes_batch_kernels, fes_kernels, kernels
-from .curves import ECC_PLATEAU, FL_A, FL_B, FL_C
+from .equations import ECC_PLATEAU, FL_A, FL_B, FL_C
 from .fes_muscle import FesMuscle
 from .memory import UnitMemory
 from .muscle import DL_MT_LIMIT_M
@@ -397,7 +397,7 @@ class MuscleBatch:
         The four branches are written as clipped forces so that every muscle
         takes the same operations: the concentric term vanishes above F0 and
         the eccentric one below it; with F0 = 0 both are zero. Each term keeps
-        the operation order of :func:`~hill_muscle_ros.model.curves.force_velocity_inverse`.
+        the operation order of :func:`~hill_muscle_ros.model.equations.force_velocity_inverse`.
         Operations work in place on two scratch arrays: at K = 10,000 the
         step is bound by memory traffic, not by arithmetic.
 

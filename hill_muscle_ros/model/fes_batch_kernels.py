@@ -22,7 +22,7 @@ import types
 
 import numpy as np
 
-from . import curves, fes_kernels, fes_muscle, memory, stimulus, unit_pool, units
+from . import equations, fes_kernels, fes_muscle, memory, stimulus, unit_pool, units
 from .fes_kernels import (H_FS, H_IP, H_JS, I_MULTI, J_NREC, OK, S_CMD, S_DL, S_L,
                           S_MU, S_R, S_T, give_command, hdr, muscle_advance, muscle_outputs,
                           pool_mean_fitness)
@@ -105,7 +105,7 @@ def batch_entry(F, I, mode, r, dl1, dt, index, done, out):
 
 _KERNELS = ('read_state', 'give_all', 'step_all', 'outputs_all', 'batch_entry')
 #: The modules whose code the kernels inline: their digest names the cache entries.
-_DIGEST_OF = (curves, stimulus, memory, units, unit_pool, fes_muscle, fes_kernels)
+_DIGEST_OF = (equations, stimulus, memory, units, unit_pool, fes_muscle, fes_kernels)
 #: The functions of :mod:`.fes_kernels` called here, bound to their compiled versions.
 _CALLED = ('give_command', 'hdr', 'muscle_advance', 'muscle_outputs', 'pool_mean_fitness')
 _compiled = None

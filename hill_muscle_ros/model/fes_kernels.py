@@ -12,7 +12,7 @@ inverse in :mod:`.stimulus`, Eq. 3 inverted with relative constants, the
 CE's relaxation rate, the RK4 substep count and the whole-muscle Riener law
 in :mod:`.fes_muscle`, the FL sums over a unit layout in :mod:`.units`, the
 per-unit fatigue's closed forms in :mod:`.unit_pool`, the curves in
-:mod:`.curves`). Only the bookkeeping takes another form: the delay line is
+:mod:`.equations`). Only the bookkeeping takes another form: the delay line is
 a ring buffer, the plan of recruitment changes a table of events, the unit
 pool's two segment stacks arrays of N + 2 rows; they hold the same numbers
 in the same order, so the results agree with the reference to rounding.
@@ -38,19 +38,18 @@ from typing import Sequence
 
 import numpy as np
 
-from . import curves, fes_muscle, memory, stimulus, unit_pool, units
-from .curves import (ECC_PLATEAU, FL_A, FL_B, FL_C, force_length, force_velocity,
-                     force_velocity_inverse, parallel_force, series_force)
-from .fes_muscle import (MAX_EVENTS_PER_PIECE, MAX_SUBSTEPS, QUASI_STATIC_RATE_PER_S,
-                         RK4_MAX_H_LAMBDA,
-                         fes_velocity, fitness_at, piece_activation, quasi_static_force,
-                         relaxation_rate, riener_limit, riener_rate, rise_start, rk4_update,
-                         substep_count)
+from . import equations, fes_muscle, memory, stimulus, unit_pool, units
+from .equations import (ECC_PLATEAU, FL_A, FL_B, FL_C, MAX_EVENTS_PER_PIECE, MAX_SUBSTEPS,
+                        QUASI_STATIC_RATE_PER_S, RK4_MAX_H_LAMBDA, activation_at, fes_velocity,
+                        fitness_at, force_length, force_velocity, force_velocity_inverse,
+                        moment_force, parallel_force, piece_activation, quasi_static_force,
+                        recruited_excess, relaxation_rate, resting_deficit, riener_limit,
+                        riener_rate, rise_start, rk4_update, series_force, substep_count,
+                        time_to_reach)
 from .memory import recruited_units
 from .params import MuscleParams
-from .stimulus import DelayLine, activation_at, time_to_reach
-from .unit_pool import (_RENORMALISE_AFTER_TAUS, moment_force, recruited_excess,
-                        resting_deficit)
+from .stimulus import DelayLine
+from .unit_pool import _RENORMALISE_AFTER_TAUS
 from .units import (FL_ROOT_HIGH, FL_ROOT_LOW, PHI, UnitLayout, fl_clear, length_scale,
                     type_fl_sum, unit_length_scale)
 
@@ -1213,7 +1212,7 @@ _KERNELS = ('hdr', 'scratch', 'forget_eff_f_iso', 'per_type', 'per_sum', 'moment
             'apply', 'muscle_rk4', 'muscle_integrate', 'muscle_advance', 'muscle_outputs',
             'muscle_run')
 #: The modules whose code the kernels inline: their digest names the cache entries.
-_DIGEST_OF = (curves, stimulus, memory, units, unit_pool, fes_muscle)
+_DIGEST_OF = (equations, stimulus, memory, units, unit_pool, fes_muscle)
 #: The compiled namespace once built (None until then).
 _compiled = None
 

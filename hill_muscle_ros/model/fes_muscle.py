@@ -17,7 +17,7 @@ those instants), so that each unit stores the CE length of its own
 recruitment instant and the force rises when it does, not at the next step.
 Within each piece the integrator evaluates the effective isometric force at
 the RK4 stage times, including the fatigue clocks. The curves are those of
-:mod:`.curves`, called, not copied: this path is the readable one.
+:mod:`.equations`, called, not copied: this path is the readable one.
 
 With every FES parameter at its default, :class:`~hill_muscle_ros.model.muscle.Muscle`
 keeps the paper's specialised loop instead; the two agree to 1e-9 N (tests).
@@ -27,167 +27,17 @@ from __future__ import annotations
 import math
 from typing import Sequence
 
-from .curves import (ECC_PLATEAU, force_length, force_velocity, force_velocity_inverse,
-                     parallel_force, series_force)
+from .equations import (MAX_EVENTS_PER_PIECE, QUASI_STATIC_RATE_PER_S, activation_at,
+                        fes_velocity, fitness_at, force_length, parallel_force,
+                        piece_activation, quasi_static_force, relaxation_rate, riener_limit,
+                        riener_rate, rise_start, rk4_update, series_force, substep_count,
+                        time_to_reach)
 from .memory import recruited_units
 from .muscle import Muscle, MuscleOutputs, check_dl_mt, check_recruitment
 from .params import MuscleParams
-from .stimulus import DelayLine, activation_at, command_from_pulse_width, time_to_reach
+from .stimulus import (DelayLine, command_from_pulse_width)
 from .substeps import length_ramp, substeps_for
 from .unit_pool import UnitPool
-
-#: Most recruitment events resolved one by one within a piece of a step. With
-#: more (a fast activation of many units), the events are taken in this many
-#: groups of equal unit counts, each group recruited at its last unit's
-#: instant: the force is then held for 1/64 of the piece's recruitment change
-#: instead of all of it, about 1/64 of the error of holding R over the step.
-MAX_EVENTS_PER_PIECE = 64
-#: Largest h lambda per RK4 step, lambda the bound on the CE's relaxation rate
-#: (:meth:`FesMuscle.stiffness_rate`). Classical RK4 is stable on the real axis
-#: up to 2.785, but a step of h lambda near 1 across a kink of Eq. 3 (the
-#: tendon force leaving the eccentric plateau) errs by over 1 N with a stiff
-#: tendon (limb reference, k_SE = 300 kN/m); 0.5 keeps that within 0.15 N. The
-#: paper's muscle (lambda <= 330 /s) still takes one step per millisecond.
-RK4_MAX_H_LAMBDA = 0.5
-#: Most RK4 steps one interval is cut into. Only a CE whose constants vanish
-#: with F0 (``fv_scaling: relative`` as the last units leave) gets near it.
-MAX_SUBSTEPS = 1000
-#: [1/s] A CE whose relaxation rate is at least this moves with its MTU at the
-#: force Eq. 3 gives that velocity (:func:`quasi_static_force`) instead of being
-#: integrated: it relaxes within 1 / 1e5 s = 10 us, a hundredth of the 1 ms
-#: step, and lags behind that force by about the force's rate over the
-#: relaxation rate (f' / lambda: 0.01 N at 1000 N/s). Only ``fv_scaling:
-#: relative`` with few units recruited gets there (the rate grows as 1 / F0:
-#: the knee preset's quadriceps below about 2 N of F0, isometric). Below it RK4
-#: takes up to 200 steps a millisecond; above it, it took up to MAX_SUBSTEPS.
-#: Our choice, measured against the fine-step references (doc/model.md 7.6):
-#: the stimulated-quadriceps preset released while stretched errs 0.49, 0.075,
-#: 0.012 N at 2e4, 5e4, 1e5 /s (RK4 throughout: 0.009 N; the tests ask 0.05).
-QUASI_STATIC_RATE_PER_S = 1.0e5
-
-
-# -- the FES muscle's equations as plain scalar functions ------------------------------
-# Written once: FesMuscle calls them, and the compiled engine (model/fes_kernels.py)
-# compiles these same functions with numba.
-
-def piece_activation(a0: float, u_d: float, tau_s: float, elapsed_s: float) -> float:
-    """[-] the activation ``elapsed_s`` into a piece of constant delayed command:
-    the closed form while it moves (tau > 0, a0 != u_d), else a0 held.
-
-    :param a0: [-] activation at the start of the piece
-    :param u_d: [-] delayed command over the piece
-    :param tau_s: [s] time constant in force (0: the activation jumped)
-    :param elapsed_s: [s] time since the start of the piece
-    """
-    return activation_at(a0, u_d, tau_s, elapsed_s) if (tau_s > 0.0 and a0 != u_d) else a0
-
-
-def rise_start(u_d: float, tau_act_s: float) -> float:
-    """[-] the activation of a single muscle rising again at the instant it was
-    released (doc/model.md section 7.2): 0, from where it follows the closed form
-    towards ``u_d``; with instantaneous activation (tau_act = 0) the command itself.
-
-    :param u_d: [-] delayed command it rises towards, > 0
-    :param tau_act_s: [s] activation time constant (0: instantaneous)
-    """
-    return 0.0 if tau_act_s > 0.0 else u_d
-
-
-def riener_rate(a: float, rate_fat: float, rate_rec: float) -> float:
-    """[1/s] lambda of Riener's fitness law with the activation ``a`` held:
-    mu' = (mu_min - mu) a / T_fat + (1 - mu)(1 - a) / T_rec = lambda (mu_inf - mu).
-
-    :param rate_fat: [1/s] 1 / T_fat
-    :param rate_rec: [1/s] 1 / T_rec
-    """
-    return a * rate_fat + (1.0 - a) * rate_rec
-
-
-def riener_limit(a: float, mu_min: float, rate_fat: float, rate_rec: float,
-                 lam: float) -> float:
-    """[-] mu_inf of Riener's law with ``a`` held (see :func:`riener_rate`)."""
-    return (mu_min * a * rate_fat + (1.0 - a) * rate_rec) / lam
-
-
-def fitness_at(mu0: float, mu_inf: float, lam: float, elapsed_s: float) -> float:
-    """[-] mu ``elapsed_s`` after it was ``mu0``, tending to ``mu_inf`` at rate ``lam``."""
-    return mu_inf + (mu0 - mu_inf) * math.exp(-lam * elapsed_s)
-
-
-def fes_velocity(l_ce_m: float, dl_mt_m: float, f0_n: float, k_se: float, l_rest_m: float,
-                 a: float, b: float, a_ecc: float, b_ecc: float, f_iso_max_n: float,
-                 relative: bool) -> float:
-    """[m/s] FV_inv(f_SE, F0), Eq. 3 inverted; ``relative`` scales a and a' with F0.
-
-    :param l_ce_m: [m] CE length (l_CE)
-    :param dl_mt_m: [m] MTU length change (dl_MT)
-    :param f0_n: [N] Eff.f_iso (F0)
-    :param k_se: [N/m] SE stiffness; a, b, a', b' the Hill constants
-    :param l_rest_m: [m] CE rest length (l_rest)
-    :param f_iso_max_n: [N] f_iso_max, the F0 at which relative constants are a, a'
-    :param relative: True for ``fv_scaling: relative``
-    """
-    f_se = series_force(k_se, dl_mt_m, l_ce_m, l_rest_m)
-    if relative:
-        if f0_n <= 0.0:
-            # The limits of the fastest speeds as F0 -> 0, which no longer
-            # depend on F0: b f_iso_max / a shortening, b' f_iso_max / a' lengthening.
-            if f_se <= 0.0:
-                return -b * f_iso_max_n / a
-            return b_ecc * f_iso_max_n / a_ecc
-        share = f0_n / f_iso_max_n
-        a, a_ecc = a * share, a_ecc * share
-    return force_velocity_inverse(f_se, f0_n, a, b, a_ecc, b_ecc)
-
-
-def relaxation_rate(l_ce_m: float, dl_mt_m: float, f0_n: float, k_se: float,
-                    l_rest_m: float, a: float, b: float, a_ecc: float, b_ecc: float,
-                    f_iso_max_n: float, relative: bool) -> float:
-    """[1/s] |d v_CE / d l_CE| at F0 = ``f0_n``: see :meth:`FesMuscle.stiffness_rate`
-    (the arguments as :func:`fes_velocity`'s)."""
-    if f0_n <= 0.0:
-        return 0.0
-    if relative:
-        share = f0_n / f_iso_max_n
-        a, a_ecc = a * share, a_ecc * share
-    f = k_se * (dl_mt_m - (l_ce_m - l_rest_m))
-    if f <= f0_n:
-        f = f if f > 0.0 else 0.0
-        slope = b * (a + f0_n) / ((f + a) * (f + a))
-    else:
-        f = f if f < ECC_PLATEAU * f0_n else ECC_PLATEAU * f0_n
-        slope = 2.0 * b_ecc * (f0_n + a_ecc) / ((3.0 * f0_n - 2.0 * f + a_ecc) ** 2)
-    return k_se * slope
-
-
-def quasi_static_force(v_ce_m_per_s: float, f0_n: float, a: float, b: float, a_ecc: float,
-                       b_ecc: float, f_iso_max_n: float, relative: bool) -> float:
-    """[N] the force of a CE moving at ``v_ce_m_per_s``: Eq. 3, FV(v_CE, F0), with
-    ``relative`` scaling a and a' with F0 (the inverse of :func:`fes_velocity`).
-    The force of a quasi-static CE (:data:`QUASI_STATIC_RATE_PER_S`), whose SE
-    then has this force and whose velocity is its MTU's.
-
-    :param v_ce_m_per_s: [m/s] CE velocity (v_CE), negative when shortening
-    :param f0_n: [N] Eff.f_iso (F0); 0 gives 0
-    """
-    if f0_n <= 0.0:
-        return 0.0
-    if relative:
-        share = f0_n / f_iso_max_n
-        a, a_ecc = a * share, a_ecc * share
-    return force_velocity(v_ce_m_per_s, f0_n, a, b, a_ecc, b_ecc)
-
-
-def rk4_update(y: float, h_s: float, k1: float, k2: float, k3: float, k4: float) -> float:
-    """y + h (k1 + 2 k2 + 2 k3 + k4) / 6: classical RK4's step from its four stages."""
-    return y + h_s / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-
-
-def substep_count(h_s: float, rate: float) -> int:
-    """RK4 steps for an interval of ``h_s`` at relaxation rate ``rate`` [1/s]:
-    h lambda at most :data:`RK4_MAX_H_LAMBDA` each, at most :data:`MAX_SUBSTEPS`."""
-    n = h_s * rate / RK4_MAX_H_LAMBDA
-    return 1 if n <= 1.0 else min(math.ceil(n), MAX_SUBSTEPS)
 
 
 class FesMuscle(Muscle):

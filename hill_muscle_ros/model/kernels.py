@@ -4,7 +4,7 @@ and the single muscle's offline run.
 :class:`~hill_muscle_ros.model.batch.MuscleBatch`'s compiled engine runs
 :func:`step_all` compiled by numba; the same functions run unchanged as plain
 Python (slowly: they are for the tests, not for use). They are written once:
-the curves are those of :mod:`.curves` (Eq. 1, the springs, Eq. 3 inverted)
+the curves are those of :mod:`.equations` (Eq. 1, the springs, Eq. 3 inverted)
 and the integrator is the RK4 step of :meth:`Muscle.step
 <hill_muscle_ros.model.muscle.Muscle.step>` (recruitment held, MTU length
 ramping linearly, the free CE when Eff.f_iso = 0; doc/model.md section 4).
@@ -21,8 +21,8 @@ imported there and only there, so importing this module (or the package)
 never loads it. Each function is compiled from its own code object with the
 names it calls bound to their compiled versions, and cached on disk, so only
 the first process compiles. numba's cache notices a change of this file but
-not of :mod:`.curves` or :mod:`.memory`, which the kernels inline: so the
-kernels' cache entries carry a digest of ``curves.py`` and ``memory.py`` in
+not of :mod:`.equations` or :mod:`.memory`, which the kernels inline: so the
+kernels' cache entries carry a digest of ``equations.py`` and ``memory.py`` in
 their names, and an edited curve or stack compiles anew.
 
 :func:`recruit_all` is the recruitment bookkeeping (M, gains, the run stacks
@@ -45,8 +45,8 @@ from __future__ import annotations
 import threading
 import types
 
-from . import curves, engine, memory
-from .curves import force_length, force_velocity_inverse, parallel_force, series_force
+from . import engine, equations, memory
+from .equations import force_length, force_velocity_inverse, parallel_force, series_force
 from .memory import recruited_units, stack_update
 
 #: The loop over muscles; the compiled build binds this name to ``numba.prange``.
@@ -542,7 +542,7 @@ def compiled() -> types.SimpleNamespace:
     Imports numba on the first call (:func:`.engine.import_numba`) and compiles
     ``step_all``, ``scan_inputs`` and ``recruit_all`` with their signatures, or
     loads them from numba's on-disk cache (BENCHMARKS.md section 3 gives both
-    costs); the cache names carry a digest of ``curves.py`` and ``memory.py``.
+    costs); the cache names carry a digest of ``equations.py`` and ``memory.py``.
 
     :raises ImportError: if numba cannot be imported
     """
@@ -551,7 +551,7 @@ def compiled() -> types.SimpleNamespace:
         # The kernels themselves take the checks of numba's default error model
         # where they are not the vector loop; see engine.HELPER_OPTIONS.
         _compiled = engine.compile_functions(
-            globals(), _KERNELS, foreign=_CURVES, digest_of=(curves, memory),
+            globals(), _KERNELS, foreign=_CURVES, digest_of=(equations, memory),
             signatures={'step_all': _step_all_signature,
                         'scan_inputs': _scan_inputs_signature,
                         'recruit_all': _recruit_all_signature},
@@ -602,7 +602,7 @@ def compiled_run() -> types.SimpleNamespace:
     global _compiled_run
     if _compiled_run is None:
         _compiled_run = engine.compile_functions(
-            globals(), _RUN_KERNELS, foreign=_CURVES, digest_of=(curves, memory),
+            globals(), _RUN_KERNELS, foreign=_CURVES, digest_of=(equations, memory),
             signatures={'run_muscle': _run_muscle_signature},
             options={'run_muscle': {'error_model': 'numpy'}, **_CALLED_OFTEN})
     return _compiled_run

@@ -37,8 +37,9 @@ from typing import Any, Mapping, NamedTuple, Sequence
 
 import numpy as np
 
-from .curves import parallel_force, series_force
-from .fes_muscle import QUASI_STATIC_RATE_PER_S, FesMuscle, rk4_update, substep_count
+from .equations import (QUASI_STATIC_RATE_PER_S, joint_acceleration, mtu_length_change,
+                        parallel_force, rk4_update, series_force, substep_count)
+from .fes_muscle import FesMuscle
 from .muscle import DL_MT_LIMIT_M, check_recruitment
 from .params import _FLOAT_MAX, MuscleParams, _float, _spec, finite_float
 from .protocol import (Knots, ProtocolError, _parse_knots, check_protocol_keys,
@@ -54,64 +55,6 @@ ANGLE_LIMIT_RAD = 4.0 * math.pi
 #: turns a unit error into a message.
 TORQUE_LIMIT_N_M = 1.0e4
 
-
-# -- the joint's equations as plain scalar functions ------------------------------------
-# Written once: Limb calls them, and the compiled limb (model/limb_kernels.py) compiles
-# these same functions with numba.
-
-def mtu_length_change(s_r: float, theta_rad: float, reference_angle_rad: float) -> float:
-    """[m] dl_MT = -s r (theta - theta_ref) of a muscle with ``s_r`` = s r [m]."""
-    return -s_r * (theta_rad - reference_angle_rad)
-
-
-def joint_acceleration(muscle_torque_n_m: float, theta_rad: float, omega_rad_per_s: float,
-                       external_torque_n_m: float, inertia_kg_m2: float, mass_kg: float,
-                       gravity_m_per_s2: float, com_distance_m: float,
-                       stiffness_n_m_per_rad: float, equilibrium_rad: float,
-                       damping_n_m_s_per_rad: float) -> float:
-    """[rad/s^2] domega/dt = (sum s r F - m g l_c sin theta - K (theta - theta_eq)
-    - B omega + tau_ext) / J (the joint's parameters as :class:`JointParams`')."""
-    return joint_acceleration_sin(muscle_torque_n_m, theta_rad, math.sin(theta_rad),
-                                  omega_rad_per_s, external_torque_n_m, inertia_kg_m2, mass_kg,
-                                  gravity_m_per_s2, com_distance_m, stiffness_n_m_per_rad,
-                                  equilibrium_rad, damping_n_m_s_per_rad)
-
-
-def joint_acceleration_sin(muscle_torque_n_m: float, theta_rad: float, sin_theta: float,
-                           omega_rad_per_s: float, external_torque_n_m: float,
-                           inertia_kg_m2: float, mass_kg: float, gravity_m_per_s2: float,
-                           com_distance_m: float, stiffness_n_m_per_rad: float,
-                           equilibrium_rad: float, damping_n_m_s_per_rad: float) -> float:
-    """[rad/s^2] :func:`joint_acceleration` given ``sin_theta`` = sin theta."""
-    return (muscle_torque_n_m - mass_kg * gravity_m_per_s2 * com_distance_m * sin_theta
-            - stiffness_n_m_per_rad * (theta_rad - equilibrium_rad)
-            - damping_n_m_s_per_rad * omega_rad_per_s + external_torque_n_m) / inertia_kg_m2
-
-
-#: [rad] Largest |d| for which :func:`sine_near` takes sin and cos of d from their
-#: series. The first terms left out, d^9 / 9! and d^10 / 10!, are 1.4e-21 and
-#: 2.8e-24 at 0.02 rad, far below a double's rounding; an RK4 stage of 1 ms
-#: moves the joint by 0.02 rad only at 20 rad/s (40 at the half-step stages).
-SINE_SERIES_MAX_RAD = 0.02
-
-
-def sine_near(sin_a: float, cos_a: float, d_rad: float) -> float:
-    """[-] sin(theta_a + d) from sin theta_a and cos theta_a: the angle-addition
-    formula with the series of sin d and cos d, for |d| <= :data:`SINE_SERIES_MAX_RAD`
-    (to rounding).
-
-    Why: the compiled limb's RK4 asks the gravity torque at four stage angles
-    a few milliradians apart; libm's sin there cost 9 % of the knee extension's
-    run, and each call makes the compiled stage save and reload its registers.
-
-    :param d_rad: [rad] how far theta is from theta_a (d)
-    """
-    d2 = d_rad * d_rad
-    # Horner's forms of sum (-1)^n d^2n / (2n)! and sum (-1)^n d^(2n+1) / (2n+1)!.
-    cos_d = 1.0 + d2 * (-1.0 / 2.0 + d2 * (1.0 / 24.0 + d2 * (-1.0 / 720.0
-                                                                 + d2 * (1.0 / 40320.0))))
-    sin_d = d_rad * (1.0 + d2 * (-1.0 / 6.0 + d2 * (1.0 / 120.0 + d2 * (-1.0 / 5040.0))))
-    return sin_a * cos_d + cos_a * sin_d
 
 
 @dataclass(frozen=True)

@@ -31,10 +31,10 @@ from typing import Sequence
 
 import numpy as np
 
-from . import curves, fes_kernels, fes_muscle, limb, memory, stimulus, unit_pool, units
-from .curves import parallel_force, series_force
-from .fes_muscle import QUASI_STATIC_RATE_PER_S, rk4_update, substep_count
-from .limb import SINE_SERIES_MAX_RAD, joint_acceleration_sin, mtu_length_change, sine_near
+from . import equations, fes_kernels, fes_muscle, limb, memory, stimulus, unit_pool, units
+from .equations import (QUASI_STATIC_RATE_PER_S, SINE_SERIES_MAX_RAD, activation_at,
+                        joint_acceleration_sin, mtu_length_change, parallel_force, rk4_update,
+                        series_force, sine_near, substep_count)
 from .muscle import DL_MT_LIMIT_M
 from .fes_kernels import (A_END, DELAY_FULL, H_DQT, H_EVT, H_FP, H_FS, H_IP, H_JS, I_INITIAL,
                           I_MULTI, I_N, J_DCOUNT, J_DHEAD, J_NEV, J_NREC, OK, P_K_PE, P_K_SE,
@@ -43,7 +43,6 @@ from .fes_kernels import (A_END, DELAY_FULL, H_DQT, H_EVT, H_FP, H_FS, H_IP, H_J
                           end_interval, give_command, hdr, peak_rate, plan, quasi_force, rate_at,
                           set_piece, settle_now, tau_for, velocity)
 from .memory import recruited_units
-from .stimulus import activation_at
 from .substeps import repeat_rows, substeps_for
 
 # Entries of the limb's float array ``L``: the joint, its state, an RK4 step's
@@ -578,7 +577,7 @@ _INTO_STEP = ('forces', 'limb_rk4')
 #: holding the muscle's code again.
 _INTO_ENTRY = ('limb_give', 'limb_record', 'limb_hold', 'limb_run')
 #: The modules whose code the kernels inline: their digest names the cache entries.
-_DIGEST_OF = (curves, stimulus, memory, units, unit_pool, fes_muscle, fes_kernels, limb)
+_DIGEST_OF = (equations, stimulus, memory, units, unit_pool, fes_muscle, fes_kernels, limb)
 _compiled = None
 
 

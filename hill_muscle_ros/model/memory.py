@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .curves import force_length
+from .equations import force_length
 
 
 def recruited_units(recruitment: float, n_units: int) -> int:

@@ -13,8 +13,8 @@ from __future__ import annotations
 import math
 from typing import Callable, NamedTuple, Sequence
 
-from .curves import (ECC_PLATEAU, FL_A, FL_B, FL_C, force_length, force_velocity_inverse,
-                     parallel_force, series_force)
+from .equations import (ECC_PLATEAU, FL_A, FL_B, FL_C, force_length, force_velocity_inverse,
+                        parallel_force, series_force)
 from .memory import UnitMemory, recruited_units
 from .params import MuscleParams
 from .substeps import MAX_SUBSTEP_S, length_ramp, substeps_for
@@ -117,7 +117,7 @@ class Muscle:
     tick) calls it with one step, :func:`~hill_muscle_ros.model.simulate.simulate`
     (the CLI) with a whole protocol, or the same loop compiled
     (:func:`~hill_muscle_ros.model.kernels.run_compiled`) where that pays. :meth:`outputs` and :meth:`eff_f_iso`
-    evaluate the readable curves of :mod:`.curves` and are the reference the
+    evaluate the readable curves of :mod:`.equations` and are the reference the
     tests compare the hot loop against.
 
     With any FES extension switched on in ``params``, ``Muscle(params)`` makes
@@ -245,7 +245,7 @@ class Muscle:
     def outputs(self) -> MuscleOutputs:
         """The outputs at the current instant, derived from the state.
 
-        Evaluates the readable curves of :mod:`.curves`; :meth:`run` returns
+        Evaluates the readable curves of :mod:`.equations`; :meth:`run` returns
         the same values from its inlined arithmetic.
         """
         p = self.params
@@ -277,7 +277,7 @@ class Muscle:
 
         The integrator is classical RK4 (doc/model.md section 4). When Eff.f_iso
         is zero the CE offers no resistance and takes the length that makes
-        f_SE zero. The curves of :mod:`.curves` (Eq. 1, Eq. 3, the springs)
+        f_SE zero. The curves of :mod:`.equations` (Eq. 1, Eq. 3, the springs)
         are inlined here because function calls dominate a pure-Python step;
         the tests check this loop against them. Inputs are not validated:
         :meth:`step` validates, :func:`.simulate` checks whole arrays.

@@ -12,7 +12,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Iterable, Mapping
 
-from .curves import FL_A, FL_B, FL_C
+from .equations import FL_A, FL_B, FL_C
 
 UNITS_CHOICES = ('multi', 'single')
 LENGTH_CHOICES = ('initial', 'instantaneous')
@@ -26,7 +26,7 @@ RECRUITMENT_ORDER_CHOICES = ('size', 'reverse', 'random')
 #: the ROS parameter descriptors use the same bound.
 _FLOAT_MAX = 1.0e12
 #: [-] Smallest normalised force FL(l_rest / l_opt) accepted at rest length.
-#: FL (curves.py, Eq. 1) is 1 - 2.777 (x - 1)^2: zero for |x - 1| >= 0.6. A
+#: FL (equations.py, Eq. 1) is 1 - 2.777 (x - 1)^2: zero for |x - 1| >= 0.6. A
 #: run starts at rest length, and with ``length: initial`` every unit
 #: recruited there keeps FL(l_rest / l_opt) for good, so a muscle whose rest
 #: length is outside that range makes no active force at all: l_opt_m 0.001

@@ -81,27 +81,6 @@ def pulse_width_for_command(command: float, params: MuscleParams,
     return params.pw_threshold_s - params.pw_scale_s * math.log1p(-u)
 
 
-def activation_at(a0: float, u_d: float, tau_s: float, elapsed_s: float) -> float:
-    """Closed form of the first-order activation with a constant input.
-
-    :param a0: [-] activation at the start of the piece
-    :param u_d: [-] delayed command, constant over the piece
-    :param tau_s: [s] time constant in force on the piece, > 0
-    :param elapsed_s: [s] time since the start of the piece
-    :return: [-] a(t0 + elapsed)
-    """
-    return u_d + (a0 - u_d) * math.exp(-elapsed_s / tau_s)
-
-
-def time_to_reach(a0: float, u_d: float, tau_s: float, level: float) -> float:
-    """[s] time after the piece start at which the activation reaches ``level``.
-
-    The inverse of :func:`activation_at`; ``level`` must lie strictly between
-    ``a0`` and ``u_d`` (a reaches u_d only asymptotically).
-    """
-    return tau_s * math.log((a0 - u_d) / (level - u_d))
-
-
 def time_constant(params: MuscleParams, a: float, u_d: float) -> float:
     """[s] tau in force: ``tau_act_s`` while u_d > a, else ``tau_deact_s``."""
     return params.tau_act_s if u_d > a else params.tau_deact_s

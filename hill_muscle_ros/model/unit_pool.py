@@ -31,7 +31,7 @@ import numpy as np
 
 from .params import MuscleParams
 from .units import UnitLayout, fl_clear
-from .curves import FL_A, FL_B, FL_C
+from .equations import FL_A, FL_B, FL_C, moment_force, recruited_excess, resting_deficit
 
 #: Columns of a segment's static sums per fibre type: g = f_max sum FL(c x_o)
 #: (``initial``), then the moments n, sum c, sum c^2 of its units.
@@ -41,34 +41,6 @@ _G, _N, _C1, _C2 = 0, 1, 2, 3
 #: values divided by it (at most e^500 = 1.4e217) far from overflow.
 _RENORMALISE_AFTER_TAUS = 500.0
 
-
-# -- the pool's equations as plain functions ---------------------------------------------
-# Written once: UnitPool calls them (on floats or per-type arrays), and the compiled
-# engine (model/fes_kernels.py) compiles them with numba.
-
-def recruited_excess(dn, h, mu_min, d):
-    """(mu - mu_min) / D(t) of units recruited now, from their resting deficit.
-
-    :param dn: [-] stored deficit (1 - mu) / H(t) of the resting units
-    :param h: [-] recovery clock H(t) now
-    :param mu_min: [-] fitness floor mu_min
-    :param d: [-] fatigue clock D(t) now
-    """
-    return ((1.0 - dn * h) - mu_min) / d
-
-
-def resting_deficit(exn, d, mu_min, h):
-    """(1 - mu) / H(t) of units released now, from their stored excess
-    (the arguments as :func:`recruited_excess`'s)."""
-    return (1.0 - (mu_min + exn * d)) / h
-
-
-def moment_force(f_max: float, a2: float, a1: float, a0: float, n: float, c1: float,
-                 c2: float) -> float:
-    """[N] f_max (a2 sum c^2 + a1 sum c + a0 n): the FL parabola a2 c^2 + a1 c + a0
-    (in the unit scale c, at a given CE length) summed over moments, each
-    moment already weighted by the units' fitness."""
-    return f_max * (a2 * c2 + a1 * c1 + a0 * n)
 
 
 class UnitPool:

@@ -24,7 +24,7 @@ import math
 
 import numpy as np
 
-from .curves import FL_A, FL_B, FL_C
+from .equations import FL_A, FL_B, FL_C
 from .params import MuscleParams
 
 #: The golden-ratio conjugate (sqrt(5) - 1) / 2 of the length-spread sequence.
