@@ -126,7 +126,7 @@ def run(profile: TargetProfile, out: Path, namespace: str) -> tuple[Path, int]:
     from geometry_msgs.msg import WrenchStamped
     from std_msgs.msg import Float64
 
-    from .nodes._common import DIAGNOSTICS_TOPIC
+    from .nodes._topics import DIAGNOSTICS_TOPIC
     from .qos import RELIABLE_QOS
 
     bag = out / 'bag'

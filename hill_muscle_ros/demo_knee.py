@@ -192,7 +192,7 @@ def run(profile: KneeProfile, plant: LimbPlant, out: Path, namespace: str) -> tu
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64
 
-    from .nodes._common import DIAGNOSTICS_TOPIC
+    from .nodes._topics import DIAGNOSTICS_TOPIC
     from .nodes.recorder import subscriptions_node_name
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 

@@ -49,7 +49,7 @@ FLOODER = r'''
 import sys, time
 import rclpy
 from std_msgs.msg import Float64
-from hill_muscle_ros.nodes._common import RELIABLE_QOS
+from hill_muscle_ros.qos import RELIABLE_QOS
 topic, rate_hz, duration_s = sys.argv[1], float(sys.argv[2]), float(sys.argv[3])
 rclpy.init()
 node = rclpy.create_node('flooder')

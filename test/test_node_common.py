@@ -7,8 +7,9 @@ import pytest
 from rcl_interfaces.msg import ParameterDescriptor
 
 from hill_muscle_ros.model import MuscleParams
-from hill_muscle_ros.nodes._common import (LIVE_KEEPS_STATE, LIVE_RESETS, BadInputWarner,
-                                           StepSchedule, field_descriptor)
+from hill_muscle_ros.nodes._inputs import BadInputWarner
+from hill_muscle_ros.nodes._parameters import LIVE_KEEPS_STATE, LIVE_RESETS, field_descriptor
+from hill_muscle_ros.nodes._stepping import StepSchedule
 from hill_muscle_ros.timebase import NS_PER_S as NS
 
 
@@ -112,9 +113,11 @@ def test_bad_input_warning_reports_how_many_were_suppressed():
 
 import rclpy  # noqa: E402
 
-from hill_muscle_ros.nodes._common import (StartupError, declare_checked,  # noqa: E402
-                                           declared_parameter_names, number_descriptor,
-                                           parameter_overrides, reject_unknown_overrides)
+from hill_muscle_ros.nodes._overrides import reject_unknown_overrides  # noqa: E402
+from hill_muscle_ros.nodes._parameters import (declare_checked,  # noqa: E402
+                                               declared_parameter_names, number_descriptor,
+                                               parameter_overrides)
+from hill_muscle_ros.nodes._process import StartupError  # noqa: E402
 
 
 @pytest.fixture
@@ -179,7 +182,7 @@ def test_a_node_process_ends_with_its_status_after_pythons_exit_handlers_and_flu
     import subprocess
     import sys
     code = ('import atexit, sys\n'
-            'from hill_muscle_ros.nodes._common import exit_process\n'
+            'from hill_muscle_ros.nodes._process import exit_process\n'
             'atexit.register(lambda: print("exit handler ran", flush=True))\n'
             'sys.stdout.write("buffered, no newline")\n'
             'exit_process(3)\n')

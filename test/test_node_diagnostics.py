@@ -22,8 +22,8 @@ from std_msgs.msg import Float64
 
 from hill_muscle_ros.model import Protocol
 from hill_muscle_ros.nodes import recorder as recorder_mod
-from hill_muscle_ros.nodes._common import (DIAGNOSTICS_PERIOD_PARAMETER, DIAGNOSTICS_PERIOD_S,
-                                           DiagnosticReport)
+from hill_muscle_ros.nodes._diagnostics import (DIAGNOSTICS_PERIOD_PARAMETER, DIAGNOSTICS_PERIOD_S,
+                                                DiagnosticReport)
 from hill_muscle_ros.qos import QUEUE_DEPTH
 from hill_muscle_ros.recording.reader import read_bag
 from ros_helpers import Probe, ProcessGroup, node_command

@@ -17,8 +17,8 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from std_msgs.msg import Float64
 
-from hill_muscle_ros.nodes._common import (EXECUTOR_ENV, EXECUTORS, StartupError,
-                                           StopSignals, make_executor)
+from hill_muscle_ros.nodes._process import (EXECUTOR_ENV, EXECUTORS, StartupError, StopSignals,
+                                            make_executor)
 from hill_muscle_ros.recording.reader import read_bag
 from ros_helpers import Probe, ProcessGroup, node_command, ros_env
 

@@ -19,12 +19,15 @@ from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, ReliabilityPolicy
 from std_msgs.msg import Float64
 
-from hill_muscle_ros.nodes._common import (DIAGNOSTICS_QOS, OUTPUT_QOS, PACKAGE_TOPICS,
-                                           QOS_OVERRIDES_PREFIX, RELIABLE_QOS, StartupError,
-                                           overridable_publisher, reject_unknown_overrides)
+from hill_muscle_ros.nodes._diagnostics import DIAGNOSTICS_QOS
+from hill_muscle_ros.nodes._overrides import reject_unknown_overrides
+from hill_muscle_ros.nodes._process import StartupError
+from hill_muscle_ros.nodes._topics import (PACKAGE_TOPICS, QOS_OVERRIDES_PREFIX,
+                                           overridable_publisher)
 from hill_muscle_ros.nodes.force_controller import ForceControllerNode
 from hill_muscle_ros.nodes.protocol_player import ProtocolPlayer
 from hill_muscle_ros.nodes.simulator import STAMPED_QOS, Simulator
+from hill_muscle_ros.qos import OUTPUT_QOS, RELIABLE_QOS
 from hill_muscle_ros.params_file import load_muscle_params
 from ros_helpers import Probe, ProcessGroup, node_command
 

@@ -1,6 +1,6 @@
 """A node whose middleware teardown hangs after its work is saved still exits.
 
-:class:`~hill_muscle_ros.nodes._common.TeardownGuard` is armed by every
+:class:`~hill_muscle_ros.nodes._process.TeardownGuard` is armed by every
 node's exit path (``run_node`` and the recorder's ``main``) once the node's
 last work is done. Run in a child process with the timeout shortened, as a
 hung ``destroy_node`` would leave it.
@@ -21,7 +21,7 @@ CHILD_DEADLINE_S = 30.0
 
 def run_child(body: str, status: int) -> tuple[subprocess.CompletedProcess, float]:
     code = ('import time\n'
-            'import hill_muscle_ros.nodes._common as c\n'
+            'import hill_muscle_ros.nodes._process as c\n'
             f'c.TEARDOWN_TIMEOUT_S = {SHORT_TIMEOUT_S}\n'
             f'guard = c.TeardownGuard({status})\n'
             f'{body}\n'

@@ -30,12 +30,15 @@ from std_msgs.msg import Float64
 from ..control import ControllerInputs, ControllerParams, ForceController, ImposedLength
 from ..model import MuscleParams
 from ..model.muscle import check_dl_mt
+from ..qos import OUTPUT_QOS, RELIABLE_QOS
 from ..timebase import NS_PER_S
-from ._common import (FINAL_ACK_TIMEOUT_S, OUTPUT_QOS, RELIABLE_QOS, BadInputWarner,
-                      DiagnosticReport, NodeDiagnostics, StartupError, declare_checked,
-                      declare_spec_fields, field_descriptor, overridable_publisher,
-                      overridable_subscription, publish_last, reject_unknown_overrides, run_node,
-                      process_entry)
+from ._diagnostics import DiagnosticReport, NodeDiagnostics
+from ._inputs import BadInputWarner
+from ._overrides import reject_unknown_overrides
+from ._parameters import declare_checked, declare_spec_fields, field_descriptor
+from ._process import StartupError, process_entry, run_node
+from ._topics import (FINAL_ACK_TIMEOUT_S, overridable_publisher, overridable_subscription,
+                      publish_last)
 
 NODE_NAME = 'force_controller'
 #: Longest time step, in control periods, that one update integrates over.

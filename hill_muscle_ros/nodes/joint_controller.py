@@ -31,12 +31,15 @@ from std_msgs.msg import Float64
 
 from ..control.joint import JointController, JointControllerParams, JointInputs
 from ..model.limb import LimbPlant
+from ..qos import OUTPUT_QOS, RELIABLE_QOS
 from ..timebase import NS_PER_S
-from ._common import (FINAL_ACK_TIMEOUT_S, OUTPUT_QOS, QOS_OVERRIDES_PREFIX, RELIABLE_QOS,
-                      BadInputWarner, DiagnosticReport, NodeDiagnostics, StartupError,
-                      check_qos_overrides, declare_plant, declare_spec_fields,
-                      overridable_publisher, overridable_subscription, parameter_overrides,
-                      plant_values, publish_last, run_node, process_entry)
+from ._diagnostics import DiagnosticReport, NodeDiagnostics
+from ._inputs import BadInputWarner
+from ._overrides import declare_plant, plant_values
+from ._parameters import declare_spec_fields, parameter_overrides
+from ._process import StartupError, process_entry, run_node
+from ._topics import (FINAL_ACK_TIMEOUT_S, QOS_OVERRIDES_PREFIX, check_qos_overrides,
+                      overridable_publisher, overridable_subscription, publish_last)
 from .limb import LIMB_NODE_PARAMETERS, require_muscles   # a shared plant file carries them
 
 NODE_NAME = 'joint_controller'

@@ -64,13 +64,18 @@ from .. import resources
 from ..model import limb_kernels
 from ..model.limb import TORQUE_LIMIT_N_M, Limb, LimbPlant
 from ..model.muscle import check_recruitment
+from ..qos import OUTPUT_QOS, RELIABLE_QOS
 from ..timebase import NS_PER_S
 from ..watchdog import watchdog_trips
-from ._common import (OUTPUT_QOS, QOS_OVERRIDES_PREFIX, RELIABLE_QOS, BadInputWarner,
-                      DiagnosticReport, NodeDiagnostics, StartupError, StepSchedule,
-                      check_qos_overrides, declare_checked, declare_plant, load_engine,
-                      number_descriptor, overridable_publisher, overridable_subscription,
-                      parameter_overrides, plant_values, run_node, process_entry)
+from ._diagnostics import DiagnosticReport, NodeDiagnostics
+from ._engine import load_engine
+from ._inputs import BadInputWarner
+from ._overrides import declare_plant, plant_values
+from ._parameters import declare_checked, number_descriptor, parameter_overrides
+from ._process import StartupError, process_entry, run_node
+from ._stepping import StepSchedule
+from ._topics import (QOS_OVERRIDES_PREFIX, check_qos_overrides, overridable_publisher,
+                      overridable_subscription)
 from .simulator import (DEFAULT_INPUT_TIMEOUT_S, DEFAULT_RATE_HZ, DEFAULT_REAL_TIME_FACTOR,
                         ERROR_BEHIND_S, INPUT_TIMEOUT_RANGE_S, MAX_CATCH_UP_S,
                         MIN_TICK_PERIOD_S, RATE_HZ_RANGE,
@@ -99,7 +104,7 @@ def require_muscles(plant: LimbPlant) -> None:
 
 def load_limb(plant: LimbPlant, logger) -> Limb | limb_kernels.CompiledLimb:
     """The limb the node steps: compiled when :func:`~hill_muscle_ros.model.engine.choice`
-    says so, else Python; logs which, and how long loading took (:func:`._common.load_engine`).
+    says so, else Python; logs which, and how long loading took (:func:`._engine.load_engine`).
 
     :param plant: the joint and its muscles
     :param logger: the node's logger

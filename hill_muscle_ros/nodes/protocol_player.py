@@ -46,12 +46,14 @@ from ..model import MuscleParams, Protocol, ProtocolError
 from ..model.params import CURVE_FIELDS
 from ..model.protocol import STIMULATION_OUTPUTS
 from ..playback import LENGTH, LENGTH_STAMPED, STIMULATION, Playback, Send
+from ..qos import OUTPUT_QOS
 from ..resources import BUILTIN_PROTOCOLS, find_protocol
 from ..timebase import NS_PER_S
-from ._common import (EXIT_FAILURE, EXIT_SUCCESS, OUTPUT_QOS, DiagnosticReport,
-                      NodeDiagnostics, overridable_publisher,
-                      StartupError, declare_checked, field_descriptor,
-                      number_descriptor, reject_unknown_overrides, run_node, process_entry)
+from ._diagnostics import DiagnosticReport, NodeDiagnostics
+from ._overrides import reject_unknown_overrides
+from ._parameters import declare_checked, field_descriptor, number_descriptor
+from ._process import EXIT_FAILURE, EXIT_SUCCESS, StartupError, process_entry, run_node
+from ._topics import overridable_publisher
 
 NODE_NAME = 'protocol_player'
 

@@ -63,11 +63,12 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 from ..recording.bag_writer import BagOutputError, BagWriter, read_msg_file, split_type_name
 from ..recording.receipt_clock import ReceiptClock
 from ..timebase import NS_PER_S
-from ._common import (DIAGNOSTICS_TOPIC, EXIT_FAILURE, EXIT_SUCCESS, DiagnosticReport,
-                      NodeDiagnostics, StartupError, TeardownGuard, check_qos_overrides,
-                      init_ros, make_executor,
-                      overridable_subscription, parameter_overrides, qos_overrides_of,
-                      process_entry)
+from ._diagnostics import DiagnosticReport, NodeDiagnostics
+from ._parameters import parameter_overrides
+from ._process import (EXIT_FAILURE, EXIT_SUCCESS, StartupError, TeardownGuard, init_ros,
+                       make_executor, process_entry)
+from ._topics import (DIAGNOSTICS_TOPIC, check_qos_overrides, overridable_subscription,
+                      qos_overrides_of)
 
 NODE_NAME = 'recorder'
 

@@ -42,7 +42,7 @@ released; ``benchmarks/muscle_node_tick.py``, 2026-12-02, two runs, load
 average 0.4-0.8): median 2.5-4.8 against 11.7-17.2 us, 99th percentile 64-99
 us against 1.3-2.3 ms, worst 0.2-1.1 against 6.9-7.3 ms; released, 6.4-11.4
 against 133-146 us on average. It is loaded in ``__init__``
-(:func:`load_muscle`, the limb node's :func:`._common.load_engine`), before
+(:func:`load_muscle`, the limb node's :func:`._engine.load_engine`), before
 any publisher, subscription, service or timer exists, never in a tick: under
 a second from numba's disk cache, about 30 s when it compiles (a clean clone,
 or after an edit of the model's code). The node logs which engine runs and
@@ -75,14 +75,17 @@ from ..model import CommandTrack, Muscle, MuscleParams
 from ..model import compiled_muscle
 from ..model.muscle import check_dl_mt, check_recruitment
 from ..model.stimulus import command_from_pulse_width
+from ..qos import OUTPUT_HISTORY_DEPTH, OUTPUT_QOS, RELIABLE_QOS
 from ..timebase import NS_PER_S
 from ..watchdog import watchdog_trips
-from ._common import (LIVE_RESETS, OUTPUT_HISTORY_DEPTH, OUTPUT_QOS, RELIABLE_QOS,
-                      BadInputWarner, DiagnosticReport, NodeDiagnostics,
-                      overridable_publisher, overridable_subscription,
-                      StartupError, StepSchedule, declare_checked,
-                      declare_muscle_parameters, load_engine, number_descriptor,
-                      reject_unknown_overrides, run_node, process_entry)
+from ._diagnostics import DiagnosticReport, NodeDiagnostics
+from ._engine import load_engine
+from ._inputs import BadInputWarner
+from ._overrides import reject_unknown_overrides
+from ._parameters import LIVE_RESETS, declare_checked, declare_muscle_parameters, number_descriptor
+from ._process import StartupError, process_entry, run_node
+from ._stepping import StepSchedule
+from ._topics import overridable_publisher, overridable_subscription
 
 NODE_NAME = 'simulator'
 
@@ -207,7 +210,7 @@ def load_muscle(params: MuscleParams, logger) -> Muscle | compiled_muscle.Compil
     Python step is already cheap. Any other is the compiled FES muscle when
     :func:`~hill_muscle_ros.model.engine.choice` says so, else the Python
     :class:`~hill_muscle_ros.model.fes_muscle.FesMuscle` (both agree to 1e-9;
-    :func:`._common.load_engine`).
+    :func:`._engine.load_engine`).
 
     :param params: the muscle's parameters
     :param logger: the node's logger
