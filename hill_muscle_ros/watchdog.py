@@ -7,6 +7,11 @@ drops to 0, until the next message. The nodes call :func:`watchdog_trips`
 before each step, on their own simulated clock; the tests drive that clock.
 """
 
+#: [s] default ``input_timeout_s`` of the simulator and limb nodes.
+DEFAULT_INPUT_TIMEOUT_S = 0.5
+#: [s] 0 disables the watchdog; an hour is longer than any FES session gap.
+INPUT_TIMEOUT_RANGE_S = (0.0, 3600.0)
+
 
 def watchdog_trips(now_s: float, last_input_s: float, timeout_s: float,
                    stimulating: bool) -> bool:

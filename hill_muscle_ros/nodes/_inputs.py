@@ -1,10 +1,22 @@
-"""Checking a node's input messages: a throttled warning per topic for rejected input."""
+"""Checking a node's input messages.
+
+- :class:`BadInputWarner`: a throttled warning per topic for rejected input.
+- :func:`pulse_width_command`: a ``pulse_width`` message to the recruitment
+  command, with a hint for microseconds sent as seconds (the simulator and
+  limb nodes).
+"""
 from __future__ import annotations
 
 import time
 
+from ..model import MuscleParams
+from ..model.stimulus import command_from_pulse_width
+
 #: [s] at most one bad-input warning per topic in this period.
 BAD_INPUT_THROTTLE_S = 1.0
+#: A pulse width this many times PW_max is not an FES pulse: it is rejected
+#: with a hint, since it is most likely microseconds sent for seconds.
+PULSE_WIDTH_UNIT_HINT_FACTOR = 100.0
 
 
 class BadInputWarner:
@@ -47,3 +59,26 @@ class BadInputWarner:
         self._logger.warning(message + suffix)
         self._last[topic] = now
         return True
+
+
+def pulse_width_command(pulse_width_s: float, params: MuscleParams, topic: str) -> float:
+    """The command of a ``pulse_width`` message: the muscle's recruitment curve,
+    and a width over :data:`PULSE_WIDTH_UNIT_HINT_FACTOR` x PW_max rejected
+    with a hint, since it is most likely microseconds sent for seconds.
+
+    :param pulse_width_s: [s] the message's pulse width
+    :param params: the muscle's parameters (curve, PW_max)
+    :param topic: the subscription's full topic name, for the error message
+    :return: [-] recruitment command u
+    :raises ValueError: naming the topic and the value
+    """
+    # Finite and non-negative first: only a finite width can be microseconds.
+    u = command_from_pulse_width(pulse_width_s, params, topic)
+    limit_s = PULSE_WIDTH_UNIT_HINT_FACTOR * params.pw_max_s
+    if pulse_width_s > limit_s:
+        raise ValueError(
+            f'`{topic}` must be at most {PULSE_WIDTH_UNIT_HINT_FACTOR:g} x pw_max_s '
+            f'({limit_s:g} s), got {pulse_width_s!r}. It looks like microseconds: '
+            f'pulse_width is in seconds (REP 103), e.g. {pulse_width_s * 1e-6:g} for '
+            f'{pulse_width_s:g} us')
+    return u

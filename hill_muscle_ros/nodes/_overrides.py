@@ -3,13 +3,15 @@
 One ``/**`` section of a params file may configure every node of the
 package, so a node passes over the other nodes' parameters
 (:data:`OTHER_NODE_PARAMETERS`), reads the plant's among them
-(:func:`plant_values`, :func:`declare_plant`) and stops start-up on a name no
-node has (:func:`reject_unknown_overrides`).
+(:func:`plant_values`, :func:`declare_plant`, :func:`require_muscles`; the
+limb node and the joint controller, which one plant file configures) and
+stops start-up on a name no node has (:func:`reject_unknown_overrides`).
 """
 from __future__ import annotations
 
 import dataclasses
 from array import array
+from typing import TYPE_CHECKING
 
 from rclpy.exceptions import (InvalidParameterTypeException,
                               InvalidParameterValueException)
@@ -17,6 +19,7 @@ from rclpy.node import Node
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.parameter import Parameter
 
+from .. import resources
 from ..control.joint import JOINT_CONTROLLER_KEYS
 from ..model import MuscleParams
 from ..params_file import SIMULATOR_NODE_KEYS
@@ -24,6 +27,9 @@ from ._diagnostics import DIAGNOSTICS_PERIOD_PARAMETER
 from ._parameters import declared_parameter_names, parameter_overrides
 from ._process import StartupError
 from ._topics import QOS_OVERRIDES_PREFIX, check_qos_overrides
+
+if TYPE_CHECKING:
+    from ..model.limb import LimbPlant
 
 #: Parameters of this package's nodes other than the muscle's and the
 #: controller's fields. A shared ``/**`` section of a params file may carry any
@@ -35,6 +41,9 @@ OTHER_NODE_PARAMETERS = frozenset((
     'topics',                                               # recorder (and `output`)
     *JOINT_CONTROLLER_KEYS,                                 # joint_controller
 ))
+#: Parameters of the limb node that are not part of the plant (the joint
+#: controller, configured by the same plant file, passes over them too).
+LIMB_NODE_PARAMETERS = ('rate_hz', 'real_time_factor', 'input_timeout_s', 'publish_clock')
 
 
 def plant_values(overrides: dict[str, Parameter], own: tuple[str, ...] = ()
@@ -72,6 +81,19 @@ def declare_plant(node: Node, values: dict[str, object]) -> None:
                 TypeError) as err:
             raise StartupError(f'plant parameter `{name}` = {values[name]!r}: '
                                f'{err}') from None
+
+
+def require_muscles(plant: LimbPlant) -> None:
+    """Stop start-up for a plant without muscles: the node was most likely
+    started without its plant file, and a bare joint would run silently.
+
+    :raises StartupError: naming ``--params-file`` and the shipped knee preset
+    """
+    if not plant.muscles:
+        raise StartupError(
+            '`muscles` must name at least one muscle, got none: give the plant file with '
+            f'--ros-args --params-file PLANT.yaml, e.g. the knee preset '
+            f'{resources.knee_plant_file()}')
 
 
 def reject_unknown_overrides(node: Node) -> None:

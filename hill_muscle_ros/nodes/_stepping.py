@@ -1,9 +1,45 @@
-"""Fixed steps against the steady clock: how many are due at a clock reading."""
+"""Fixed steps against the steady clock, shared by the simulator and limb nodes.
+
+- :class:`StepSchedule`: how many fixed steps are due at a clock reading.
+- The ``rate_hz`` and ``real_time_factor`` parameters' defaults and ranges,
+  and the limits of a tick's catch-up (:data:`MIN_TICK_PERIOD_S`,
+  :data:`MAX_CATCH_UP_S`) with the /diagnostics levels that follow from them.
+"""
 from __future__ import annotations
 
 import math
 
 from ..timebase import NS_PER_S
+
+#: [Hz] default ``rate_hz``: dt = 1 ms.
+DEFAULT_RATE_HZ = 1000.0
+#: [Hz] a step rate outside this range is a typo (period in place of rate).
+RATE_HZ_RANGE = (1.0, 100_000.0)
+#: [-] default ``real_time_factor``: simulated time runs with the steady clock.
+DEFAULT_REAL_TIME_FACTOR = 1.0
+#: [-] from 100x slower to 1000x faster than the wall clock.
+REAL_TIME_FACTOR_RANGE = (0.01, 1000.0)
+
+#: [s] the timer never ticks faster than this: at a higher step rate or a real
+#: time factor > 1 each tick runs several steps (the simulator publishing every
+#: n-th, see its DEFAULT_MAX_OUTPUT_RATE_HZ).
+MIN_TICK_PERIOD_S = 0.001
+#: [s] of clock time one tick may catch up at most, so that a long stall (a
+#: suspended process) cannot freeze the node while it runs a huge backlog. It
+#: also bounds a tick's burst of messages per output: 100 at 1 kHz (a
+#: subscriber that must not lose any needs a queue at least that deep).
+MAX_CATCH_UP_S = 0.1
+#: /diagnostics: WARN when the steps run in the last period fall below this
+#: fraction of rate_hz x real_time_factor (beyond one tick's worth of steps,
+#: which the count may lag by when the report happens to fall between ticks).
+RATE_WARN_FRACTION = 0.99
+#: [s] /diagnostics: ERROR when more than this much clock time's worth of
+#: steps is behind: more than one tick may catch up, so the node is not
+#: keeping up (or has just come out of a stall that long).
+ERROR_BEHIND_S = MAX_CATCH_UP_S
+#: Slack, in steps, for the rounding of ``tick period x rate_hz x
+#: real_time_factor`` to whole steps per tick (3000 Hz x 1 ms is 3.0000000000000004).
+STEPS_PER_TICK_ROUNDING = 1e-9
 
 
 class StepSchedule:

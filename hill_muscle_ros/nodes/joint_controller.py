@@ -35,12 +35,11 @@ from ..qos import OUTPUT_QOS, RELIABLE_QOS
 from ..timebase import NS_PER_S
 from ._diagnostics import DiagnosticReport, NodeDiagnostics
 from ._inputs import BadInputWarner
-from ._overrides import declare_plant, plant_values
+from ._overrides import LIMB_NODE_PARAMETERS, declare_plant, plant_values, require_muscles
 from ._parameters import declare_spec_fields, parameter_overrides
 from ._process import StartupError, process_entry, run_node
 from ._topics import (FINAL_ACK_TIMEOUT_S, QOS_OVERRIDES_PREFIX, check_qos_overrides,
                       overridable_publisher, overridable_subscription, publish_last)
-from .limb import LIMB_NODE_PARAMETERS, require_muscles   # a shared plant file carries them
 
 NODE_NAME = 'joint_controller'
 #: Longest time step, in control periods, that one update integrates over.
@@ -59,6 +58,7 @@ class JointControllerNode(Node):
         super().__init__(NODE_NAME)
         values = declare_spec_fields(self, JointControllerParams, read_only=('control_rate_hz',))
         overrides = parameter_overrides(self)
+        # A shared plant file carries the limb node's parameters too.
         plant = plant_values(overrides, tuple(values) + LIMB_NODE_PARAMETERS)
         try:
             params = JointControllerParams(**values)

@@ -60,46 +60,25 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
-from .. import resources
 from ..model import limb_kernels
 from ..model.limb import TORQUE_LIMIT_N_M, Limb, LimbPlant
 from ..model.muscle import check_recruitment
 from ..qos import OUTPUT_QOS, RELIABLE_QOS
 from ..timebase import NS_PER_S
-from ..watchdog import watchdog_trips
+from ..watchdog import DEFAULT_INPUT_TIMEOUT_S, INPUT_TIMEOUT_RANGE_S, watchdog_trips
 from ._diagnostics import DiagnosticReport, NodeDiagnostics
 from ._engine import load_engine
-from ._inputs import BadInputWarner
-from ._overrides import declare_plant, plant_values
+from ._inputs import BadInputWarner, pulse_width_command
+from ._overrides import LIMB_NODE_PARAMETERS, declare_plant, plant_values, require_muscles
 from ._parameters import declare_checked, number_descriptor, parameter_overrides
 from ._process import StartupError, process_entry, run_node
-from ._stepping import StepSchedule
+from ._stepping import (DEFAULT_RATE_HZ, DEFAULT_REAL_TIME_FACTOR, ERROR_BEHIND_S,
+                        MAX_CATCH_UP_S, MIN_TICK_PERIOD_S, RATE_HZ_RANGE, RATE_WARN_FRACTION,
+                        REAL_TIME_FACTOR_RANGE, STEPS_PER_TICK_ROUNDING, StepSchedule)
 from ._topics import (QOS_OVERRIDES_PREFIX, check_qos_overrides, overridable_publisher,
                       overridable_subscription)
-from .simulator import (DEFAULT_INPUT_TIMEOUT_S, DEFAULT_RATE_HZ, DEFAULT_REAL_TIME_FACTOR,
-                        ERROR_BEHIND_S, INPUT_TIMEOUT_RANGE_S, MAX_CATCH_UP_S,
-                        MIN_TICK_PERIOD_S, RATE_HZ_RANGE,
-                        RATE_WARN_FRACTION, REAL_TIME_FACTOR_RANGE, pulse_width_command)
 
 NODE_NAME = 'limb'
-
-#: Parameters of this node that are not part of the plant.
-LIMB_NODE_PARAMETERS = ('rate_hz', 'real_time_factor', 'input_timeout_s', 'publish_clock')
-#: Slack, in steps, for the rounding of ``tick period x rate x real_time_factor``.
-_STEPS_PER_TICK_ROUNDING = 1e-9
-
-
-def require_muscles(plant: LimbPlant) -> None:
-    """Stop start-up for a plant without muscles: the node was most likely
-    started without its plant file, and a bare joint would run silently.
-
-    :raises StartupError: naming ``--params-file`` and the shipped knee preset
-    """
-    if not plant.muscles:
-        raise StartupError(
-            '`muscles` must name at least one muscle, got none: give the plant file with '
-            f'--ros-args --params-file PLANT.yaml, e.g. the knee preset '
-            f'{resources.knee_plant_file()}')
 
 
 def load_limb(plant: LimbPlant, logger) -> Limb | limb_kernels.CompiledLimb:
@@ -210,7 +189,7 @@ class LimbNode(Node):
         self._timer = self.create_timer(tick_s, self._on_tick, clock=self._steady)
         self._real_time_factor = rtf
         self._steps_per_tick = max(1, math.ceil(tick_s * rate_hz * rtf
-                                                - _STEPS_PER_TICK_ROUNDING))
+                                                - STEPS_PER_TICK_ROUNDING))
         self._error_behind_steps = max(1, math.ceil(ERROR_BEHIND_S * rtf * rate_hz))
         self._diagnostics = NodeDiagnostics(self, 'limb simulation', self._diagnose)
         self.get_logger().info(

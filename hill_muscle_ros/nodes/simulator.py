@@ -74,31 +74,25 @@ from std_srvs.srv import Trigger
 from ..model import CommandTrack, Muscle, MuscleParams
 from ..model import compiled_muscle
 from ..model.muscle import check_dl_mt, check_recruitment
-from ..model.stimulus import command_from_pulse_width
 from ..qos import OUTPUT_HISTORY_DEPTH, OUTPUT_QOS, RELIABLE_QOS
 from ..timebase import NS_PER_S
-from ..watchdog import watchdog_trips
+from ..watchdog import DEFAULT_INPUT_TIMEOUT_S, INPUT_TIMEOUT_RANGE_S, watchdog_trips
 from ._diagnostics import DiagnosticReport, NodeDiagnostics
 from ._engine import load_engine
-from ._inputs import BadInputWarner
+from ._inputs import BadInputWarner, pulse_width_command
 from ._overrides import reject_unknown_overrides
 from ._parameters import LIVE_RESETS, declare_checked, declare_muscle_parameters, number_descriptor
 from ._process import StartupError, process_entry, run_node
-from ._stepping import StepSchedule
+from ._stepping import (DEFAULT_RATE_HZ, DEFAULT_REAL_TIME_FACTOR, ERROR_BEHIND_S,
+                        MAX_CATCH_UP_S, MIN_TICK_PERIOD_S, RATE_HZ_RANGE, RATE_WARN_FRACTION,
+                        REAL_TIME_FACTOR_RANGE, STEPS_PER_TICK_ROUNDING, StepSchedule)
 from ._topics import overridable_publisher, overridable_subscription
 
 NODE_NAME = 'simulator'
 
-# Node parameters (their names are params_file.SIMULATOR_NODE_KEYS).
-DEFAULT_RATE_HZ = 1000.0
-#: [Hz] a step rate outside this range is a typo (period in place of rate).
-RATE_HZ_RANGE = (1.0, 100_000.0)
-DEFAULT_REAL_TIME_FACTOR = 1.0
-#: [-] from 100x slower to 1000x faster than the wall clock.
-REAL_TIME_FACTOR_RANGE = (0.01, 1000.0)
-DEFAULT_INPUT_TIMEOUT_S = 0.5
-#: [s] 0 disables the watchdog; an hour is longer than any FES session gap.
-INPUT_TIMEOUT_RANGE_S = (0.0, 3600.0)
+# Node parameters (their names are params_file.SIMULATOR_NODE_KEYS); rate_hz,
+# real_time_factor and input_timeout_s, shared with the limb node, are in
+# ._stepping and ..watchdog.
 DEFAULT_FRAME_ID = 'muscle'
 #: [Hz] of the steady clock: by default the outputs of every n-th step are
 #: published, with the smallest n that keeps them at or below this rate, i.e.
@@ -115,33 +109,10 @@ PUBLISH_EVERY_N_STEPS_RANGE = (1, 1_000_000)
 #: (3 x 1000.0 / 1000.0 may not be exactly 3).
 _STEP_RATIO_ROUNDING = 1e-9
 
-#: [s] the timer never ticks faster than this: at a higher step rate or a real
-#: time factor > 1 each tick runs several steps (publishing every n-th, see
-#: DEFAULT_MAX_OUTPUT_RATE_HZ).
-MIN_TICK_PERIOD_S = 0.001
-#: [s] of clock time one tick may catch up at most, so that a long stall (a
-#: suspended process) cannot freeze the node while it runs a huge backlog. It
-#: also bounds a tick's burst of messages per output: 100 at 1 kHz (a
-#: subscriber that must not lose any needs a queue at least that deep).
-MAX_CATCH_UP_S = 0.1
-#: /diagnostics: WARN when the steps run in the last period fall below this
-#: fraction of rate_hz x real_time_factor (beyond one tick's worth of steps,
-#: which the count may lag by when the report happens to fall between ticks).
-RATE_WARN_FRACTION = 0.99
 #: /diagnostics: WARN when more steps than this were caught up in the last
 #: period (steps run beyond a tick's nominal count, after a late tick): their
 #: outputs went out late, as a burst.
 CATCH_UP_WARN_STEPS = 0
-#: [s] /diagnostics: ERROR when more than this much clock time's worth of
-#: steps is behind: more than one tick may catch up, so the node is not
-#: keeping up (or has just come out of a stall that long).
-ERROR_BEHIND_S = MAX_CATCH_UP_S
-#: Slack, in steps, for the rounding of ``tick period x rate_hz x
-#: real_time_factor`` to whole steps per tick (3000 Hz x 1 ms is 3.0000000000000004).
-_STEPS_PER_TICK_ROUNDING = 1e-9
-#: A pulse width this many times PW_max is not an FES pulse: it is rejected
-#: with a hint, since it is most likely microseconds sent for seconds.
-PULSE_WIDTH_UNIT_HINT_FACTOR = 100.0
 
 #: Queue of ``length_command_stamped``: a sender that starts ahead sends its
 #: whole look-ahead window at once (the protocol player: up to 1000 knots), and
@@ -166,29 +137,6 @@ def default_publish_every_n_steps(rate_hz: float, real_time_factor: float) -> in
     """
     steps_per_output = rate_hz * real_time_factor / DEFAULT_MAX_OUTPUT_RATE_HZ
     return max(1, math.ceil(steps_per_output - _STEP_RATIO_ROUNDING))
-
-
-def pulse_width_command(pulse_width_s: float, params: MuscleParams, topic: str) -> float:
-    """The command of a ``pulse_width`` message: the muscle's recruitment curve,
-    and a width over :data:`PULSE_WIDTH_UNIT_HINT_FACTOR` x PW_max rejected
-    with a hint, since it is most likely microseconds sent for seconds.
-
-    :param pulse_width_s: [s] the message's pulse width
-    :param params: the muscle's parameters (curve, PW_max)
-    :param topic: the subscription's full topic name, for the error message
-    :return: [-] recruitment command u
-    :raises ValueError: naming the topic and the value
-    """
-    # Finite and non-negative first: only a finite width can be microseconds.
-    u = command_from_pulse_width(pulse_width_s, params, topic)
-    limit_s = PULSE_WIDTH_UNIT_HINT_FACTOR * params.pw_max_s
-    if pulse_width_s > limit_s:
-        raise ValueError(
-            f'`{topic}` must be at most {PULSE_WIDTH_UNIT_HINT_FACTOR:g} x pw_max_s '
-            f'({limit_s:g} s), got {pulse_width_s!r}. It looks like microseconds: '
-            f'pulse_width is in seconds (REP 103), e.g. {pulse_width_s * 1e-6:g} for '
-            f'{pulse_width_s:g} us')
-    return u
 
 
 def check_frame_id(frame_id: str) -> str:
@@ -360,7 +308,7 @@ class Simulator(Node):
         # Diagnostics: a tick nominally runs this many steps; more is catching up.
         self._real_time_factor = rtf
         self._steps_per_tick = max(1, math.ceil(tick_s * rate_hz * rtf
-                                                - _STEPS_PER_TICK_ROUNDING))
+                                                - STEPS_PER_TICK_ROUNDING))
         self._late_ticks = 0        # ticks that ran more steps than _steps_per_tick
         self._catch_up_steps = 0    # the steps they ran beyond it
         self._stim_messages = 0     # pulse_width and recruitment messages taken
