@@ -61,7 +61,7 @@ setup(
     tests_require=['pytest'],
     entry_points={
         'console_scripts': [
-            'hill-muscle = hill_muscle_ros.cli:main',
+            'hill-muscle = hill_muscle_ros.tools.cli:main',
             'simulator = hill_muscle_ros.nodes.simulator:process_main',
             'protocol_player = hill_muscle_ros.nodes.protocol_player:process_main',
             'recorder = hill_muscle_ros.nodes.recorder:process_main',

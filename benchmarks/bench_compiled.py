@@ -40,7 +40,6 @@ import numpy as np
 
 from timing import RUNS_PER_SAMPLE, Stats, repeat
 
-from hill_muscle_ros import cli
 from hill_muscle_ros.model import (Muscle, MuscleOutputs, MuscleParams, Protocol, engine,
                                    kernels, simulate)
 from hill_muscle_ros.model.simulate import sample_times
@@ -74,6 +73,7 @@ import numba
 t1, c1 = time.perf_counter(), time.process_time()
 import numpy as np
 from hill_muscle_ros.model import Muscle, kernels
+from hill_muscle_ros.tools import cli
 t2, c2 = time.perf_counter(), time.process_time()
 kernels.run_compiled(Muscle(), np.full(2, 0.5), np.zeros(2), 1e-3)
 t3, c3 = time.perf_counter(), time.process_time()

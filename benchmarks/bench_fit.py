@@ -4,9 +4,9 @@ A three-parameter fit (``f_iso_max_n``, ``k_se_n_per_m``, ``fv_a_n``, off
 their defaults) of Protocol II at 1 kHz (6 s, 6001 force samples), from a bag
 written by ``hill-muscle simulate --bag``, started from the defaults:
 
-- :func:`hill_muscle_ros.fit.fit_parameters` alone (the least squares, every
+- :func:`hill_muscle_ros.tools.fit.fit_parameters` alone (the least squares, every
   replay of the recording included), and
-- reading the bag into a recording (:func:`hill_muscle_ros.fit.load_muscle_recording`).
+- reading the bag into a recording (:func:`hill_muscle_ros.tools.fit.load_muscle_recording`).
 
 The goal: the whole fit within :data:`FIT_TARGET_S` on this 2-core machine.
 
@@ -38,12 +38,13 @@ from std_msgs.msg import Float64
 
 from timing import Stats, repeat
 
-from hill_muscle_ros import cli, fit, resources
+from hill_muscle_ros import resources
 from hill_muscle_ros.model import MuscleParams, engine
 from hill_muscle_ros.model.limb import LimbProtocol, simulate_limb
 from hill_muscle_ros.params_file import load_plant
 from hill_muscle_ros.recording.bag_writer import BagWriter
 from hill_muscle_ros.timebase import NS_PER_S
+from hill_muscle_ros.tools import cli, fit
 
 #: The parameters of the simulated subject, off the defaults (45 N, 10 kN/m, 10 N).
 TRUTH = {'f_iso_max_n': 52.0, 'k_se_n_per_m': 8000.0, 'fv_a_n': 13.0}

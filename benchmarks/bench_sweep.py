@@ -1,7 +1,7 @@
 """Throughput of ``hill-muscle sweep``: the "Parameter sweeps" section of
 BENCHMARKS.md (``make bench``).
 
-Parameter sets per second of :func:`hill_muscle_ros.sweep.run_sweep`, the
+Parameter sets per second of :func:`hill_muscle_ros.tools.sweep.run_sweep`, the
 command's engine, for
 
 - the muscle: :data:`MUSCLE_SETS` sets of Protocol II (6 s at 1 kHz), a grid
@@ -35,12 +35,12 @@ import numpy as np
 
 from timing import Stats, repeat
 
-from hill_muscle_ros import sweep
 from hill_muscle_ros.model import LimbBatch
 from hill_muscle_ros.model.limb import Limb, LimbProtocol
 from hill_muscle_ros.model.simulate import sample_times
 from hill_muscle_ros.params_file import load_plant
 from hill_muscle_ros.resources import config_dir
+from hill_muscle_ros.tools import sweep
 
 #: [Hz] step rate of every run here (the presets' and the command's default).
 RATE_HZ = 1000.0
@@ -177,8 +177,8 @@ def write_section(add, results: dict) -> None:
     add('## 9. Parameter sweeps')
     add('')
     add('`benchmarks/bench_sweep.py`: parameter sets per second of `hill-muscle sweep`\'s '
-        'engine (`hill_muscle_ros.sweep.run_sweep`) in this process (`--workers 0`, no Dask) '
-        f'and on a fresh LocalCluster of {CLUSTER_WORKERS} worker processes '
+        'engine (`hill_muscle_ros.tools.sweep.run_sweep`) in this process (`--workers 0`, '
+        f'no Dask) and on a fresh LocalCluster of {CLUSTER_WORKERS} worker processes '
         f'(`--workers {CLUSTER_WORKERS}`), default chunks. "Simulation" is the time the '
         'command reports (first task to last result), which on a fresh cluster includes '
         'each worker importing the package for its first task; "with start-up" adds '

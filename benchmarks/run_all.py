@@ -55,7 +55,7 @@ import bench_rtf as live_rtf  # noqa: E402
 from naive import NaiveMuscle  # noqa: E402
 from timing import Stats, load_average, machine, repeat  # noqa: E402
 
-from hill_muscle_ros import cli  # noqa: E402
+from hill_muscle_ros.tools import cli  # noqa: E402
 from hill_muscle_ros.model import Muscle, MuscleParams, Protocol, simulate  # noqa: E402
 from hill_muscle_ros.model.simulate import sample_times  # noqa: E402
 from hill_muscle_ros.resources import protocol_path  # noqa: E402
@@ -480,7 +480,7 @@ def write_report(path: Path, runs: int, started: dict, results: dict) -> None:
 
     add('## 2. Offline real-time factor of `hill-muscle simulate`')
     add('')
-    add('In-process: `hill_muscle_ros.cli.main([...])` called in the benchmark process '
+    add('In-process: `hill_muscle_ros.tools.cli.main([...])` called in the benchmark process '
         '(imports done, stdout captured), i.e. the command excluding process start-up: '
         'loading the protocol and parameters, simulating, and printing the table. '
         'Process: the console script run as a subprocess, start-up included. '

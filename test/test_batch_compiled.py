@@ -23,7 +23,7 @@ from hypothesis import strategies as st
 from hill_muscle_ros.model import Muscle, MuscleParams, kernels
 from hill_muscle_ros.model.batch import MuscleBatch
 
-from test_model_fastpath import muscle_params
+from test_model_engines import muscle_params
 
 #: [N] bound on compiled vs NumPy batch and vs separate muscles (as test_model_batch).
 ATOL_N = 1e-9
@@ -356,7 +356,7 @@ def test_an_unknown_engine_is_refused_by_name():
 
 
 def test_package_import_and_a_numpy_batch_import_no_numba():
-    code = ('import sys; import hill_muscle_ros; from hill_muscle_ros import cli; '
+    code = ('import sys; import hill_muscle_ros; from hill_muscle_ros.tools import cli; '
             'cli.build_parser(); import hill_muscle_ros.model.batch as b; '
             'from hill_muscle_ros.model import MuscleParams; '
             'b.MuscleBatch([MuscleParams()], engine="numpy").step(0.5, 0.0, 1e-3); '

@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hill_muscle_ros import cli
 from hill_muscle_ros.model import COLUMNS, MuscleParams, Protocol, engine, force_length, simulate
 from hill_muscle_ros.params_file import load_muscle_params
 from hill_muscle_ros.resources import default_params_file
+from hill_muscle_ros.tools import cli
 
 HILL_MUSCLE = Path(sys.executable).with_name('hill-muscle')
 CSV_HEADER = ('t_s,recruitment,dl_mt_m,l_ce_m,v_ce_m_s,f_se_n,f_pe_n,force_n,eff_f_iso_n,'
@@ -316,9 +316,9 @@ def test_missing_node_module_exits_2_with_a_clear_message(monkeypatch, capsys):
 
 
 def test_simulate_and_figures_never_import_rclpy(tmp_path):
-    code = ('import sys; from hill_muscle_ros import cli; '
+    code = ('import sys; from hill_muscle_ros.tools import cli; '
             f"cli.main(['simulate', '--protocol', 'II', '--rate', '50', '--csv', {str(tmp_path / 'r.csv')!r}]); "
-            "import hill_muscle_ros.figures; "
+            "import hill_muscle_ros.tools.figures; "
             "sys.exit(1 if 'rclpy' in sys.modules else 0)")
     proc = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
                           env=os.environ.copy(), timeout=SUBPROCESS_TIMEOUT_S)

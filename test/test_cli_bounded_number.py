@@ -3,7 +3,7 @@ import argparse
 
 import pytest
 
-from hill_muscle_ros.cli import bounded_number
+from hill_muscle_ros.tools.cli import bounded_number
 
 
 def _error(parse, text: str) -> str:

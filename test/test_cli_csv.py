@@ -10,10 +10,11 @@ import re
 import numpy as np
 import pytest
 
-from hill_muscle_ros import cli, resources
+from hill_muscle_ros import resources
 from hill_muscle_ros.model import COLUMNS, MuscleParams, Protocol, simulate
 from hill_muscle_ros.model.limb import LimbProtocol, limb_columns, simulate_limb
 from hill_muscle_ros.params_file import load_plant
+from hill_muscle_ros.tools import cli
 
 #: [Hz] 2 kHz: the second sample is at t = 1 / 2000 = 0.0005 s, a float that
 #: 17 significant digits write as 0.00050000000000000001.

@@ -13,10 +13,11 @@ import numpy as np
 import pytest
 
 from fes_reference import fes_reference
-from hill_muscle_ros import cli, resources
+from hill_muscle_ros import resources
 from hill_muscle_ros.model import Protocol, simulate
 from hill_muscle_ros.model.stimulus import command_from_pulse_width
 from hill_muscle_ros.params_file import load_muscle_params
+from hill_muscle_ros.tools import cli
 
 PRESET = resources.config_dir() / 'fes_quadriceps.yaml'
 

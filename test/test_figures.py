@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from matplotlib.image import imread
 
-from hill_muscle_ros import cli, figures
 from hill_muscle_ros.model import Protocol
+from hill_muscle_ros.tools import cli, figures
 
 HILL_MUSCLE = Path(sys.executable).with_name('hill-muscle')
 PNG_SIGNATURE = b'\x89PNG\r\n\x1a\n'

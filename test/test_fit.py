@@ -13,13 +13,13 @@ from geometry_msgs.msg import PointStamped, WrenchStamped
 from rclpy.serialization import serialize_message
 from std_msgs.msg import Float64
 
-from hill_muscle_ros import cli, fit
 from hill_muscle_ros.model import MuscleParams, Protocol, simulate
 from hill_muscle_ros.params_file import load_muscle_params
 from hill_muscle_ros.recording.bag_writer import BagWriter
 from hill_muscle_ros.recording.offline import write_simulation_bag
 from hill_muscle_ros.recording.reader import read_bag
 from hill_muscle_ros.timebase import NS_PER_S
+from hill_muscle_ros.tools import cli, fit
 
 RATE_HZ = 1000.0
 #: The muscle behind the bags: three constants moved off the paper's values,
@@ -347,7 +347,7 @@ def test_console_script_fits_and_writes_the_report(truth_run, tmp_path):
     bag, _ = truth_run
     report_dir = tmp_path / 'report'
     proc = subprocess.run(
-        [sys.executable, '-m', 'hill_muscle_ros.cli', 'fit', '--bag', str(bag),
+        [sys.executable, '-m', 'hill_muscle_ros.tools.cli', 'fit', '--bag', str(bag),
          '--fit', FITTED, '--out', str(tmp_path / 'fitted.yaml'), '--report',
          str(report_dir)], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr

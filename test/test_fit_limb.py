@@ -19,12 +19,13 @@ from rclpy.time import Time
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
-from hill_muscle_ros import cli, fit, resources
+from hill_muscle_ros import resources
 from hill_muscle_ros.model import engine
 from hill_muscle_ros.model.limb import LimbProtocol, simulate_limb
 from hill_muscle_ros.params_file import load_plant
 from hill_muscle_ros.recording.bag_writer import BagWriter
 from hill_muscle_ros.timebase import NS_PER_S
+from hill_muscle_ros.tools import cli, fit
 
 RATE_HZ = 1000.0
 JOINT_STATE = 'sensor_msgs/msg/JointState'
@@ -397,7 +398,7 @@ def test_help_names_the_plant_options(capsys):
 def test_console_script_fits_a_limb_and_writes_the_report(compiled_limb, ankle_run, tmp_path,
                                                          near_truth_yaml):
     proc = subprocess.run(
-        [sys.executable, '-m', 'hill_muscle_ros.cli', 'fit', '--bag', str(ankle_run['bag']),
+        [sys.executable, '-m', 'hill_muscle_ros.tools.cli', 'fit', '--bag', str(ankle_run['bag']),
          '--plant', str(near_truth_yaml), '--fit', 'joint.damping_n_m_s_per_rad', '--jobs', '2',
          '--out', str(tmp_path / 'fitted.yaml'), '--report', str(tmp_path / 'report')],
         capture_output=True, text=True, timeout=300)

@@ -36,8 +36,8 @@ import os
 
 import pytest
 
-from hill_muscle_ros import cli
 from hill_muscle_ros.params_file import load_muscle_params
+from hill_muscle_ros.tools import cli
 from live_run import record_live_run
 
 # alone: the length knots are sent a fixed time ahead of the plant.

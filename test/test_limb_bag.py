@@ -11,10 +11,11 @@ import pytest
 import yaml
 from rosbags.highlevel import AnyReader
 
-from hill_muscle_ros import cli, fit, resources
+from hill_muscle_ros import resources
 from hill_muscle_ros.model.limb import LimbProtocol, simulate_limb
 from hill_muscle_ros.params_file import load_plant
 from hill_muscle_ros.timebase import NS_PER_S
+from hill_muscle_ros.tools import cli, fit
 
 RATE_HZ = 1000.0
 KNEE = resources.config_dir() / 'knee.yaml'

@@ -18,9 +18,10 @@ import pytest
 from PIL import Image
 from scipy.optimize import brentq
 
-from hill_muscle_ros import cli, resources
+from hill_muscle_ros import resources
 from hill_muscle_ros.model.limb import LimbProtocol, simulate_limb
 from hill_muscle_ros.params_file import load_plant
+from hill_muscle_ros.tools import cli
 
 HILL_MUSCLE = Path(sys.executable).with_name('hill-muscle')
 #: [s] generous: the machine is shared with other test runs.
@@ -315,7 +316,7 @@ STATIC_TOLERANCE_DEG = 0.5
 
 @pytest.fixture(scope='module')
 def limb_figure():
-    from hill_muscle_ros import figures
+    from hill_muscle_ros.tools import figures
     return figures, figures.limb_data()
 
 

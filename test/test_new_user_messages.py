@@ -16,13 +16,14 @@ import pytest
 import rclpy
 from rclpy.parameter import Parameter
 
-from hill_muscle_ros import cli, resources
+from hill_muscle_ros import resources
 from hill_muscle_ros.model.limb import LimbPlant
 from hill_muscle_ros.nodes._overrides import require_muscles
 from hill_muscle_ros.nodes._parameters import (declare_checked, declare_muscle_parameters,
                                                number_descriptor)
 from hill_muscle_ros.nodes._process import StartupError, check_params_files, params_file_arguments
 from hill_muscle_ros.params_file import load_muscle_params, load_plant
+from hill_muscle_ros.tools import cli
 
 HILL_MUSCLE = Path(sys.executable).with_name('hill-muscle')
 

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from hill_muscle_ros import cli
 from hill_muscle_ros.model import engine, precompile
+from hill_muscle_ros.tools import cli
 
 MODEL = Path(precompile.__file__).parent
 #: [s] bound on the command: it loads from the cache here (the suite compiled
@@ -56,7 +56,7 @@ def test_without_numba_the_command_says_so_and_compiles_nothing(monkeypatch, cap
 
 @pytest.mark.skipif(not engine.numba_available(), reason='numba is not installed')
 def test_the_command_builds_every_kernel_set_and_a_second_run_only_loads():
-    runs = [subprocess.run([sys.executable, '-m', 'hill_muscle_ros.cli', 'compile'],
+    runs = [subprocess.run([sys.executable, '-m', 'hill_muscle_ros.tools.cli', 'compile'],
                            capture_output=True, text=True, timeout=COMPILE_TIMEOUT_S, check=True)
             for _ in range(2)]
     for run in runs:

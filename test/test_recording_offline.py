@@ -10,12 +10,12 @@ from mcap_ros2.decoder import DecoderFactory
 from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import Reader
 
-from hill_muscle_ros import cli
 from hill_muscle_ros.model import MuscleParams, Protocol, simulate
 from hill_muscle_ros.recording import BagOutputError
 from hill_muscle_ros.recording.offline import write_simulation_bag
 from hill_muscle_ros.recording.reader import read_bag
 from hill_muscle_ros.timebase import NS_PER_S
+from hill_muscle_ros.tools import cli
 
 RATE_HZ = 1000.0
 #: The topics and types a live run with the simulator and the player records.
@@ -119,7 +119,7 @@ def test_existing_bag_is_never_overwritten(run):
 
 
 def _cli(*args):
-    return subprocess.run([sys.executable, '-m', 'hill_muscle_ros.cli', *args],
+    return subprocess.run([sys.executable, '-m', 'hill_muscle_ros.tools.cli', *args],
                           capture_output=True, text=True, timeout=120)
 
 

@@ -26,15 +26,15 @@ import numpy as np
 import pytest
 import yaml
 
-from hill_muscle_ros import cli, sweep
 from hill_muscle_ros.model import MuscleParams, Protocol, simulate
 from hill_muscle_ros.model.limb import LimbProtocol, simulate_limb
 from hill_muscle_ros.params_file import load_plant
 from hill_muscle_ros.resources import config_dir, protocol_path
-from hill_muscle_ros.sweep import (HEARTBEAT_FAILED, QUIET_HEARTBEAT_PLUGIN,
-                                   HeartbeatOnCloseFilter, SweepError, load_spec, parse_spec,
-                                   quiet_heartbeat_on_close, run_on_client, run_sweep,
-                                   simulate_forces)
+from hill_muscle_ros.tools import cli, sweep
+from hill_muscle_ros.tools.sweep import (HEARTBEAT_FAILED, QUIET_HEARTBEAT_PLUGIN,
+                                         HeartbeatOnCloseFilter, SweepError, load_spec,
+                                         parse_spec, quiet_heartbeat_on_close, run_on_client,
+                                         run_sweep, simulate_forces)
 
 pq = pytest.importorskip('pyarrow.parquet')
 
@@ -226,8 +226,8 @@ def test_local_run_writes_the_tidy_table_of_the_reference_forces(tmp_path, capsy
 
 
 def test_other_commands_import_no_dask_or_pyarrow():
-    code = ('import sys; from hill_muscle_ros import cli; cli.build_parser(); '
-            'import hill_muscle_ros.sweep; '
+    code = ('import sys; from hill_muscle_ros.tools import cli; cli.build_parser(); '
+            'import hill_muscle_ros.tools.sweep; '
             'print(sorted(m for m in ("dask", "distributed", "pyarrow", "scipy") '
             'if m in sys.modules))')
     out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,

@@ -60,14 +60,14 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 import yaml
 
-from . import resources
+from .. import resources
 from .cli import bounded_number
-from .model import LimbOutOfRange, MuscleBatch, MuscleParams, Protocol, simulate_limb_batch
-from .model.limb import LimbPlant, LimbProtocol
-from .model.plant_fields import PlantNameError, plant_field, plant_value, replaced_plant
-from .model.protocol import safe_load_yaml
-from .model.simulate import sample_times
-from .params_file import load_muscle_params, load_plant
+from ..model import LimbOutOfRange, MuscleBatch, MuscleParams, Protocol, simulate_limb_batch
+from ..model.limb import LimbPlant, LimbProtocol
+from ..model.plant_fields import PlantNameError, plant_field, plant_value, replaced_plant
+from ..model.protocol import safe_load_yaml
+from ..model.simulate import sample_times
+from ..params_file import load_muscle_params, load_plant
 
 #: [Hz] step rate when neither the spec nor its parameters file gives one
 #: (the same default as ``hill-muscle simulate``).

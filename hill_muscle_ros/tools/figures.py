@@ -23,12 +23,12 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
-from . import resources
-from .model import Muscle, MuscleParams, Protocol, SimulationResult, simulate
-from .model.limb import LimbPlant, LimbProtocol, LimbResult, simulate_limb
-from .model.simulate import sample_times
-from .model.stimulus import command_from_pulse_width
-from .params_file import load_plant
+from .. import resources
+from ..model import Muscle, MuscleParams, Protocol, SimulationResult, simulate
+from ..model.limb import LimbPlant, LimbProtocol, LimbResult, simulate_limb
+from ..model.simulate import sample_times
+from ..model.stimulus import command_from_pulse_width
+from ..params_file import load_plant
 
 #: [dots per inch] keeps each PNG small (about 100 kB) yet readable.
 DPI = 100

@@ -24,10 +24,10 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from . import resources
-from .model import COLUMNS, LENGTH_CHOICES, UNITS_CHOICES, MuscleParams, Protocol
-from .model import SimulationResult, simulate
-from .params_file import load_muscle_params
+from .. import resources
+from ..model import COLUMNS, LENGTH_CHOICES, UNITS_CHOICES, MuscleParams, Protocol
+from ..model import SimulationResult, simulate
+from ..params_file import load_muscle_params
 
 PROG = 'hill-muscle'
 #: Exit status for errors in the user's input (as argparse uses).
@@ -264,7 +264,7 @@ def _read_muscle_protocol(path: Path) -> Protocol:
     try:
         return Protocol.from_yaml(path)
     except ValueError:
-        from .model.protocol import safe_load_yaml
+        from ..model.protocol import safe_load_yaml
         try:
             doc = safe_load_yaml(path.read_text(encoding='utf-8'))
         except Exception:   # noqa: BLE001 -- unreadable: the muscle protocol's message
@@ -357,7 +357,7 @@ def format_table(run: SimulationRun) -> str:
 def write_bag(path: Path, write: Callable[[], None]) -> None:
     """Write a bag to ``path`` with ``write()``: a bag that cannot be written
     is the user's error (``UserError``, its message); then say where it is."""
-    from .recording import BagOutputError   # rclpy and the bag writer only here
+    from ..recording import BagOutputError   # rclpy and the bag writer only here
     try:
         write()
     except BagOutputError as err:
@@ -368,7 +368,7 @@ def write_bag(path: Path, write: Callable[[], None]) -> None:
 def write_outputs(args: argparse.Namespace, run: SimulationRun) -> None:
     """Write the run where the output options say (:func:`_add_output_options`)."""
     if args.bag is not None:
-        from .recording.offline import write_simulation_bag
+        from ..recording.offline import write_simulation_bag
         write_bag(args.bag, lambda: write_simulation_bag(args.bag, run.result, run.params,
                                                          run.protocol))
     if args.csv is not None:
@@ -463,7 +463,7 @@ def cmd_compile(_args: argparse.Namespace) -> int:
     (:data:`.model.precompile.KERNEL_GROUPS`), one line per set."""
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
-    from .model import engine, precompile
+    from ..model import engine, precompile
     if not engine.numba_available():
         raise UserError('numba is not installed, so nothing is compiled: the model runs '
                         'its Python loops (pip install numba for the compiled engine)')
@@ -523,7 +523,7 @@ def _check_engine_setting() -> None:
 
     :raises UserError: naming the variable and its value
     """
-    from .model import engine   # cheap: numba is looked for, not imported
+    from ..model import engine   # cheap: numba is looked for, not imported
     try:
         engine.choice()
     except (ValueError, ImportError) as err:

@@ -68,15 +68,15 @@ import numpy as np
 import yaml
 
 from .cli import bounded_number
-from .model import Muscle, MuscleParams
-from .model.fes_muscle import FesMuscle
-from .model.limb import TORQUE_LIMIT_N_M, JointParams, LimbPlant, LimbProtocol, simulate_limb
-from .model.muscle import DL_MT_LIMIT_M, MuscleOutputs
-from .model.plant_fields import (GEOMETRY_FIELDS, JOINT_PART, PARAMS, PlantNameError,
+from ..model import Muscle, MuscleParams
+from ..model.fes_muscle import FesMuscle
+from ..model.limb import TORQUE_LIMIT_N_M, JointParams, LimbPlant, LimbProtocol, simulate_limb
+from ..model.muscle import DL_MT_LIMIT_M, MuscleOutputs
+from ..model.plant_fields import (GEOMETRY_FIELDS, JOINT_PART, PARAMS, PlantNameError,
                                  plant_field, plant_value, replaced_plant)
-from .model.protocol import Knots, commands_from_pulse_widths
-from .model.simulate import sample_times
-from .timebase import NS_PER_S
+from ..model.protocol import Knots, commands_from_pulse_widths
+from ..model.simulate import sample_times
+from ..timebase import NS_PER_S
 
 #: Default topics, each list in order of preference: the first with messages is used.
 PULSE_WIDTH_TOPIC = 'pulse_width'
@@ -311,7 +311,7 @@ def load_muscle_recording(bag_dir: str | Path, *, pulse_width_topic: str | None 
     :raises FitError: naming the bag and the topic if a topic is missing, a value
         is out of range, or the inputs and the force do not overlap in time
     """
-    from .recording.reader import read_bag   # mcap: imported only when reading a bag
+    from ..recording.reader import read_bag   # mcap: imported only when reading a bag
     bag_dir = Path(bag_dir)
     try:
         bag = read_bag(bag_dir)
@@ -453,8 +453,8 @@ class MuscleReplay:
 
         :param fes: the FES muscle's engine rather than the paper's loop
         """
-        from .model import engine, fes_kernels, kernels
-        from .model.simulate import FES_RUN_MIN_STEPS
+        from ..model import engine, fes_kernels, kernels
+        from ..model.simulate import FES_RUN_MIN_STEPS
         work = (len(self.recording.stimulation) - 1) * self.runs
         if fes:
             if not engine.use_compiled(work, FES_RUN_MIN_STEPS, fes_kernels.loaded()):
@@ -497,7 +497,7 @@ class MuscleReplay:
 
     def _force_compiled(self, muscle: Muscle, fes: bool, u: list) -> np.ndarray:
         """[N] the force after each step, :meth:`force`'s loop on the compiled engine."""
-        from .model import fes_kernels, kernels
+        from ..model import fes_kernels, kernels
         if fes:
             # From rest: its first step gives u[0] at t = 0, all that
             # set_recruitment(u[0]) did to the reference before its first step.
@@ -955,7 +955,7 @@ def load_limb_recording(bag_dir: str | Path, plant: LimbPlant, *,
     :raises FitError: naming the bag and the topic if a topic is missing or a
         muscle's stimulation does not overlap the joint states in time
     """
-    from .recording.reader import read_bag
+    from ..recording.reader import read_bag
     bag_dir = Path(bag_dir)
     try:
         bag = read_bag(bag_dir)
@@ -1118,7 +1118,7 @@ class LimbReplay:
 
     def predict(self, plants: Sequence[LimbPlant]) -> np.ndarray:
         """[rad] the joint angle at the recorded samples, one row per plant."""
-        from .model import engine, limb_kernels
+        from ..model import engine, limb_kernels
         index = self.recording.sample_index
         # One run of a short recording is below the compiled limb's threshold,
         # an evaluation's n + 1 runs together often not: judged on them, the
@@ -1539,10 +1539,10 @@ LIMB_FIT_OPTIONS = (('joint_states_topic', '--joint-states-topic'),
 
 
 def cmd_fit(args: argparse.Namespace) -> int:
-    """Run ``hill-muscle fit``; user errors raise :class:`~hill_muscle_ros.cli.UserError`."""
-    from . import resources
+    """Run ``hill-muscle fit``; user errors raise :class:`~hill_muscle_ros.tools.cli.UserError`."""
+    from .. import resources
     from .cli import UserError
-    from .params_file import load_muscle_params
+    from ..params_file import load_muscle_params
     if args.plant is not None:
         given = [flag for attr, flag in MUSCLE_FIT_OPTIONS if getattr(args, attr) is not None]
         if given:
@@ -1589,7 +1589,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
 def _cmd_fit_limb(args: argparse.Namespace) -> int:
     """``hill-muscle fit --plant``: the limb's parameters from its joint angle."""
     from .cli import UserError
-    from .params_file import load_plant
+    from ..params_file import load_plant
     try:
         start, _ = load_plant(args.plant)
         start_text = args.plant.read_text(encoding='utf-8')
@@ -1655,7 +1655,7 @@ def _plant_of(text: str) -> LimbPlant | None:
     """The plant a plant file's text gives, as the limb CLI loads it (``None`` if it
     does not load): the written file is checked against the fitted plant."""
     import tempfile
-    from .params_file import load_plant
+    from ..params_file import load_plant
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / 'plant.yaml'
         path.write_text(text, encoding='utf-8')

@@ -9,7 +9,7 @@ the joint angle in degrees and each muscle's force at the end of each second;
 ``hill-muscle animate`` draws the same run as a stick-figure GIF
 (:mod:`hill_muscle_ros.animation`).
 
-Errors in the user's files raise :class:`~hill_muscle_ros.cli.UserError`
+Errors in the user's files raise :class:`~hill_muscle_ros.tools.cli.UserError`
 naming the file and the key (one line, exit status 2).
 """
 from __future__ import annotations
@@ -21,12 +21,12 @@ from pathlib import Path
 
 import numpy as np
 
-from . import resources
+from .. import resources
 from .cli import (DEFAULT_RATE_HZ, PROG, UserError, _positive_rate, _rate_from_file,
                   bounded_number, summary_times, write_bag, write_csv_table)
-from .model.limb import LimbPlant, LimbProtocol, LimbResult, limb_columns, simulate_limb
-from .model.protocol import safe_load_yaml
-from .params_file import load_plant
+from ..model.limb import LimbPlant, LimbProtocol, LimbResult, limb_columns, simulate_limb
+from ..model.protocol import safe_load_yaml
+from ..params_file import load_plant
 
 #: Options of ``simulate`` that configure the single muscle, not a limb.
 MUSCLE_ONLY_OPTIONS = (('params', '--params'), ('units', '--units'), ('length', '--length'))
@@ -142,7 +142,7 @@ def _is_muscle_protocol(path: Path) -> bool:
 
 def write_limb_csv(path: Path, run: LimbRun) -> int:
     """Write one row per step, columns of :func:`limb_columns`, each number in its
-    shortest exact form (:func:`~hill_muscle_ros.cli.write_csv_table`).
+    shortest exact form (:func:`~hill_muscle_ros.tools.cli.write_csv_table`).
 
     :return: the number of data rows written
     """
@@ -177,7 +177,7 @@ def cmd_simulate_limb(args: argparse.Namespace) -> int:
                         'set each muscle\'s parameters in the plant file')
     run = load_limb_run(args.plant, Path(args.protocol), args.rate)
     if args.bag is not None:
-        from .recording.offline import write_limb_bag   # rclpy and the bag writer only here
+        from ..recording.offline import write_limb_bag   # rclpy and the bag writer only here
         write_bag(args.bag, lambda: write_limb_bag(args.bag, run.result, run.plant,
                                                    run.protocol))
     if args.csv is not None:
@@ -190,7 +190,7 @@ def cmd_simulate_limb(args: argparse.Namespace) -> int:
 
 def cmd_animate(args: argparse.Namespace) -> int:
     """``hill-muscle animate``: the run as a GIF."""
-    from .animation import write_gif   # matplotlib only for this command
+    from ..animation import write_gif   # matplotlib only for this command
     run = load_limb_run(args.plant, args.protocol, args.rate)
     try:
         frames = write_gif(args.out, run.plant, run.result, args.fps)
