@@ -1,9 +1,9 @@
-"""cli.bounded_number: the argparse type of every bounded number option."""
+"""common.bounded_number: the argparse type of every bounded number option."""
 import argparse
 
 import pytest
 
-from hill_muscle_ros.tools.cli import bounded_number
+from hill_muscle_ros.tools.common import bounded_number
 
 
 def _error(parse, text: str) -> str:

@@ -14,28 +14,21 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import math
 import os
 import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Sequence
-
-import numpy as np
+from typing import Sequence
 
 from .. import resources
 from ..model import COLUMNS, LENGTH_CHOICES, UNITS_CHOICES, MuscleParams, Protocol
 from ..model import SimulationResult, simulate
 from ..params_file import load_muscle_params
+from . import limb_cli
+from .common import (DEFAULT_RATE_HZ, EXIT_USAGE, PROG, RATE_KEY, UserError, positive_rate,
+                     rate_from_file, summary_times, write_bag, write_csv_table)
 
-PROG = 'hill-muscle'
-#: Exit status for errors in the user's input (as argparse uses).
-EXIT_USAGE = 2
-#: [Hz] step rate when neither ``--rate`` nor the parameters file gives one.
-DEFAULT_RATE_HZ = 1000.0
-#: Key of the step rate in the simulator node's parameters file.
-RATE_KEY = 'rate_hz'
 #: The key that makes a protocol file a limb protocol (inputs per muscle).
 LIMB_PROTOCOL_KEY = 'muscles'
 #: [s] spacing of the rows of the summary table printed without ``--csv``.
@@ -84,10 +77,6 @@ _HELP_FLAGS = ('-h', '--help')
 _ROS_ARGS = '--ros-args'
 
 
-class UserError(Exception):
-    """An error in the user's input: reported in one line, exit status 2."""
-
-
 @dataclass(frozen=True)
 class SimulationRun:
     """One offline run and what produced it, handed to the output writers.
@@ -105,49 +94,6 @@ class SimulationRun:
 
 
 # --------------------------------------------------------------------------- parsing
-
-def bounded_number(kind: Callable[[str], float] = float, *, low: float | None = None,
-                   high: float | None = None, low_inclusive: bool = True, unit: str = '',
-                   noun: str | None = None) -> Callable[[str], float]:
-    """An argparse ``type``: a finite number of ``kind`` within ``low`` to ``high``.
-
-    Its errors name the rule and the text, e.g. ``must be in [1, 64], got '0'``.
-
-    :param kind: ``int`` or ``float``, which parses the text
-    :param low: lower bound (``None``: none); accepted unless ``low_inclusive`` is false
-    :param high: upper bound, accepted (``None``: none)
-    :param unit: the unit written after the range in the message (``s``)
-    :param noun: what a text that does not parse should be (default ``an integer``
-        or ``a number``; e.g. ``a number of seconds``)
-    """
-    noun = noun or ('an integer' if kind is int else 'a number')
-    unit = f' {unit}' if unit else ''
-    if low is not None and high is not None:
-        rule = f'in {"[" if low_inclusive else "("}{low:g}, {high:g}]{unit}'
-    elif low is None:
-        rule = f'at most {high:g}{unit}' if high is not None else 'finite'
-    elif low_inclusive:
-        rule = f'at least {low:g}{unit}'
-    else:
-        rule = 'positive' if low == 0 else f'above {low:g}{unit}'
-    if kind is not int and high is None and low is not None:
-        rule += ' and finite'
-
-    def parse(text: str) -> float:
-        try:
-            value = kind(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f'must be {noun}, got {text!r}') from None
-        above = low is None or (value >= low if low_inclusive else value > low)
-        if not (math.isfinite(value) and above and (high is None or value <= high)):
-            raise argparse.ArgumentTypeError(f'must be {rule}, got {text!r}')
-        return value
-    return parse
-
-
-#: argparse type for ``--rate``: a positive finite number of hertz.
-_positive_rate = bounded_number(float, low=0.0, low_inclusive=False, noun='a number of hertz')
-
 
 def _add_output_options(parser: argparse.ArgumentParser) -> None:
     """Options that choose where ``simulate`` writes its result.
@@ -193,7 +139,7 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument('--length', choices=LENGTH_CHOICES,
                      help='length used in the force-length relation: initial (at '
                           'recruitment) or instantaneous (overrides the parameters file)')
-    sim.add_argument('--rate', type=_positive_rate, metavar='HZ',
+    sim.add_argument('--rate', type=positive_rate, metavar='HZ',
                      help=f'output rate in Hz: a sample every 1/HZ s, inputs sampled and '
                           f'held there; the model integrates substeps of at most 1 ms '
                           f'whatever the rate (default: `{RATE_KEY}` of the '
@@ -203,7 +149,6 @@ def build_parser() -> argparse.ArgumentParser:
                           '`ros__parameters:`), the one the simulator node loads '
                           f'(default: {resources.default_params_file()})')
     _add_output_options(sim)
-    from . import limb_cli   # it imports this module: here, once both are loaded
     limb_cli.add_plant_option(sim)
 
     fig = sub.add_parser(
@@ -216,7 +161,7 @@ def build_parser() -> argparse.ArgumentParser:
                     'figure.')
     fig.add_argument('--out', required=True, type=Path, metavar='DIR',
                      help='directory for the PNG files (created if missing)')
-    fig.add_argument('--rate', type=_positive_rate, default=None, metavar='HZ',
+    fig.add_argument('--rate', type=positive_rate, default=None, metavar='HZ',
                      help='step rate of the simulations behind the figures '
                           '(default: 1000 Hz, the figures of this README)')
     sub.add_parser(
@@ -242,17 +187,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 # --------------------------------------------------------------------------- simulate
-
-def _rate_from_file(node_settings: dict, source: Path) -> float | None:
-    """The ``rate_hz`` a parameters file gives, validated, or ``None``."""
-    if RATE_KEY not in node_settings:
-        return None
-    value = node_settings[RATE_KEY]
-    if (isinstance(value, bool) or not isinstance(value, (int, float))
-            or not math.isfinite(value) or value <= 0.0):
-        raise UserError(f'{source}: `{RATE_KEY}` must be positive and finite, got {value!r}')
-    return float(value)
-
 
 def _read_muscle_protocol(path: Path) -> Protocol:
     """A single-muscle protocol; a limb protocol (one with ``muscles``) gets a
@@ -293,52 +227,19 @@ def load_inputs(args: argparse.Namespace) -> tuple[Protocol, MuscleParams, float
         params = params.replace(**overrides)
     rate = args.rate
     if rate is None:
-        rate = _rate_from_file(node_settings, params_path) or DEFAULT_RATE_HZ
+        rate = rate_from_file(node_settings, params_path) or DEFAULT_RATE_HZ
     return protocol, params, rate
-
-
-def write_csv_table(path: Path, header: Sequence[str], columns: Sequence[np.ndarray]) -> int:
-    """Write a header line and one row per sample, each number in its shortest
-    exact form: Python's ``repr`` of the float, the fewest digits that read back
-    as the same float64 (``0.0005``, where a fixed 17 digits writes
-    ``0.00050000000000000001``).
-
-    :param path: the CSV file; missing parent directories are created
-    :param header: the column names
-    :param columns: one array per column, all of the same length
-    :return: the number of data rows written
-    """
-    rows = zip(*(np.asarray(c, dtype=float).tolist() for c in columns))
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with path.open('w', encoding='utf-8', newline='') as f:
-            f.write(','.join(header) + '\n')
-            count = 0
-            for row in rows:
-                f.write(','.join(map(repr, row)) + '\n')
-                count += 1
-    except OSError as err:
-        raise UserError(f'{path}: cannot write CSV: {err.strerror or err}') from None
-    return count
 
 
 def write_csv(path: Path, result: SimulationResult) -> int:
     """Write one row per sample, the columns of :data:`~.model.COLUMNS`, each
-    number in its shortest exact form (:func:`write_csv_table`).
+    number in its shortest exact form (:func:`~.common.write_csv_table`).
 
     :param path: the CSV file; missing parent directories are created
     :return: the number of data rows written
     """
     return write_csv_table(path, [name for _, name in COLUMNS],
                            [getattr(result, attr) for attr, _ in COLUMNS])
-
-
-def summary_times(duration_s: float) -> list[float]:
-    """[s] the end of each whole second, and the end of the protocol if later."""
-    times = [float(s) for s in range(1, int(math.floor(duration_s)) + 1)]
-    if not times or times[-1] < duration_s:
-        times.append(duration_s)
-    return times
 
 
 def format_table(run: SimulationRun) -> str:
@@ -352,17 +253,6 @@ def format_table(run: SimulationRun) -> str:
         lines.append('  '.join(fmt.format(float(getattr(result, attr)[k]))
                                for attr, _, fmt in TABLE_COLUMNS))
     return '\n'.join(lines)
-
-
-def write_bag(path: Path, write: Callable[[], None]) -> None:
-    """Write a bag to ``path`` with ``write()``: a bag that cannot be written
-    is the user's error (``UserError``, its message); then say where it is."""
-    from ..recording import BagOutputError   # rclpy and the bag writer only here
-    try:
-        write()
-    except BagOutputError as err:
-        raise UserError(str(err)) from None
-    print(f'wrote bag {path}')
 
 
 def write_outputs(args: argparse.Namespace, run: SimulationRun) -> None:
@@ -380,8 +270,7 @@ def write_outputs(args: argparse.Namespace, run: SimulationRun) -> None:
 
 def cmd_simulate(args: argparse.Namespace) -> int:
     if args.plant is not None:
-        from .limb_cli import cmd_simulate_limb
-        return cmd_simulate_limb(args)
+        return limb_cli.cmd_simulate_limb(args)
     protocol, params, rate = load_inputs(args)
     run = SimulationRun(protocol, params, rate, simulate(protocol, params, rate))
     write_outputs(args, run)
@@ -449,8 +338,7 @@ def _args_before_ros(args: Sequence[str]) -> Sequence[str]:
 # --------------------------------------------------------------------------- main
 
 def cmd_animate(args: argparse.Namespace) -> int:
-    from .limb_cli import cmd_animate as animate
-    return animate(args)
+    return limb_cli.cmd_animate(args)
 
 
 def cmd_fit(args: argparse.Namespace) -> int:

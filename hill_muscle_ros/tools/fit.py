@@ -67,7 +67,6 @@ from typing import Any, Callable, Protocol as TypingProtocol, Sequence
 import numpy as np
 import yaml
 
-from .cli import bounded_number
 from ..model import Muscle, MuscleParams
 from ..model.fes_muscle import FesMuscle
 from ..model.limb import TORQUE_LIMIT_N_M, JointParams, LimbPlant, LimbProtocol, simulate_limb
@@ -77,6 +76,7 @@ from ..model.plant_fields import (GEOMETRY_FIELDS, JOINT_PART, PARAMS, PlantName
 from ..model.protocol import Knots, commands_from_pulse_widths
 from ..model.simulate import sample_times
 from ..timebase import NS_PER_S
+from .common import PROG, UserError, bounded_number
 
 #: Default topics, each list in order of preference: the first with messages is used.
 PULSE_WIDTH_TOPIC = 'pulse_width'
@@ -1440,7 +1440,6 @@ def plot_limb_fit(path: Path, result: FitResult, recording: LimbRecording) -> No
 
 def add_fit_parser(sub: argparse._SubParsersAction) -> None:
     """The ``fit`` subcommand's parser."""
-    from .cli import PROG
     fit = sub.add_parser(
         'fit', help='estimate muscle or limb parameters from a recorded bag (least squares)',
         description='Replay the stimulation and length recorded in a rosbag2 MCAP bag '
@@ -1539,9 +1538,9 @@ LIMB_FIT_OPTIONS = (('joint_states_topic', '--joint-states-topic'),
 
 
 def cmd_fit(args: argparse.Namespace) -> int:
-    """Run ``hill-muscle fit``; user errors raise :class:`~hill_muscle_ros.tools.cli.UserError`."""
+    """Run ``hill-muscle fit``; user errors raise
+    :class:`~hill_muscle_ros.tools.common.UserError`."""
     from .. import resources
-    from .cli import UserError
     from ..params_file import load_muscle_params
     if args.plant is not None:
         given = [flag for attr, flag in MUSCLE_FIT_OPTIONS if getattr(args, attr) is not None]
@@ -1588,7 +1587,6 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
 def _cmd_fit_limb(args: argparse.Namespace) -> int:
     """``hill-muscle fit --plant``: the limb's parameters from its joint angle."""
-    from .cli import UserError
     from ..params_file import load_plant
     try:
         start, _ = load_plant(args.plant)
@@ -1631,7 +1629,6 @@ def _write_outputs(args: argparse.Namespace, out_text: str, report: str,
     :param data: the report's YAML data (made only with ``--report``)
     :param plot: draws the plot into the path it is given
     """
-    from .cli import UserError
     try:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(out_text, encoding='utf-8')

@@ -9,7 +9,7 @@ the joint angle in degrees and each muscle's force at the end of each second;
 ``hill-muscle animate`` draws the same run as a stick-figure GIF
 (:mod:`hill_muscle_ros.animation`).
 
-Errors in the user's files raise :class:`~hill_muscle_ros.tools.cli.UserError`
+Errors in the user's files raise :class:`~hill_muscle_ros.tools.common.UserError`
 naming the file and the key (one line, exit status 2).
 """
 from __future__ import annotations
@@ -22,11 +22,11 @@ from pathlib import Path
 import numpy as np
 
 from .. import resources
-from .cli import (DEFAULT_RATE_HZ, PROG, UserError, _positive_rate, _rate_from_file,
-                  bounded_number, summary_times, write_bag, write_csv_table)
 from ..model.limb import LimbPlant, LimbProtocol, LimbResult, limb_columns, simulate_limb
 from ..model.protocol import safe_load_yaml
 from ..params_file import load_plant
+from .common import (DEFAULT_RATE_HZ, PROG, UserError, bounded_number, positive_rate,
+                     rate_from_file, summary_times, write_bag, write_csv_table)
 
 #: Options of ``simulate`` that configure the single muscle, not a limb.
 MUSCLE_ONLY_OPTIONS = (('params', '--params'), ('units', '--units'), ('length', '--length'))
@@ -80,7 +80,7 @@ def add_animate_parser(sub) -> None:
                       help='the GIF file to write')
     anim.add_argument('--fps', type=_fps, default=DEFAULT_FPS, metavar='FPS',
                       help=f'frames per second of simulated time (default {DEFAULT_FPS:g})')
-    anim.add_argument('--rate', type=_positive_rate, metavar='HZ',
+    anim.add_argument('--rate', type=positive_rate, metavar='HZ',
                       help=f'simulation step rate (default: `rate_hz` of the plant file, '
                            f'else {DEFAULT_RATE_HZ:g})')
 
@@ -105,7 +105,7 @@ def load_limb_run(plant_path: Path, protocol_path: Path, rate_hz: float | None) 
                             f'{_limb_plays()}') from None
         raise UserError(str(err)) from None
     rate = rate_hz if rate_hz is not None else (
-        _rate_from_file(node, plant_path) or DEFAULT_RATE_HZ)
+        rate_from_file(node, plant_path) or DEFAULT_RATE_HZ)
     try:
         result = simulate_limb(plant, protocol, rate)
     except ValueError as err:   # a protocol muscle the plant lacks, a limb out of range
@@ -142,7 +142,7 @@ def _is_muscle_protocol(path: Path) -> bool:
 
 def write_limb_csv(path: Path, run: LimbRun) -> int:
     """Write one row per step, columns of :func:`limb_columns`, each number in its
-    shortest exact form (:func:`~hill_muscle_ros.tools.cli.write_csv_table`).
+    shortest exact form (:func:`~hill_muscle_ros.tools.common.write_csv_table`).
 
     :return: the number of data rows written
     """

@@ -61,13 +61,13 @@ import numpy as np
 import yaml
 
 from .. import resources
-from .cli import bounded_number
 from ..model import LimbOutOfRange, MuscleBatch, MuscleParams, Protocol, simulate_limb_batch
 from ..model.limb import LimbPlant, LimbProtocol
 from ..model.plant_fields import PlantNameError, plant_field, plant_value, replaced_plant
 from ..model.protocol import safe_load_yaml
 from ..model.simulate import sample_times
 from ..params_file import load_muscle_params, load_plant
+from .common import UserError, bounded_number
 
 #: [Hz] step rate when neither the spec nor its parameters file gives one
 #: (the same default as ``hill-muscle simulate``).
@@ -897,7 +897,6 @@ def _plant_text(spec: SweepSpec) -> str:
 
 def cmd_sweep(args) -> int:
     """Run ``hill-muscle sweep``; user errors become the CLI's one-line errors."""
-    from .cli import UserError
     try:
         check_out(args.out, args.overwrite)
         spec = load_spec(args.spec)
