@@ -1,0 +1,225 @@
+"""The recorded inputs replayed through the model: the predictions a fit's
+residuals are made of.
+
+:class:`MuscleReplay` predicts the force of a single muscle, :class:`LimbReplay`
+the joint angle of a limb, for several parameter sets at once; their
+``predict`` is all :func:`~.estimate.fit_parameters` asks of a model
+(:class:`~.estimate.ForceModel`).
+"""
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import numpy as np
+
+from ...model import Muscle, MuscleParams
+from ...model.fes_muscle import FesMuscle
+from ...model.limb import LimbPlant, LimbProtocol, simulate_limb
+from ...model.muscle import MuscleOutputs
+from ...model.protocol import Knots, commands_from_pulse_widths
+from ...model.simulate import sample_times
+from .parameters import FitError
+from .recording import LimbRecording, MuscleRecording
+
+#: Evaluations a fit is expected to take, to judge its runs before it starts:
+#: the three-parameter fit of Protocol II takes 6 (BENCHMARKS.md, section 8).
+#: Only the choice of engine depends on it, never the result.
+EXPECTED_EVALUATIONS = 6
+
+
+def replay_runs(n_parameters: int) -> int:
+    """[-] runs a fit of ``n_parameters`` is expected to ask a replay for: K = n + 1
+    per evaluation, :data:`EXPECTED_EVALUATIONS` evaluations."""
+    return (n_parameters + 1) * EXPECTED_EVALUATIONS
+
+
+class MuscleReplay:
+    """The recorded inputs replayed through the muscle, for any parameters.
+
+    The runs take the compiled muscle (:func:`~hill_muscle_ros.model.kernels.run_compiled`,
+    or the compiled FES muscle) where :func:`~hill_muscle_ros.model.engine.use_compiled`
+    says ``runs`` runs of the recording repay loading it, or where it is
+    loaded already: the same forces to about 1e-9 N (test_muscle_compiled,
+    test_fes_compiled), one engine for every run of a fit.
+
+    :param recording: the inputs and the force samples to predict
+    :param runs: [-] runs the caller expects to ask for in all (:func:`replay_runs`);
+        it chooses the engine only
+    """
+
+    def __init__(self, recording: MuscleRecording, runs: int = 1) -> None:
+        self.recording = recording
+        self.runs = runs
+        self.dt_s = 1.0 / recording.rate_hz
+        self._dl_end = recording.dl_mt_m[1:].tolist()
+
+    def compiled(self, fes: bool) -> bool:
+        """Whether the runs take the compiled engine (loading it here if they repay it).
+
+        :param fes: the FES muscle's engine rather than the paper's loop
+        """
+        from ...model import engine, fes_kernels, kernels
+        from ...model.simulate import FES_RUN_MIN_STEPS
+        work = (len(self.recording.stimulation) - 1) * self.runs
+        if fes:
+            if not engine.use_compiled(work, FES_RUN_MIN_STEPS, fes_kernels.loaded()):
+                return False
+            fes_kernels.compiled()
+            return True
+        if not engine.use_compiled(work, kernels.RUN_MIN_STEPS, kernels.run_loaded()):
+            return False
+        kernels.compiled_run()
+        return True
+
+    def commands(self, params: MuscleParams) -> np.ndarray:
+        """[-] the command u at each grid instant: the recruitment itself, or the
+        pulse width through the muscle's recruitment curve."""
+        if self.recording.stimulation_kind == 'recruitment':
+            return self.recording.stimulation
+        return commands_from_pulse_widths(self.recording.stimulation, params)
+
+    def force(self, params: MuscleParams, fes: bool = False) -> np.ndarray:
+        """[N] the force at every grid instant, from rest.
+
+        :param fes: run the FES engine even if every FES extension is off
+        """
+        u = self.commands(params).tolist()
+        muscle = FesMuscle(params) if fes else Muscle(params)
+        muscle.set_recruitment(u[0])
+        first = muscle.outputs()
+        n_steps = len(u) - 1
+        force = np.empty(n_steps + 1)
+        force[0] = first.force_n
+        # As the simulator node: a command acts from the step after it, so a
+        # release to zero shows one sample later than in `simulate`'s own table.
+        if self.compiled(fes):
+            force[1:] = self._force_compiled(muscle, fes, u)
+            return force
+        columns = [[0.0] * n_steps for _ in first]
+        muscle.run(u[:-1], self._dl_end, self.dt_s, columns=columns)
+        force[1:] = columns[first._fields.index('force_n')]
+        return force
+
+    def _force_compiled(self, muscle: Muscle, fes: bool, u: list) -> np.ndarray:
+        """[N] the force after each step, :meth:`force`'s loop on the compiled engine."""
+        from ...model import fes_kernels, kernels
+        if fes:
+            # From rest: its first step gives u[0] at t = 0, all that
+            # set_recruitment(u[0]) did to the reference before its first step.
+            bundle = fes_kernels.FesBundle([muscle.params], dt_s=self.dt_s)
+            rows = fes_kernels.run_muscle(bundle, 0, u[:-1], self._dl_end, self.dt_s,
+                                          kernels=fes_kernels.compiled())
+            return rows[:, MuscleOutputs._fields.index('force_n')]
+        return kernels.run_compiled(muscle, u[:-1], self._dl_end, self.dt_s)[kernels.RUN_FORCE]
+
+    def predict(self, params: Sequence[MuscleParams]) -> np.ndarray:
+        """[N] the force at the recorded samples, one row per parameter set."""
+        index = self.recording.sample_index
+        # One engine for all: the paper's loop and the FES engine agree to about
+        # 1e-9 N, not to the bit, and a forward difference across the two (an FES
+        # constant moved off its default) would turn that into a false slope.
+        fes = not all(p.fes_defaults for p in params)
+        return np.array([self.force(p, fes)[index] for p in params])
+
+
+def _held_knots(values: np.ndarray, t_s: np.ndarray) -> Knots:
+    """Knots that give ``values[k]`` at ``t_s[k]`` and hold it to the next instant:
+    a repeated time at each change is a step (the later knot wins there)."""
+    change = np.flatnonzero(values[1:] != values[:-1]) + 1
+    times = np.concatenate(([t_s[0]], np.repeat(t_s[change], 2), [t_s[-1]]))
+    held = np.empty(2 * len(change))
+    held[0::2], held[1::2] = values[change - 1], values[change]
+    return Knots(times, np.concatenate(([values[0]], held, [values[-1]])))
+
+
+#: A worker process's replay: (protocol, rate [Hz], sample indices), set once by
+#: :func:`_limb_worker_init` so that each task sends only its plant.
+_LIMB_WORKER: tuple | None = None
+
+
+def _limb_worker_init(protocol: LimbProtocol, rate_hz: float, index: np.ndarray) -> None:
+    global _LIMB_WORKER
+    _LIMB_WORKER = (protocol, rate_hz, index)
+
+
+def _limb_worker_angle(plant: LimbPlant) -> np.ndarray:
+    protocol, rate_hz, index = _LIMB_WORKER
+    return simulate_limb(plant, protocol, rate_hz)['theta_rad'][index]
+
+
+class LimbReplay:
+    """The recorded stimulation replayed through the limb
+    (:func:`~hill_muscle_ros.model.limb.simulate_limb`), for any plant.
+
+    The recording becomes a limb protocol on the grid's instants: each step holds
+    the stimulation and torque of its start, as the limb node does, and the angle
+    of step k is the state after it, as ``joint_states`` shows it.
+
+    With ``jobs`` > 1 the plants of one :meth:`predict` (an evaluation's n + 1)
+    run in that many worker processes (forked once, kept until :meth:`close`);
+    each run is the same computation, so the angles are identical to one process's.
+
+    :param recording: the inputs and the joint angles to predict
+    :param jobs: worker processes, >= 1
+    """
+
+    def __init__(self, recording: LimbRecording, jobs: int = 1) -> None:
+        if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
+            raise ValueError(f'`jobs` must be a positive integer, got {jobs!r}')
+        self.jobs = jobs
+        self._pool = None
+        self.recording = recording
+        n = len(recording.external_torque_n_m)
+        t = sample_times((n - 1) / recording.rate_hz, recording.rate_hz)
+        stimulation = {
+            name: ('recruitment' if recording.stimulation_kind[name] == 'recruitment'
+                   else 'pulse_width_s', _held_knots(values, t))
+            for name, values in recording.stimulation.items()}
+        self.protocol = LimbProtocol(f'recording {recording.bag}', float(t[-1]), stimulation,
+                                     _held_knots(recording.external_torque_n_m, t))
+
+    def angle(self, plant: LimbPlant) -> np.ndarray:
+        """[rad] the joint angle at every grid instant, from the plant's initial state."""
+        return simulate_limb(plant, self.protocol, self.recording.rate_hz)['theta_rad']
+
+    def predict(self, plants: Sequence[LimbPlant]) -> np.ndarray:
+        """[rad] the joint angle at the recorded samples, one row per plant."""
+        from ...model import engine, limb_kernels
+        index = self.recording.sample_index
+        # One run of a short recording is below the compiled limb's threshold,
+        # an evaluation's n + 1 runs together often not: judged on them, the
+        # limb is loaded here, so every later run takes it (forked workers too).
+        steps = len(self.recording.external_torque_n_m) - 1
+        work = steps * sum(len(p.muscles) for p in plants)
+        if engine.use_compiled(work, limb_kernels.RUN_MIN_MUSCLE_STEPS, limb_kernels.loaded()):
+            limb_kernels.compiled()
+        try:
+            if self.jobs > 1 and len(plants) > 1:
+                return np.array(list(self._workers().map(_limb_worker_angle, plants)))
+            return np.array([self.angle(p)[index] for p in plants])
+        except ValueError as err:   # a muscle driven beyond its length range
+            raise FitError(f'the fit reached a plant the recording drives out of range: '
+                           f'{err}') from None
+
+    def _workers(self):
+        if self._pool is None:
+            import multiprocessing
+            from concurrent.futures import ProcessPoolExecutor
+            # fork: the workers start with the recording in memory, nothing to import.
+            self._pool = ProcessPoolExecutor(
+                self.jobs, mp_context=multiprocessing.get_context('fork'),
+                initializer=_limb_worker_init,
+                initargs=(self.protocol, self.recording.rate_hz, self.recording.sample_index))
+        return self._pool
+
+    def close(self) -> None:
+        """Stop the worker processes, if any."""
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None
+
+    def __enter__(self) -> 'LimbReplay':
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
