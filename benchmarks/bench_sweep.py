@@ -164,7 +164,7 @@ def run(runs: int) -> dict:
                                    for w in (0, CLUSTER_WORKERS)}
         out['throughput'][name]['warm'] = _warm_throughput(spec, runs)
         out['chunks'][name] = [len(r) for r in sweep.chunk_ranges(
-            len(spec.sets), CLUSTER_WORKERS, None, sweep._max_chunk(spec))]
+            len(spec.sets), CLUSTER_WORKERS, None, sweep.execution._max_chunk(spec))]
     out['limb'] = _limb_costs(runs)
     return out
 
