@@ -12,7 +12,8 @@ import pytest
 from matplotlib.image import imread
 
 from hill_muscle_ros.model import Protocol
-from hill_muscle_ros.tools import cli, figures
+from hill_muscle_ros.tools import cli
+from hill_muscle_ros.tools.figures import fes, paper, plotting
 
 HILL_MUSCLE = Path(sys.executable).with_name('hill-muscle')
 PNG_SIGNATURE = b'\x89PNG\r\n\x1a\n'
@@ -30,16 +31,16 @@ MIN_DISTINCT_COLOURS = 20
 
 @pytest.fixture(scope='module', autouse=True)
 def fatigue_data_once():
-    """``figures.fatigue_data`` computed once per rate for the module, on the
+    """``fes.fatigue_data`` computed once per rate for the module, on the
     engine the module was started with: the figures command (through
     ``write_fatigue_figure``) and the fatigue tests read the same data, as the
     command draws it. Its per-unit fitness profiles step a Python muscle
     through the 125 s protocol (1.4 s each time)."""
-    original = figures.fatigue_data
+    original = fes.fatigue_data
     engine_before = os.environ.get('HILL_MUSCLE_ENGINE')
     memo = {}
 
-    def once(rate_hz=figures.RATE_HZ):
+    def once(rate_hz=plotting.RATE_HZ):
         if rate_hz not in memo:
             with pytest.MonkeyPatch.context() as mp:
                 if engine_before is None:
@@ -50,7 +51,7 @@ def fatigue_data_once():
         return memo[rate_hz]
 
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(figures, 'fatigue_data', once)
+        mp.setattr(fes, 'fatigue_data', once)
         yield
 
 
@@ -81,8 +82,8 @@ def test_figures_command_writes_the_papers_four_the_five_fes_and_the_limb_figure
 
 def _declared_size_in(name):
     if name == 'fes_fatigue.png':
-        return figures.FATIGUE_FIGSIZE_IN
-    return figures.FES_FIGSIZE_IN if name.startswith('fes_') else figures.FIGSIZE_IN
+        return fes.FATIGUE_FIGSIZE_IN
+    return fes.FES_FIGSIZE_IN if name.startswith('fes_') else paper.FIGSIZE_IN
 
 
 @pytest.mark.parametrize('name', FIGURE_FILES + FES_FILES)
@@ -91,7 +92,7 @@ def test_each_figure_is_a_valid_png_of_the_declared_size(figure_dir, name):
     assert path.read_bytes()[:len(PNG_SIGNATURE)] == PNG_SIGNATURE
     image = imread(path)
     width_in, height_in = _declared_size_in(name)
-    assert image.shape[:2] == (round(height_in * figures.DPI), round(width_in * figures.DPI))
+    assert image.shape[:2] == (round(height_in * plotting.DPI), round(width_in * plotting.DPI))
 
 
 @pytest.mark.parametrize('name', FIGURE_FILES + FES_FILES)
@@ -105,27 +106,27 @@ def test_each_figure_is_not_blank(figure_dir, name):
 
 
 def test_figures_8_and_9_compare_single_and_multi_at_initial_length():
-    for spec in figures.FIGURES[:2]:
+    for spec in paper.FIGURES[:2]:
         assert {(v.units, v.length) for v in spec.variants} == {
             ('single', 'initial'), ('multi', 'initial')}
 
 
 def test_figures_10_and_11_show_all_four_variants():
-    for spec in figures.FIGURES[2:]:
+    for spec in paper.FIGURES[2:]:
         assert {(v.units, v.length) for v in spec.variants} == {
             (u, l) for u in ('single', 'multi') for l in ('initial', 'instantaneous')}
 
 
 def test_figures_use_protocols_I_and_II_in_the_papers_order():
-    assert [(s.number, s.protocol) for s in figures.FIGURES] == [
+    assert [(s.number, s.protocol) for s in paper.FIGURES] == [
         (8, 'I'), (9, 'II'), (10, 'I'), (11, 'II')]
-    assert tuple(s.filename for s in figures.FIGURES) == FIGURE_FILES
+    assert tuple(s.filename for s in paper.FIGURES) == FIGURE_FILES
 
 
 def test_coinciding_single_and_multi_curves_are_drawn_differently():
     """With instantaneous length single and multi overlie exactly; both must show."""
     for length in ('initial', 'instantaneous'):
-        single, multi = (next(v for v in figures.VARIANTS if (v.units, v.length) == (u, length))
+        single, multi = (next(v for v in plotting.VARIANTS if (v.units, v.length) == (u, length))
                          for u in ('single', 'multi'))
         assert single.linestyle != multi.linestyle
         assert multi.linewidth < single.linewidth
@@ -133,10 +134,10 @@ def test_coinciding_single_and_multi_curves_are_drawn_differently():
 
 @pytest.fixture(scope='module')
 def figure_11(protocol_paths):
-    spec = figures.FIGURES[3]
+    spec = paper.FIGURES[3]
     protocol = Protocol.from_yaml(protocol_paths[spec.protocol])
-    results = figures.simulate_variants(protocol, spec.variants, rate_hz=200.0)
-    return spec, results, figures.plot_figure(spec, protocol, results)
+    results = paper.simulate_variants(protocol, spec.variants, rate_hz=200.0)
+    return spec, results, paper.plot_figure(spec, protocol, results)
 
 
 def test_figure_plots_the_force_of_each_variant(figure_11):
@@ -163,7 +164,7 @@ def test_figure_input_panel_shows_recruitment_and_length_change(figure_11):
     inputs = results[spec.variants[0]]
     np.testing.assert_array_equal(ax_inputs.get_lines()[0].get_ydata(), inputs.recruitment)
     np.testing.assert_allclose(ax_dl.get_lines()[0].get_ydata(),
-                               inputs.dl_mt_m * figures.MM_PER_M)
+                               inputs.dl_mt_m * plotting.MM_PER_M)
 
 
 def test_figure_title_names_the_figure_and_protocol(figure_11):
@@ -197,7 +198,7 @@ def fl(x):
 
 
 def test_fes_figure_functions_return_the_paths_they_write(tmp_path):
-    path = figures.write_recruitment_curves_figure(tmp_path)
+    path = fes.write_recruitment_curves_figure(tmp_path)
     assert path == tmp_path / 'fes_recruitment_curves.png'
     assert path.stat().st_size > 0
 
@@ -206,7 +207,7 @@ def test_fes_figure_functions_return_the_paths_they_write(tmp_path):
 
 @pytest.fixture(scope='module')
 def curves():
-    return figures.recruitment_curve_data()
+    return fes.recruitment_curve_data()
 
 
 def test_exponential_curve_is_one_minus_1_over_e_at_threshold_plus_scale(curves):
@@ -235,10 +236,10 @@ def test_linear_curves_saturate_at_pw_max_and_threshold_linear_starts_at_thresho
 
 
 def test_recruitment_curve_figure_plots_the_data(curves):
-    fig = figures.plot_recruitment_curves(curves)
+    fig = fes.plot_recruitment_curves(curves)
     lines = [line for line in fig.axes[0].get_lines() if len(line.get_xdata()) > 2]
-    assert len(lines) == len(figures.CURVES)
-    for line, curve in zip(lines, figures.CURVES):
+    assert len(lines) == len(fes.CURVES)
+    for line, curve in zip(lines, fes.CURVES):
         np.testing.assert_array_equal(line.get_ydata(), curves.command[curve])
 
 
@@ -246,7 +247,7 @@ def test_recruitment_curve_figure_plots_the_data(curves):
 
 @pytest.fixture(scope='module')
 def activation():
-    return figures.activation_data()
+    return fes.activation_data()
 
 
 def test_activation_equals_its_closed_form_after_the_delay(activation):
@@ -254,31 +255,31 @@ def test_activation_equals_its_closed_form_after_the_delay(activation):
     then a_off exp(-(t - t_off - emd) / tau_deact)."""
     p = activation.params
     r = activation.results['initial']
-    u = 1.0 - math.exp(-(figures.ACT_PW_S - p.pw_threshold_s) / p.pw_scale_s)
-    t_up, t_down = figures.ACT_T_ON_S + p.emd_s, figures.ACT_T_OFF_S + p.emd_s
+    u = 1.0 - math.exp(-(fes.ACT_PW_S - p.pw_threshold_s) / p.pw_scale_s)
+    t_up, t_down = fes.ACT_T_ON_S + p.emd_s, fes.ACT_T_OFF_S + p.emd_s
     a_off = u * (1.0 - math.exp(-(t_down - t_up) / p.tau_act_s))
     t = r.t_s
     expected = np.where(t < t_up, 0.0,
                         np.where(t < t_down, u * (1.0 - np.exp(-(t - t_up) / p.tau_act_s)),
                                  a_off * np.exp(-(t - t_down) / p.tau_deact_s)))
     np.testing.assert_allclose(r.recruitment, expected, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(r.command[(t >= figures.ACT_T_ON_S) & (t < figures.ACT_T_OFF_S)],
+    np.testing.assert_allclose(r.command[(t >= fes.ACT_T_ON_S) & (t < fes.ACT_T_OFF_S)],
                                u, rtol=0, atol=1e-12)
 
 
 def test_no_force_before_the_delay_has_passed(activation):
     p = activation.params
     for r in activation.results.values():
-        before = r.t_s <= figures.ACT_T_ON_S + p.emd_s
+        before = r.t_s <= fes.ACT_T_ON_S + p.emd_s
         assert np.all(r.force_n[before] == 0.0)
-        assert r.force_n[r.at(figures.ACT_T_ON_S + p.emd_s + 0.05)] > 1.0
+        assert r.force_n[r.at(fes.ACT_T_ON_S + p.emd_s + 0.05)] > 1.0
 
 
 def test_stretch_during_recruitment_separates_initial_from_instantaneous_length(activation):
     """Rest length is on the descending limb of FL (1.25 l_opt): after the stretch the
     current CE is longer than where most units were recruited, so ``initial`` is higher."""
-    end_of_stretch = figures.ACT_STRETCH_KNOTS[-1][0]
-    initial, instantaneous = (activation.results[k].force_n for k in figures.ACT_LENGTHS)
+    end_of_stretch = fes.ACT_STRETCH_KNOTS[-1][0]
+    initial, instantaneous = (activation.results[k].force_n for k in fes.ACT_LENGTHS)
     i = activation.results['initial'].at(end_of_stretch)
     assert initial[i] > instantaneous[i] + 0.5
 
@@ -287,7 +288,7 @@ def test_stretch_during_recruitment_separates_initial_from_instantaneous_length(
 
 @pytest.fixture(scope='module')
 def fatigue():
-    return figures.fatigue_data(TEST_RATE_HZ)
+    return fes.fatigue_data(TEST_RATE_HZ)
 
 
 def tired_fitness_at_step(params, before_s=0.0):
@@ -296,19 +297,19 @@ def tired_fitness_at_step(params, before_s=0.0):
     recruited again until then."""
     mu_min, t_fat, t_rec = params.fatigue_min[0], params.tau_fatigue_s[0], params.tau_recovery_s[0]
     mu = 1.0
-    for i in range(figures.FATIGUE_TRAINS):
-        on_s = figures.FATIGUE_ON_S - (before_s if i == figures.FATIGUE_TRAINS - 1 else 0.0)
+    for i in range(fes.FATIGUE_TRAINS):
+        on_s = fes.FATIGUE_ON_S - (before_s if i == fes.FATIGUE_TRAINS - 1 else 0.0)
         mu = mu_min + (mu - mu_min) * math.exp(-on_s / t_fat)
-        if i < figures.FATIGUE_TRAINS - 1:
-            mu = 1.0 - (1.0 - mu) * math.exp(-(figures.FATIGUE_PERIOD_S - figures.FATIGUE_ON_S)
+        if i < fes.FATIGUE_TRAINS - 1:
+            mu = 1.0 - (1.0 - mu) * math.exp(-(fes.FATIGUE_PERIOD_S - fes.FATIGUE_ON_S)
                                              / t_rec)
     return mu
 
 
 def test_before_the_step_the_trained_units_are_tired_and_the_others_fresh(fatigue):
-    params = figures.fatigue_params('multi')
+    params = fes.fatigue_params('multi')
     profile = fatigue.profiles[fatigue.step_s]
-    m_low = int(params.n_units * figures.FATIGUE_PW_LOW_S / params.pw_max_s + 0.5)
+    m_low = int(params.n_units * fes.FATIGUE_PW_LOW_S / params.pw_max_s + 0.5)
     np.testing.assert_allclose(profile[:m_low], tired_fitness_at_step(params), rtol=0, atol=1e-9)
     assert np.all(profile[m_low:] == 1.0)
 
@@ -316,11 +317,11 @@ def test_before_the_step_the_trained_units_are_tired_and_the_others_fresh(fatigu
 def test_step_up_adds_fresh_units_to_the_per_unit_model(fatigue):
     """F0 just after the step = the tired units (recruited at rest length) + the added
     units at full fitness, recruited at the CE length of the step instant."""
-    p = figures.fatigue_params('multi')
+    p = fes.fatigue_params('multi')
     r = fatigue.results['multi']
     i = r.at(fatigue.step_s)
-    m_low = int(p.n_units * figures.FATIGUE_PW_LOW_S / p.pw_max_s + 0.5)
-    m_high = int(p.n_units * figures.FATIGUE_PW_HIGH_S / p.pw_max_s + 0.5)
+    m_low = int(p.n_units * fes.FATIGUE_PW_LOW_S / p.pw_max_s + 0.5)
+    m_high = int(p.n_units * fes.FATIGUE_PW_HIGH_S / p.pw_max_s + 0.5)
     tired = m_low * p.f_iso_max_n / p.n_units * fl(p.l_rest_m / p.l_opt_m)
     fresh = (m_high - m_low) * p.f_iso_max_n / p.n_units * fl(r.l_ce_m[i] / p.l_opt_m)
     dt = r.t_s[i] - r.t_s[i - 1]
@@ -331,11 +332,11 @@ def test_step_up_adds_fresh_units_to_the_per_unit_model(fatigue):
 def test_step_up_raises_force_per_recruitment_per_unit_but_not_whole_muscle(fatigue):
     """Whole-muscle fitness is one number: the units a step adds are as tired as the
     rest, F0 / R is continuous and the force grows with R. Per unit, they are fresh."""
-    r_ratio = figures.FATIGUE_PW_HIGH_S / figures.FATIGUE_PW_LOW_S
+    r_ratio = fes.FATIGUE_PW_HIGH_S / fes.FATIGUE_PW_LOW_S
     gain = {}
     for units, r in fatigue.results.items():
         i = r.at(fatigue.step_s)
-        per_r = figures.f0_per_recruitment(r)
+        per_r = fes.f0_per_recruitment(r)
         gain[units] = (per_r[i] / per_r[i - 1],
                        r.force_n[r.at(fatigue.step_s + 1.0)] / r.force_n[i - 1])
     assert gain['single'][0] == pytest.approx(1.0, abs=1e-3)
@@ -346,20 +347,20 @@ def test_step_up_raises_force_per_recruitment_per_unit_but_not_whole_muscle(fati
 
 def test_fitness_profiles_agree_with_the_simulated_mean_fitness(fatigue):
     r = fatigue.results['multi']
-    assert sorted(fatigue.profiles) == sorted(figures.FATIGUE_PROFILE_TIMES_S)
+    assert sorted(fatigue.profiles) == sorted(fes.FATIGUE_PROFILE_TIMES_S)
     for t, profile in fatigue.profiles.items():
         assert profile.mean() == pytest.approx(r.mean_fitness[r.at(t)], abs=1e-12)
 
 
 def test_whole_muscle_fitness_follows_riener_with_a_equal_to_r(fatigue):
     """First train: mu' = (mu_min - mu) a / T_fat + (1 - mu)(1 - a) / T_rec, a = 0.4."""
-    p = figures.fatigue_params('single')
-    a = figures.FATIGUE_PW_LOW_S / p.pw_max_s
+    p = fes.fatigue_params('single')
+    a = fes.FATIGUE_PW_LOW_S / p.pw_max_s
     rate_f, rate_r = a / p.tau_fatigue_s[0], (1.0 - a) / p.tau_recovery_s[0]
     lam = rate_f + rate_r
     mu_inf = (p.fatigue_min[0] * rate_f + rate_r) / lam
     r = fatigue.results['single']
-    i = r.at(figures.FATIGUE_ON_S)
+    i = r.at(fes.FATIGUE_ON_S)
     assert r.mean_fitness[i] == pytest.approx(
         mu_inf + (1.0 - mu_inf) * math.exp(-lam * r.t_s[i]), abs=1e-12)
 
@@ -368,7 +369,7 @@ def test_whole_muscle_fitness_follows_riener_with_a_equal_to_r(fatigue):
 
 @pytest.fixture(scope='module')
 def fibres():
-    return figures.fibre_data(TEST_RATE_HZ)
+    return fes.fibre_data(TEST_RATE_HZ)
 
 
 def _riener_recruited(t, mu_min, t_fat):
@@ -378,7 +379,7 @@ def _riener_recruited(t, mu_min, t_fat):
 def test_size_and_reverse_orders_tire_with_their_types_own_time_constant(fibres):
     """R = 0.5 recruits exactly the slow type in size order and the fast one in reverse,
     all at t = 0 and rest length, so F0 / F0(0) is that type's fitness."""
-    p = figures.fibre_params('size')
+    p = fes.fibre_params('size')
     for order, t_fat in (('size', p.tau_fatigue_s[0]), ('reverse', p.tau_fatigue_s[1])):
         r = fibres.results[order]
         np.testing.assert_allclose(r.eff_f_iso_n / r.eff_f_iso_n[0],
@@ -387,17 +388,17 @@ def test_size_and_reverse_orders_tire_with_their_types_own_time_constant(fibres)
 
 
 def test_fast_first_starts_twice_as_strong_as_slow_first(fibres):
-    w = figures.fibre_params('size').fibre_force_weights
+    w = fes.fibre_params('size').fibre_force_weights
     ratio = fibres.results['reverse'].eff_f_iso_n[0] / fibres.results['size'].eff_f_iso_n[0]
     assert ratio == pytest.approx(w[1] / w[0], rel=1e-12)
 
 
 def test_random_order_tires_as_the_mix_of_types_its_permutation_recruits(fibres):
-    p = figures.fibre_params('random')
+    p = fes.fibre_params('random')
     n = p.n_units
     types = np.repeat([0, 1], [n // 2, n - n // 2])[np.random.default_rng(
         p.recruitment_seed).permutation(n)]
-    m = int(n * figures.FIBRE_PW_S / p.pw_max_s + 0.5)
+    m = int(n * fes.FIBRE_PW_S / p.pw_max_s + 0.5)
     counts = np.bincount(types[:m], minlength=2)
     r = fibres.results['random']
     weighted = [counts[k] * p.fibre_force_weights[k] for k in (0, 1)]
@@ -410,7 +411,7 @@ def test_random_order_tires_as_the_mix_of_types_its_permutation_recruits(fibres)
 
 @pytest.fixture(scope='module')
 def fv():
-    return figures.fv_data()
+    return fes.fv_data()
 
 
 def test_last_unit_leaves_at_the_closed_form_instant(fv):
@@ -421,7 +422,7 @@ def test_last_unit_leaves_at_the_closed_form_instant(fv):
 
 def test_absolute_scaling_holds_the_force_then_drops_it_when_the_last_unit_leaves(fv):
     r = fv.results['absolute']
-    plateau = r.f_se_n[r.at(figures.FV_T_OFF_S)]
+    plateau = r.f_se_n[r.at(fes.FV_T_OFF_S)]
     drops = -np.diff(r.f_se_n)
     k = int(np.argmax(drops))
     assert r.t_s[k] < fv.release_s <= r.t_s[k + 1]
@@ -433,6 +434,6 @@ def test_absolute_scaling_holds_the_force_then_drops_it_when_the_last_unit_leave
 
 def test_relative_scaling_lets_the_force_decay_with_f0(fv):
     r = fv.results['relative']
-    plateau = r.f_se_n[r.at(figures.FV_T_OFF_S)]
-    assert r.f_se_n[r.at(figures.FV_T_OFF_S + 0.5)] < 0.05 * plateau
+    plateau = r.f_se_n[r.at(fes.FV_T_OFF_S)]
+    assert r.f_se_n[r.at(fes.FV_T_OFF_S + 0.5)] < 0.05 * plateau
     assert np.max(-np.diff(r.f_se_n)) < 0.05 * plateau

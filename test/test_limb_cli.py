@@ -316,8 +316,8 @@ STATIC_TOLERANCE_DEG = 0.5
 
 @pytest.fixture(scope='module')
 def limb_figure():
-    from hill_muscle_ros.tools import figures
-    return figures, figures.limb_data()
+    from hill_muscle_ros.tools.figures import limb
+    return limb, limb.limb_data()
 
 
 @pytest.mark.slow
@@ -326,17 +326,17 @@ def test_limb_figure_single_unit_end_angles_are_the_static_balances(limb_figure)
     angle is where R mu f_iso_max FL balances the passive torque, with FL at the
     length stored when R rose from 0 (initial) or at the current CE length
     (instantaneous, the tendon's stretch F / k_SE included)."""
-    figures, data = limb_figure
+    limb, data = limb_figure
     plant, _ = load_plant(KNEE)
     q = plant.muscles[0]
     p = q.params
-    for variant in figures.VARIANTS:
+    for variant in limb.VARIANTS:
         if variant.units != 'single':
             continue
         r = data.results[variant]
         k = int(np.argmin(np.abs(r.t_s - data.compare_s)))
         rec = r['quadriceps_recruitment']
-        mu = riener_whole_muscle_fitness(r.t_s, rec, figures.limb_variant_plant(
+        mu = riener_whole_muscle_fitness(r.t_s, rec, limb.limb_variant_plant(
             plant, 'single', variant.length).muscles[0].params)
         scale = rec[k] * mu[k] * p.f_iso_max_n
         if variant.length == 'initial':
@@ -360,8 +360,8 @@ def test_limb_figure_single_unit_end_angles_are_the_static_balances(limb_figure)
 
 @pytest.mark.slow
 def test_limb_figure_initial_length_ends_far_above_instantaneous(limb_figure):
-    figures, data = limb_figure
-    single_initial, multi_initial, single_inst, multi_inst = figures.VARIANTS
+    limb, data = limb_figure
+    single_initial, multi_initial, single_inst, multi_inst = limb.VARIANTS
     # The paper's point in motion: units recruited on the long, hanging CE keep
     # FL of that length (0.86) with initial memory; with the instantaneous length
     # FL falls to 0.45 as the knee extends.
@@ -378,8 +378,8 @@ def test_limb_figure_initial_length_ends_far_above_instantaneous(limb_figure):
 
 @pytest.mark.slow
 def test_limb_figure_is_written_by_the_figures_command(tmp_path, limb_figure):
-    figures, data = limb_figure
-    path = figures.write_limb_figure(tmp_path, data=data)
+    limb, data = limb_figure
+    path = limb.write_limb_figure(tmp_path, data=data)
     assert path == tmp_path / 'limb_knee.png'
     with Image.open(path) as png:
         assert png.format == 'PNG' and png.size == (800, 800)

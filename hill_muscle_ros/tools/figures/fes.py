@@ -1,21 +1,13 @@
-"""The paper's Figures 8-11, reproduced from the offline model, and the figures
-of the FES extensions (doc/model.md section 7).
-
-Each of the paper's figures shows the muscle force against time for the model
-variants its caption names, with the inputs (recruitment R and MTU length
-change dl_MT) in a panel below. The FES figures each make one point of the
-extensions: the recruitment curves, the delay and activation, per-unit versus
+"""The figures of the FES extensions (doc/model.md section 7), each making one
+point: the recruitment curves, the delay and activation, per-unit versus
 whole-muscle fatigue, the recruitment order of fibre types, and the scaling of
-the force-velocity constants. Each FES figure has a data function (the
-simulation behind it, which the tests check), a plot function and a function
-that writes the PNG and returns its path.
+the force-velocity constants.
 
-Figures are drawn with matplotlib's object API on the Agg canvas, so no
-display and no global pyplot state are needed.
+Each has a data function (the simulation behind it, which the tests check), a
+plot function and a function that writes the PNG and returns its path.
 """
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,177 +15,10 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
-from .. import resources
-from ..model import Muscle, MuscleParams, Protocol, SimulationResult, simulate
-from ..model.limb import LimbPlant, LimbProtocol, LimbResult, simulate_limb
-from ..model.simulate import sample_times
-from ..model.stimulus import command_from_pulse_width
-from ..params_file import load_plant
-
-#: [dots per inch] keeps each PNG small (about 100 kB) yet readable.
-DPI = 100
-#: [inch] figure size (width, height).
-FIGSIZE_IN = (8.0, 6.4)
-#: Relative heights of the force panel and the input panel.
-HEIGHT_RATIOS = (3, 1.5)
-#: [Hz] step rate of the simulations behind the figures (the paper's 1 ms).
-RATE_HZ = 1000.0
-#: Plot dl_MT in millimetres, as the paper does; the data stay in metres.
-MM_PER_M = 1000.0
-#: Axis ranges of the input panel: offset from each other so that R = 1 and
-#: dl_MT = 10 mm (or both at zero) do not draw on top of each other, with
-#: headroom above the curves for the legend.
-R_AXIS_LIMITS = (-0.05, 1.6)
-R_TICKS = (0.0, 0.5, 1.0)
-DL_AXIS_LIMITS_MM = (-1.5, 19.0)
-DL_TICKS_MM = (0.0, 5.0, 10.0)
-DL_LABEL = r'$\Delta L_\mathrm{MT}$'
-
-
-@dataclass(frozen=True)
-class Variant:
-    """One of the four model variants and how its curve is drawn.
-
-    Single-unit curves are wide and solid, multi-unit curves narrow and dashed
-    on top of them, so curves that coincide (always so with instantaneous
-    length) stay visible as a dashed line over a solid one.
-    """
-
-    units: str
-    length: str
-    color: str
-    linestyle: str
-    linewidth: float
-
-    @property
-    def label(self) -> str:
-        unit_text = 'single unit' if self.units == 'single' else 'multiple units'
-        return f'{unit_text}, {self.length} length'
-
-
-VARIANTS = (
-    Variant('single', 'initial', 'tab:blue', '-', 3.0),
-    Variant('multi', 'initial', 'tab:orange', '--', 1.6),
-    Variant('single', 'instantaneous', 'tab:green', '-', 3.0),
-    Variant('multi', 'instantaneous', 'tab:red', (0, (2, 2)), 1.6),
-)
-_INITIAL = tuple(v for v in VARIANTS if v.length == 'initial')
-
-
-@dataclass(frozen=True)
-class FigureSpec:
-    """One of the paper's figures: its file, the protocol and the curves.
-
-    :param filename: PNG file name
-    :param number: the paper's figure number
-    :param protocol: ``I`` or ``II``
-    :param variants: the curves the caption names
-    :param subtitle: what the figure compares
-    """
-
-    filename: str
-    number: int
-    protocol: str
-    variants: tuple[Variant, ...]
-    subtitle: str
-
-    @property
-    def title(self) -> str:
-        return f'Figure {self.number}: Protocol {self.protocol}, {self.subtitle}'
-
-
-FIGURES = (
-    FigureSpec('fig08_protocol_I_initial.png', 8, 'I', _INITIAL,
-               'single vs multiple motor units (initial length)'),
-    FigureSpec('fig09_protocol_II_initial.png', 9, 'II', _INITIAL,
-               'single vs multiple motor units (initial length)'),
-    FigureSpec('fig10_protocol_I_all.png', 10, 'I', VARIANTS, 'all four model variants'),
-    FigureSpec('fig11_protocol_II_all.png', 11, 'II', VARIANTS, 'all four model variants'),
-)
-
-
-def simulate_variants(protocol: Protocol, variants: tuple[Variant, ...],
-                      params: MuscleParams | None = None,
-                      rate_hz: float = RATE_HZ) -> dict[Variant, SimulationResult]:
-    """Run ``protocol`` once per variant.
-
-    :param params: the other muscle parameters (the paper's if omitted)
-    :param rate_hz: [Hz] step rate
-    """
-    base = params if params is not None else MuscleParams()
-    return {v: simulate(protocol, base.replace(units=v.units, length=v.length), rate_hz)
-            for v in variants}
-
-
-def plot_figure(spec: FigureSpec, protocol: Protocol,
-                results: dict[Variant, SimulationResult]) -> Figure:
-    """Draw one figure: force against time above, the inputs below."""
-    fig = Figure(figsize=FIGSIZE_IN, dpi=DPI, layout='constrained')
-    ax_force, ax_r = fig.subplots(2, 1, sharex=True,
-                                  gridspec_kw={'height_ratios': HEIGHT_RATIOS})
-    for variant in spec.variants:
-        r = results[variant]
-        ax_force.plot(r.t_s, r.force_n, label=variant.label, color=variant.color,
-                      linestyle=variant.linestyle, linewidth=variant.linewidth)
-    ax_force.set_ylabel('muscle force [N]')
-    ax_force.set_title(spec.title)
-    ax_force.set_ylim(bottom=0.0)
-    ax_force.grid(True, alpha=0.3)
-    ax_force.legend(loc='lower center', fontsize='small')
-
-    # The inputs are the same for every variant.
-    inputs = results[spec.variants[0]]
-    ax_dl = ax_r.twinx()
-    line_r = ax_r.plot(inputs.t_s, inputs.recruitment, color='black', linewidth=1.5,
-                       label='recruitment R')
-    line_dl = ax_dl.plot(inputs.t_s, inputs.dl_mt_m * MM_PER_M, color='tab:purple',
-                         linestyle='--', linewidth=1.5, label=f'MTU length change {DL_LABEL}')
-    ax_r.set_ylabel('recruitment R [-]')
-    ax_r.set_ylim(*R_AXIS_LIMITS)
-    ax_r.set_yticks(R_TICKS)
-    ax_dl.set_ylim(*DL_AXIS_LIMITS_MM)
-    ax_dl.set_yticks(DL_TICKS_MM)
-    ax_dl.set_ylabel(f'{DL_LABEL} [mm]', color='tab:purple')
-    ax_dl.tick_params(axis='y', colors='tab:purple')
-    ax_r.set_xlabel('time [s]')
-    ax_r.set_xlim(0.0, protocol.duration_s)
-    ax_r.grid(True, alpha=0.3)
-    ax_r.legend(handles=line_r + line_dl, loc='upper center', ncols=2, fontsize='small')
-    return fig
-
-
-def write_figures(out_dir: str | Path, params: MuscleParams | None = None,
-                  rate_hz: float = RATE_HZ) -> list[Path]:
-    """Write the PNGs of Figures 8-11 and of the FES extensions into ``out_dir``.
-
-    The directory is created if missing.
-
-    :param params: muscle parameters of Figures 8-11 other than the variant
-        (the paper's if omitted); the FES figures bring their own
-    :param rate_hz: [Hz] step rate of the simulations
-    :return: the paths written: Figures 8-11 in order, then the FES figures and the
-        limb figure
-    """
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    protocols = {name: Protocol.from_yaml(resources.protocol_path(name))
-                 for name in sorted({spec.protocol for spec in FIGURES})}
-    results = {name: simulate_variants(p, VARIANTS, params, rate_hz)
-               for name, p in protocols.items()}
-    paths = []
-    for spec in FIGURES:
-        fig = plot_figure(spec, protocols[spec.protocol], results[spec.protocol])
-        path = out / spec.filename
-        fig.savefig(path, dpi=DPI)
-        paths.append(path)
-    paths.extend(write_fes_figures(out, rate_hz))
-    paths.append(write_limb_figure(out, rate_hz))
-    return paths
-
-
-# =============================================================================
-# FES extensions (doc/model.md section 7)
-# =============================================================================
+from ...model import Muscle, MuscleParams, Protocol, SimulationResult, simulate
+from ...model.simulate import sample_times
+from ...model.stimulus import command_from_pulse_width
+from .plotting import DL_LABEL, DPI, MM_PER_M, RATE_HZ, US_PER_S, save_figure
 
 #: [inch] size of the FES figures (width, height); the fatigue figure is taller.
 FES_FIGSIZE_IN = (8.0, 7.2)
@@ -201,8 +26,7 @@ FATIGUE_FIGSIZE_IN = (8.0, 11.2)
 #: File names of the FES figures, in the order they are written.
 FES_FIGURE_FILES = ('fes_recruitment_curves.png', 'fes_activation.png', 'fes_fatigue.png',
                     'fes_fibre_types.png', 'fes_fv_scaling.png')
-#: Plot pulse widths in microseconds; the data stay in seconds.
-US_PER_S = 1.0e6
+
 
 #: [s] Threshold pd0 and scale pdt of Ding et al. (2007)'s exponential
 #: recruitment curve (131.405 us and 194.138 us in cocofest's ding2007 model).
@@ -221,16 +45,6 @@ def _train(t_on_s: float, t_off_s: float, pulse_width_s: float) -> list:
     """Knots of one stimulation train: 0 before ``t_on_s``, PW until ``t_off_s``, 0 after."""
     return [[t_on_s, 0.0], [t_on_s, pulse_width_s], [t_off_s, pulse_width_s], [t_off_s, 0.0]]
 
-
-def _save(fig: Figure, out_dir: str | Path, filename: str) -> Path:
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    path = out / filename
-    fig.savefig(path, dpi=DPI)
-    return path
-
-
-# --------------------------------------------------------------- recruitment curves
 
 #: The recruitment curves, in the order drawn.
 CURVES = ('linear', 'threshold_linear', 'exponential')
@@ -311,11 +125,9 @@ def plot_recruitment_curves(data: CurveData) -> Figure:
 
 def write_recruitment_curves_figure(out_dir: str | Path) -> Path:
     """Write ``fes_recruitment_curves.png``; return its path."""
-    return _save(plot_recruitment_curves(recruitment_curve_data()), out_dir,
+    return save_figure(plot_recruitment_curves(recruitment_curve_data()), out_dir,
                  FES_FIGURE_FILES[0])
 
-
-# --------------------------------------------------------------- activation
 
 #: [s] The activation figure's stimulation: pulse width ACT_PW_S from ACT_T_ON_S
 #: to ACT_T_OFF_S, then nothing until ACT_DURATION_S.
@@ -411,10 +223,8 @@ def plot_activation(data: ActivationData) -> Figure:
 
 def write_activation_figure(out_dir: str | Path, rate_hz: float = RATE_HZ) -> Path:
     """Write ``fes_activation.png``; return its path."""
-    return _save(plot_activation(activation_data(rate_hz)), out_dir, FES_FIGURE_FILES[1])
+    return save_figure(plot_activation(activation_data(rate_hz)), out_dir, FES_FIGURE_FILES[1])
 
-
-# --------------------------------------------------------------- fatigue
 
 #: [s] The intermittent protocol: a train of FATIGUE_ON_S every FATIGUE_PERIOD_S,
 #: FATIGUE_TRAINS times (two minutes); the last train does not stop: at its
@@ -594,10 +404,8 @@ def plot_fatigue(data: FatigueData) -> Figure:
 
 def write_fatigue_figure(out_dir: str | Path, rate_hz: float = RATE_HZ) -> Path:
     """Write ``fes_fatigue.png``; return its path."""
-    return _save(plot_fatigue(fatigue_data(rate_hz)), out_dir, FES_FIGURE_FILES[2])
+    return save_figure(plot_fatigue(fatigue_data(rate_hz)), out_dir, FES_FIGURE_FILES[2])
 
-
-# --------------------------------------------------------------- fibre types
 
 #: The recruitment orders compared.
 FIBRE_ORDERS = ('size', 'reverse', 'random')
@@ -675,10 +483,8 @@ def plot_fibre_types(data: FibreData) -> Figure:
 
 def write_fibre_types_figure(out_dir: str | Path, rate_hz: float = RATE_HZ) -> Path:
     """Write ``fes_fibre_types.png``; return its path."""
-    return _save(plot_fibre_types(fibre_data(rate_hz)), out_dir, FES_FIGURE_FILES[3])
+    return save_figure(plot_fibre_types(fibre_data(rate_hz)), out_dir, FES_FIGURE_FILES[3])
 
-
-# --------------------------------------------------------------- fv_scaling
 
 #: The two scalings of the force-velocity constants compared.
 FV_SCALINGS = ('absolute', 'relative')
@@ -778,7 +584,7 @@ def plot_fv_scaling(data: FvData) -> Figure:
 
 def write_fv_scaling_figure(out_dir: str | Path, rate_hz: float = RATE_HZ) -> Path:
     """Write ``fes_fv_scaling.png``; return its path."""
-    return _save(plot_fv_scaling(fv_data(rate_hz)), out_dir, FES_FIGURE_FILES[4])
+    return save_figure(plot_fv_scaling(fv_data(rate_hz)), out_dir, FES_FIGURE_FILES[4])
 
 
 def write_fes_figures(out_dir: str | Path, rate_hz: float = RATE_HZ) -> list[Path]:
@@ -792,124 +598,3 @@ def write_fes_figures(out_dir: str | Path, rate_hz: float = RATE_HZ) -> list[Pat
             write_fatigue_figure(out_dir, rate_hz),
             write_fibre_types_figure(out_dir, rate_hz),
             write_fv_scaling_figure(out_dir, rate_hz)]
-
-
-# =============================================================================
-# The limb (doc/model.md section 9)
-# =============================================================================
-
-#: File name of the limb figure.
-LIMB_FIGURE_FILE = 'limb_knee.png'
-#: [inch] size of the limb figure (width, height).
-LIMB_FIGSIZE_IN = (8.0, 8.0)
-#: The knee plant and the stimulation of the limb figure (config/).
-LIMB_PLANT_FILE = 'knee.yaml'
-LIMB_PROTOCOL_FILE = 'knee_ramp.yaml'
-#: The stimulated muscle whose model variant changes.
-LIMB_MUSCLE = 'quadriceps'
-#: [s] The instant at which the angles are compared: the end of the last hold,
-#: just before the stimulation stops (config/protocols/knee_ramp.yaml).
-LIMB_COMPARE_S = 5.99
-
-
-@dataclass(frozen=True)
-class LimbData:
-    """The knee under one stimulation, in the four model variants of its quadriceps.
-
-    :param protocol: the limb protocol
-    :param results: variant -> limb simulation
-    :param compare_s: [s] instant at which the end angles are compared
-    """
-
-    protocol: LimbProtocol
-    results: dict[Variant, LimbResult]
-    compare_s: float
-
-    def angle_deg(self, variant: Variant) -> float:
-        """[deg] the variant's knee angle at :attr:`compare_s`."""
-        r = self.results[variant]
-        k = int(np.argmin(np.abs(r.t_s - self.compare_s)))
-        return math.degrees(float(r['theta_rad'][k]))
-
-    def spread_deg(self, a: Variant, b: Variant) -> float:
-        """[deg] how far apart two variants' angles end up (a - b)."""
-        return self.angle_deg(a) - self.angle_deg(b)
-
-
-def limb_variant_plant(plant: LimbPlant, units: str, length: str) -> LimbPlant:
-    """The plant with its quadriceps in one model variant.
-
-    The single unit has one fibre type, so every variant gets one, with
-    Riener's whole-muscle fatigue constant (30 s): the four differ only in
-    ``units`` and ``length``.
-    """
-    muscles = []
-    for m in plant.muscles:
-        if m.name == LIMB_MUSCLE:
-            p = m.params.replace(units=units, length=length, fibre_fractions=(1.0,),
-                                 fibre_force_weights=(1.0,), tau_fatigue_s=(30.0,))
-            m = dataclasses.replace(m, params=p)
-        muscles.append(m)
-    return LimbPlant(plant.joint, tuple(muscles))
-
-
-def limb_data(rate_hz: float = RATE_HZ) -> LimbData:
-    """Simulate the knee figure's stimulation in the four variants (about 10 s)."""
-    plant, _ = load_plant(resources.config_dir() / LIMB_PLANT_FILE)
-    protocol = LimbProtocol.from_yaml(resources.config_dir() / 'protocols' / LIMB_PROTOCOL_FILE)
-    results = {v: simulate_limb(limb_variant_plant(plant, v.units, v.length), protocol, rate_hz)
-               for v in VARIANTS}
-    return LimbData(protocol, results, LIMB_COMPARE_S)
-
-
-def plot_limb(data: LimbData) -> Figure:
-    """Knee angle of the four variants, the quadriceps' force, and the stimulation below."""
-    fig = Figure(figsize=LIMB_FIGSIZE_IN, dpi=DPI, layout='constrained')
-    ax_th, ax_f, ax_pw = fig.subplots(3, 1, sharex=True,
-                                      gridspec_kw={'height_ratios': (3, 2, 1.5)})
-    for v in VARIANTS:
-        r = data.results[v]
-        style = {'color': v.color, 'linestyle': v.linestyle, 'linewidth': v.linewidth}
-        ax_th.plot(r.t_s, np.degrees(r['theta_rad']), label=v.label, **style)
-        ax_f.plot(r.t_s, r[f'{LIMB_MUSCLE}_force_n'], **style)
-    single_initial, multi_initial, single_inst, multi_inst = VARIANTS
-    ax_th.set_title(f'Knee under FES, the same stimulation: at {data.compare_s:g} s the angle '
-                    f'with initial length\nis {data.spread_deg(multi_initial, multi_inst):.1f}'
-                    f' deg above instantaneous with multiple units, '
-                    f'{data.spread_deg(single_initial, single_inst):.1f} deg with a single '
-                    f'unit', fontsize='medium')
-    ax_th.axhline(90.0, color='grey', linestyle=':', linewidth=1.0)
-    ax_th.text(0.05, 91.0, 'horizontal', color='grey', fontsize='small', va='bottom')
-    ax_th.axvline(data.compare_s, color='grey', linestyle=':', linewidth=1.0)
-    ax_th.set_ylabel('knee angle from hanging [deg]')
-    ax_th.grid(True, alpha=0.3)
-    ax_th.legend(loc='lower left', fontsize='small')
-    ax_f.set_ylabel(f'{LIMB_MUSCLE} force [N]')
-    ax_f.set_ylim(bottom=0.0)
-    ax_f.grid(True, alpha=0.3)
-
-    r = data.results[multi_initial]
-    key, knots = data.protocol.stimulation[LIMB_MUSCLE]
-    ax_pw.plot(r.t_s, np.asarray(knots(r.t_s)) * US_PER_S, color='black', linewidth=1.2,
-               label='pulse width')
-    ax_pw.set_ylabel('PW [us]')
-    ax_r = ax_pw.twinx()
-    ax_r.plot(r.t_s, r[f'{LIMB_MUSCLE}_recruitment'], color='tab:blue', linewidth=1.2,
-              label='recruitment R (activation)')
-    ax_r.set_ylabel('R [-]', color='tab:blue')
-    ax_r.tick_params(axis='y', colors='tab:blue')
-    ax_r.set_ylim(0.0, 1.0)
-    ax_pw.set_xlabel('time [s]')
-    ax_pw.set_xlim(0.0, data.protocol.duration_s)
-    ax_pw.grid(True, alpha=0.3)
-    return fig
-
-
-def write_limb_figure(out_dir: str | Path, rate_hz: float = RATE_HZ,
-                      data: LimbData | None = None) -> Path:
-    """Write ``limb_knee.png``; return its path.
-
-    :param data: the simulations to draw (:func:`limb_data` at ``rate_hz`` if omitted)
-    """
-    return _save(plot_limb(data if data is not None else limb_data(rate_hz)), out_dir,
-                 LIMB_FIGURE_FILE)
