@@ -163,7 +163,8 @@ def load_compiled_limb() -> None:
     no copy, and the node then loads that copy in about a second instead of
     compiling within its start-up deadline. A failure is the node's to report
     (it falls back to the Python limb)."""
-    from .model import engine, limb_kernels
+    from .model import engine
+    from .model.limb import kernels as limb_kernels
     try:
         if engine.choice() != engine.COMPILED:
             return

@@ -339,7 +339,7 @@ def test_knee_make_vec_uses_the_native_vector_env_and_equals_k_single_envs_exact
                                   episode_duration_s=0.1, hold_min_s=0.04, hold_max_s=0.06,
                                   engine=engine)
     assert type(vec.unwrapped) is KneeAngleVectorEnv
-    assert vec.unwrapped.batch.engine == engine
+    assert vec.unwrapped.batch.build == engine
 
 
 @pytest.mark.parametrize('engine', ['compiled', 'python'])
@@ -352,13 +352,13 @@ def test_knee_make_vec_with_options_equals_k_single_envs_exactly(engine):
 
 def test_knee_engine_default_follows_the_environment_variable(monkeypatch):
     from hill_muscle_ros.model import engine as engines
-    from hill_muscle_ros.model.limb_kernels import CompiledLimb
     monkeypatch.setenv(engines.ENV_VAR, 'python')
     env = KneeAngleEnv()
-    assert (env.engine, type(env.limb)) == ('python', Limb)
+    assert (env.engine, env.limb.build) == ('python', 'python')
     monkeypatch.setenv(engines.ENV_VAR, 'compiled')
     env = KneeAngleEnv()
-    assert (env.engine, type(env.limb)) == ('compiled', CompiledLimb)
+    assert (env.engine, env.limb.build) == ('compiled', 'compiled')
+    assert type(env.limb) is Limb
 
 
 def test_knee_engine_option_rejects_an_unknown_engine():
@@ -368,7 +368,7 @@ def test_knee_engine_option_rejects_an_unknown_engine():
 
 
 def test_knee_compiled_and_python_engines_give_the_same_episode():
-    # The compiled limb against Limb (the reference): the angle to 1e-9 rad.
+    # The limb's kernels compiled and as plain Python: the angle to 1e-9 rad.
     envs = [KneeAngleEnv(engine=e, control_period_s=0.02) for e in ('compiled', 'python')]
     for env in envs:
         env.reset(seed=3)
@@ -489,14 +489,19 @@ def test_force_vector_env_with_observe_fitness_equals_single_envs():
 
 
 def test_knee_variant_and_features_options_reach_every_muscle():
-    env = KneeAngleEnv(units='single', length='instantaneous', fes_features=False,
-                       engine='python')
+    from hill_muscle_ros.model.fes_kernels import I_INITIAL, I_MULTI
+    env = KneeAngleEnv(units='single', length='instantaneous', fes_features=False)
     for m in env.plant.muscles:
         p = m.params
         assert (p.units, p.length, p.fes_defaults) == ('single', 'instantaneous', True)
         assert p.recruitment_curve == 'exponential'   # the curve stays the preset's
-    assert [type(m) for m in env.limb.muscles] == [FesMuscle, FesMuscle]  # the limb's engine
-    assert [m.params for m in env.limb.muscles] == [m.params for m in env.plant.muscles]
+    # The limb's state holds those muscles: their parameters, and the variant
+    # its kernels branch on.
+    bundle = env.limb.arrays.bundle
+    assert env.limb.plant is env.plant
+    assert bundle.params == [m.params for m in env.plant.muscles]
+    for i in range(len(env.plant.muscles)):
+        assert (bundle.view(i, 'ip')[I_MULTI], bundle.view(i, 'ip')[I_INITIAL]) == (0, 0)
 
 
 def test_knee_overrides_apply_to_all_muscles_and_muscle_overrides_to_one():

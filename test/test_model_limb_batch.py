@@ -90,9 +90,7 @@ def test_batch_equals_separate_limbs_to_1e_9_on_random_settings_and_pulse_widths
         for k, limb in enumerate(limbs):
             want = limb.step(commands(k, j), float(torque[j, k]), DT_S)
             if at_sample and j + 1 < len(pw):
-                for m, u in zip(limb.muscles, commands(k, j + 1)):
-                    if u != m.command:
-                        m.give_command(u)
+                limb.give_commands(commands(k, j + 1))   # each that differs, now
                 want = limb.outputs()
             assert out.t_s == pytest.approx(want.t_s, abs=1e-15)
             assert abs(out.theta_rad[k] - want.theta_rad) <= ATOL_RAD
@@ -103,6 +101,21 @@ def test_batch_equals_separate_limbs_to_1e_9_on_random_settings_and_pulse_widths
             np.testing.assert_array_equal(out.recruitment[k], want.recruitment)
 
 
+def _assert_batch_runs_each_plant_as_simulate_limb(plants, proto, rate_hz, indices):
+    """simulate_limb_batch's angles and forces at ``indices`` are each plant's
+    simulate_limb's, to 1e-9."""
+    theta, force = simulate_limb_batch(plants, proto, rate_hz, indices)
+    assert theta.shape == (len(plants), len(indices))
+    assert force.shape == (len(plants), 2, len(indices))
+    for k, plant in enumerate(plants):
+        want = simulate_limb(plant, proto, rate_hz)
+        np.testing.assert_allclose(theta[k], want['theta_rad'][indices], rtol=0, atol=ATOL_RAD)
+        for i, m in enumerate(plant.muscles):
+            np.testing.assert_allclose(force[k, i], want[f'{m.name}_force_n'][indices],
+                                       rtol=0, atol=ATOL_N)
+    return theta
+
+
 @pytest.mark.parametrize('preset, protocol', [
     ('knee', 'knee_ramp.yaml'), ('knee', 'knee_extension.yaml')])
 def test_simulate_limb_batch_equals_simulate_limb_per_plant(preset, protocol):
@@ -110,17 +123,22 @@ def test_simulate_limb_batch_equals_simulate_limb_per_plant(preset, protocol):
               for f, s, kj in ((1.0, 1.0, 1.0), (0.6, 1.7, 1.0), (1.3, 0.8, 2.0))]
     proto = LimbProtocol.from_yaml(config_dir() / 'protocols' / protocol)
     # Every 250 ms to 2.5 s: the ramp's recruitment and the extension's rise.
-    indices = list(range(0, 2501, 250))
-    theta, force = simulate_limb_batch(plants, proto, 1000.0, indices)
-    assert theta.shape == (3, len(indices)) and force.shape == (3, 2, len(indices))
-    for k, plant in enumerate(plants):
-        want = simulate_limb(plant, proto, 1000.0)
-        np.testing.assert_allclose(theta[k], want['theta_rad'][indices], rtol=0, atol=ATOL_RAD)
-        for i, m in enumerate(plant.muscles):
-            np.testing.assert_allclose(force[k, i], want[f'{m.name}_force_n'][indices],
-                                       rtol=0, atol=ATOL_N)
+    theta = _assert_batch_runs_each_plant_as_simulate_limb(plants, proto, 1000.0,
+                                                            list(range(0, 2501, 250)))
     # The plants do differ: a batch that ran one plant K times would fail above.
     assert np.ptp(theta[:, -1]) > 0.05
+
+
+def test_simulate_limb_batch_below_1_khz_takes_the_substeps_of_simulate_limb():
+    # At 100 Hz each step is ten substeps of 1 ms with the sample's inputs held,
+    # as simulate_limb (and Limb.step) takes it: the same angles and forces
+    # (one step of 10 ms was 3e-4 rad and 1.4 N off on this ramp).
+    plants = [varied(PRESETS['knee'], f, 1.0, 1.0, 0.0) for f in (1.0, 0.7)]
+    proto = LimbProtocol.from_yaml(config_dir() / 'protocols' / 'knee_ramp.yaml')
+    # The 7 s ramp, every quarter second.
+    theta = _assert_batch_runs_each_plant_as_simulate_limb(plants, proto, 100.0,
+                                                            list(range(0, 701, 25)))
+    assert np.ptp(theta[:, -1]) > 0.01
 
 
 def test_plants_with_other_muscles_are_refused_by_name():

@@ -16,13 +16,15 @@ COMPILE_TIMEOUT_S = 300.0
 
 
 def _builders_in_the_model() -> set[tuple[str, str]]:
-    """(module, function) of every top-level ``compiled*`` function of the model:
+    """(module, function) of every top-level ``compiled*`` function of the model
+    and its subpackages (the module dotted from the model, ``limb.kernels``):
     the functions that build a kernel set with numba."""
     found = set()
-    for path in MODEL.glob('*.py'):
+    for path in MODEL.rglob('*.py'):
+        module = '.'.join(path.relative_to(MODEL).with_suffix('').parts)
         for node in ast.parse(path.read_text(encoding='utf-8')).body:
             if isinstance(node, ast.FunctionDef) and node.name.startswith('compiled'):
-                found.add((path.stem, node.name))
+                found.add((module, node.name))
     return found
 
 

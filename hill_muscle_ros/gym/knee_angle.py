@@ -1,8 +1,7 @@
 """``hill_muscle_ros/KneeAngle-v0``: track a knee angle with the stimulated
 quadriceps and hamstrings of the knee preset.
 
-The plant is :class:`~hill_muscle_ros.model.limb.Limb` (or the compiled limb,
-``engine``) on ``config/knee.yaml``
+The plant is :class:`~hill_muscle_ros.model.limb.Limb` on ``config/knee.yaml``
 (or any plant file or :class:`~hill_muscle_ros.model.limb.LimbPlant`); each
 muscle's pulse width goes through its own recruitment curve
 (:func:`~hill_muscle_ros.model.stimulus.command_from_pulse_width`). Nothing
@@ -19,8 +18,7 @@ import numpy as np
 from gymnasium import spaces
 
 from ..model import engine as engines
-from ..model.limb import LimbPlant
-from ..model.limb_kernels import CompiledLimb, make_limb
+from ..model.limb import Limb, LimbPlant
 from ..model.stimulus import command_from_pulse_width
 from ._common import (MODEL_DT_S, TrackingEnv, check_pulse_widths, hold_lengths,
                       muscle_variant, piecewise_constant)
@@ -134,10 +132,9 @@ class KneeAngleEnv(TrackingEnv):
     :param hold_min_s: [s] shortest hold of a target
     :param hold_max_s: [s] longest hold of a target
     :param render_mode: only ``None`` (no rendering)
-    :param engine: the limb's engine, ``'compiled'`` (the compiled limb,
-        :class:`~hill_muscle_ros.model.limb_kernels.CompiledLimb`) or
-        ``'python'`` (:class:`~hill_muscle_ros.model.limb.Limb`); the same
-        trajectories to 1e-9 rad. ``None``: :func:`hill_muscle_ros.model.engine.choice`
+    :param engine: the build of the limb's kernels, ``'compiled'`` (numba's) or
+        ``'python'`` (the same functions as plain Python); the same trajectories
+        to 1e-9 rad. ``None``: :func:`hill_muscle_ros.model.engine.choice`
         (compiled where numba can be imported, unless ``HILL_MUSCLE_ENGINE=python``).
         The first compiled environment of a process loads the compiled limb:
         about 0.8 s from numba's disk cache, about 30 s when it compiles (a
@@ -172,9 +169,12 @@ class KneeAngleEnv(TrackingEnv):
                              f'{angle_min_rad!r}, {angle_max_rad!r}')
         self.angle_min_rad, self.angle_max_rad = lo, hi
 
-        #: ``'compiled'`` or ``'python'``: the limb's engine
-        self.engine = engines.choice() if engine is None else engine
-        self.limb = make_limb(self.plant, self.engine)
+        if engine not in (None, engines.COMPILED, engines.PYTHON):
+            raise ValueError(f'`engine` must be {engines.COMPILED!r}, {engines.PYTHON!r} or '
+                             f'None, got {engine!r}')
+        self.limb = Limb(self.plant, build=engine)
+        #: ``'compiled'`` or ``'python'``: the build of the kernels the limb runs
+        self.engine = self.limb.build
         self._muscle_params = [m.params for m in self.plant.muscles]
         #: what each action entry is, for error messages
         self.action_labels = tuple(f'{m.name} pulse width' for m in self.plant.muscles)
@@ -215,21 +215,17 @@ class KneeAngleEnv(TrackingEnv):
         """[-] Each muscle's command u for widths ``pw`` [s], through its own curve."""
         return [command_from_pulse_width(w, p) for w, p in zip(pw.tolist(), self._muscle_params)]
 
-    def run_period(self, limb, us: list[float], target_rad: float) -> tuple[float, Any]:
-        """Step ``limb`` through one control period with commands ``us`` held.
+    def run_period(self, limb: Limb, us: list[float], target_rad: float) -> tuple[float, Any]:
+        """Step ``limb`` through one control period with commands ``us`` held, in
+        one call of its kernels (:meth:`~hill_muscle_ros.model.limb.Limb.hold`).
 
+        :param us: [-] each muscle's recruitment command u, in [0, 1]
         :param target_rad: [rad] the period's target theta*
         :return: the tracking term, mean_j (theta_j - theta*)^2 [rad^2], and the
             limb's outputs at the period's end
         """
-        if isinstance(limb, CompiledLimb):   # the whole period in one compiled call
-            sq = limb.hold(us, 0.0, MODEL_DT_S, self.n_steps, target_rad)
-            return sq / self.n_steps, limb.outputs()
-        sq = 0.0
-        for _ in range(self.n_steps):
-            out = limb.step(us, 0.0, MODEL_DT_S)
-            sq += (out.theta_rad - target_rad) ** 2
-        return sq / self.n_steps, out
+        sq = limb.hold(us, 0.0, MODEL_DT_S, self.n_steps, target_rad)
+        return sq / self.n_steps, limb.outputs()
 
     def reset(self, *, seed: int | None = None,
               options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:

@@ -11,10 +11,10 @@ generator seeded alike.
   batch engine's agreement with the scalar one (1e-9 N,
   ``test/test_model_batch.py``).
 - :class:`KneeAngleVectorEnv` steps the K limbs on
-  :class:`~hill_muscle_ros.model.limb_batch.LimbBatch` with the single
-  environment's engine (``engine``: the compiled limb or
-  :class:`~hill_muscle_ros.model.limb.Limb`), each limb by its own call of the
-  same step: identical trajectories, bit for bit. The limb batch has no
+  :class:`~hill_muscle_ros.model.limb.LimbBatch`, each a
+  :class:`~hill_muscle_ros.model.limb.Limb` on the single environment's build
+  of the kernels, by its own call of the same kernels: identical
+  trajectories, bit for bit. The limb batch has no
   vectorised path, so this brings the vector API, the shared autoreset and
   one call per limb and model step instead of SyncVectorEnv's Python around
   each environment.
@@ -29,7 +29,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from ..model.batch import MuscleBatch
-from ..model.limb_batch import LimbBatch
+from ..model.limb import LimbBatch
 from ..model.protocol import commands_from_pulse_widths
 from ._common import MODEL_DT_S, History, TrackingEnv, check_pulse_widths
 from .force_tracking import SAMPLE_FIELDS as FORCE_FIELDS
@@ -228,7 +228,7 @@ class KneeAngleVectorEnv(TrackingVectorEnv):
     def __init__(self, num_envs: int = 1, **kwargs: Any) -> None:
         super().__init__(num_envs, **kwargs)
         self.batch = LimbBatch([self.template.plant] * self.num_envs,
-                               engine=self.template.engine)
+                               build=self.template.engine)
 
     def _set_episode(self, i: int, episode: np.ndarray) -> None:
         self._targets[i] = episode

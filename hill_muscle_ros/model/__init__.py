@@ -6,7 +6,7 @@ parameters, protocols and the offline simulation loop.
 from .batch import BatchOutputs, MuscleBatch
 from .command_track import MAX_KNOTS, CommandTrack
 from .equations import force_length, force_velocity, force_velocity_inverse
-from .limb_batch import LimbBatch, LimbBatchOutputs, LimbOutOfRange, simulate_limb_batch
+from .limb import LimbBatch, LimbBatchOutputs, LimbOutOfRange, simulate_limb_batch
 from .memory import NaiveUnitMemory, UnitMemory, recruited_units
 from .muscle import (DL_MT_LIMIT_M, Muscle, MuscleOutputs, check_recruitment,
                      recruitment_from_pulse_width)

@@ -21,7 +21,7 @@ from . import engine
 #: for the package (a clean clone's test suite compiles nothing beyond them).
 KERNEL_SETS = {
     'fes_muscle': ('fes_kernels', 'compiled'),        # the simulator node, FesMuscle
-    'limb': ('limb_kernels', 'compiled'),             # the limb node, simulate_limb
+    'limb': ('limb.kernels', 'compiled'),             # Limb: the limb node, simulate_limb
     'muscle_batch': ('kernels', 'compiled'),          # MuscleBatch, the sweeps
     'muscle_run': ('kernels', 'compiled_run'),        # simulate() of the paper's muscle
     'fes_batch': ('fes_batch_kernels', 'compiled'),   # batches of FES muscles, the gym

@@ -184,14 +184,12 @@ class LimbReplay:
 
     def predict(self, plants: Sequence[LimbPlant]) -> np.ndarray:
         """[rad] the joint angle at the recorded samples, one row per plant."""
-        from ...model import engine, limb_kernels
+        from ...model import engine
+        from ...model.limb import kernels as limb_kernels
         index = self.recording.sample_index
-        # One run of a short recording is below the compiled limb's threshold,
-        # an evaluation's n + 1 runs together often not: judged on them, the
-        # limb is loaded here, so every later run takes it (forked workers too).
-        steps = len(self.recording.external_torque_n_m) - 1
-        work = steps * sum(len(p.muscles) for p in plants)
-        if engine.use_compiled(work, limb_kernels.RUN_MIN_MUSCLE_STEPS, limb_kernels.loaded()):
+        # The compiled limb is loaded here, before any worker forks, so that
+        # forked workers have it (simulate_limb would load it in each).
+        if engine.choice() == engine.COMPILED:
             limb_kernels.compiled()
         try:
             if self.jobs > 1 and len(plants) > 1:

@@ -24,7 +24,7 @@ from .spec import SweepError
 #: 256 sets in chunks of 32. Ctrl-C loses at most the chunks running.
 MAX_AUTO_CHUNK = 512
 #: Largest automatic chunk of a limb sweep. A limb batch steps each limb on
-#: its own (:mod:`~hill_muscle_ros.model.limb_batch`), so a chunk costs the
+#: its own (:mod:`~hill_muscle_ros.model.limb.batch`), so a chunk costs the
 #: same per set at any size, and one knee set of a few seconds already takes
 #: seconds: small chunks balance the workers and move the progress bar, for a
 #: task overhead of milliseconds.
@@ -83,7 +83,7 @@ def run_limb_chunk(set_ids: Sequence[int], plants: Sequence[LimbPlant],
                    protocol: LimbProtocol, rate_hz: float,
                    sample_indices: Sequence[int]) -> dict:
     """One task of a limb sweep: simulate a chunk of plants with a
-    :class:`~hill_muscle_ros.model.limb_batch.LimbBatch`; runs on a Dask worker or here.
+    :class:`~hill_muscle_ros.model.limb.LimbBatch`; runs on a Dask worker or here.
 
     :return: ``set_ids``, ``theta_rad`` (K, S), ``force_n`` (K, M, S) and ``worker``
     :raises SweepError: naming the parameter set of a limb driven beyond its

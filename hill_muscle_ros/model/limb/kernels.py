@@ -1,49 +1,48 @@
-"""The limb over flat arrays: :class:`~hill_muscle_ros.model.limb.Limb`'s step as plain
-functions for Python and numba.
+"""The limb's dynamics over flat arrays: plain functions that Python runs and numba compiles.
 
-The joint and its muscles are integrated together exactly as
-:meth:`Limb.step <hill_muscle_ros.model.limb.Limb.step>` does it: each
-muscle plans its recruitment changes of the step, the events of all muscles
-are taken in time order (a stable sort: each muscle keeps its own order), the
-joint and every CE length are integrated with RK4 up to each event, with as
-many substeps as the stiffest CE needs; a quasi-static CE is out of the RK4
-state (its SE carries :func:`~.fes_muscle.quasi_static_force` of its MTU's
-velocity). The muscles are those of
-:mod:`.fes_kernels` (every variant and FES feature), their equations the
-shared ones; the joint's are written here once and are the reference's
-(the reference's ``_forces`` and ``_rk4`` are the readable form of the same
-sums, checked against these to 1e-9 rad and 1e-9 N by test_limb_compiled).
+These functions are the limb: :class:`~.limb.Limb` steps them one call at a
+time, :func:`~.simulate.simulate_limb` and the batches run them over whole
+protocols, and :func:`.engine.kernels` chooses whether the plain functions
+run as Python or their numba build (:func:`compiled`) does; there is no
+other implementation.
 
-:func:`simulate_limb_compiled` is :func:`~hill_muscle_ros.model.limb.simulate_limb`
-on the compiled engine; ``simulate_limb`` calls it when
-:func:`~hill_muscle_ros.model.engine.choice` is ``compiled``.
-:class:`CompiledLimb` is :class:`~hill_muscle_ros.model.limb.Limb`'s
-step-by-step interface on the compiled step (for
-:class:`~hill_muscle_ros.model.limb_batch.LimbBatch` and the KneeAngle-v0
-environment; :func:`make_limb` and :func:`step_engine` choose).
+One step (:func:`limb_step`): each muscle plans its recruitment changes of
+the step (its delayed command switches and the instants at which units join
+or leave), the events of all muscles are taken in time order (a stable sort:
+each muscle keeps its own order), and the joint and every CE length are
+integrated together with RK4 up to each event (:func:`limb_integrate`), in as
+many substeps as the stiffest CE needs. A muscle with nothing recruited has a
+free CE that follows its MTU (f_SE = 0). A CE that relaxes faster than
+:data:`~hill_muscle_ros.model.equations.QUASI_STATIC_RATE_PER_S` (few units
+left with ``fv_scaling: relative``) is quasi-static over the interval: it
+moves with its MTU, its SE carries the force Eq. 3 gives that velocity
+(:func:`~hill_muscle_ros.model.fes_kernels.quasi_force`), and it leaves the
+RK4 state (doc/model.md section 7.6). The muscles are those of
+:mod:`~hill_muscle_ros.model.fes_kernels` (every variant and FES feature);
+the equations, the joint's included, are :mod:`~hill_muscle_ros.model.equations`.
+
+State: the muscles' :class:`~hill_muscle_ros.model.fes_kernels.FesBundle`
+(``F``, ``I``), the joint array ``L`` (``L_*`` entries), the stage scratch
+``W`` (``W_*`` rows) and a step's timeline ``TT``/``TI``, held together by
+:class:`~.arrays.LimbArrays`.
 """
 from __future__ import annotations
 
-import math  # the joint's equations (limb.py), compiled over this scope, call it
+import math  # the joint's equations, compiled over this scope, call it
 import sys
 import types
-from typing import Sequence
 
-import numpy as np
-
-from . import equations, fes_kernels, fes_muscle, limb, memory, stimulus, unit_pool, units
-from .equations import (QUASI_STATIC_RATE_PER_S, SINE_SERIES_MAX_RAD, activation_at,
-                        joint_acceleration_sin, mtu_length_change, parallel_force, rk4_update,
-                        series_force, sine_near, substep_count)
-from .muscle import DL_MT_LIMIT_M
-from .fes_kernels import (A_END, DELAY_FULL, H_DQT, H_EVT, H_FP, H_FS, H_IP, H_JS, I_INITIAL,
-                          I_MULTI, I_N, J_DCOUNT, J_DHEAD, J_NEV, J_NREC, OK, P_K_PE, P_K_SE,
-                          P_L_REST, S_CMD, S_DL, S_L, S_R, S_T, S_UD, TIME_TOL_S, FesBundle,
-                          ScratchPool, apply, begin_interval, eff_f_iso, eff_f_iso_inline,
-                          end_interval, give_command, hdr, peak_rate, plan, quasi_force, rate_at,
-                          set_piece, settle_now, tau_for, velocity)
-from .memory import recruited_units
-from .substeps import repeat_rows, substeps_for
+from .. import equations, fes_kernels, memory, stimulus, units
+from ..equations import (QUASI_STATIC_RATE_PER_S, SINE_SERIES_MAX_RAD, activation_at,
+                         joint_acceleration_sin, mtu_length_change, parallel_force, rk4_update,
+                         series_force, sine_near, substep_count)
+from ..fes_kernels import (DELAY_FULL, H_DQT, H_EVT, H_FP, H_FS, H_IP, H_JS, I_INITIAL,
+                           I_MULTI, I_N, J_DCOUNT, J_DHEAD, J_NEV, J_NREC, OK, P_K_PE, P_K_SE,
+                           P_L_REST, S_CMD, S_DL, S_L, S_R, S_T, S_UD, TIME_TOL_S, apply,
+                           begin_interval, eff_f_iso, eff_f_iso_inline, end_interval,
+                           give_command, hdr, peak_rate, plan, quasi_force, rate_at, set_piece,
+                           settle_now, tau_for, velocity)
+from ..memory import recruited_units
 
 # Entries of the limb's float array ``L``: the joint, its state, an RK4 step's
 # angular velocities and accelerations at its four stages (scratch of
@@ -147,7 +146,7 @@ def stage_f0(F, I, W, i, l, stage, t):
 
 def forces(F, I, L, W, nm, theta, sin_theta, omega, stage, t, v_row):
     """[rad/s^2] the joint's angular acceleration at one RK4 stage, and each CE's
-    velocity into row ``v_row`` of ``W`` (Limb._forces).
+    velocity into row ``v_row`` of ``W``.
 
     :param sin_theta: sin ``theta``
     :param stage: row of ``W`` holding the stage's CE lengths
@@ -183,7 +182,8 @@ def stage_f0s(F, I, W, i, l, s0, mid, s1):
 
 
 def limb_rk4(F, I, L, W, nm, s0, s1, have_f0):
-    """One RK4 step of the joint and every CE over [s0, s1] (Limb._rk4).
+    """One RK4 step of the joint and every CE over [s0, s1]; a quasi-static CE is put
+    where its SE carries its force at the end, a free one on its MTU.
 
     :param have_f0: True if ``W`` holds the F0s of [s0, s1] of the length-free
         muscles already (limb_integrate's, for an interval of one step)
@@ -245,7 +245,7 @@ def limb_rk4(F, I, L, W, nm, s0, s1, have_f0):
 def limb_integrate(F, I, L, W, nm, s0, s1):
     """RK4 of the joint and every CE over [s0, s1], no recruitment change inside,
     the quasi-static CEs out of it, cut as the stiffest other CE needs
-    (Limb._integrate)."""
+    (:func:`~hill_muscle_ros.model.equations.substep_count`)."""
     h = s1 - s0
     if h <= 0.0:
         return
@@ -285,12 +285,14 @@ def limb_integrate(F, I, L, W, nm, s0, s1):
 
 def limb_step(F, I, L, W, TT, TI, nm, us, tau, dt, dl_limit, give):
     """One step with each muscle's command ``us[i]`` and the external torque held
-    (Limb.step, inputs already checked).
+    (:meth:`.limb.Limb.step`'s work, inputs already checked).
 
+    :param us: [-] each muscle's recruitment command u, in [0, 1]
+    :param tau: [N m] the external torque tau_ext
+    :param dt: [s] the step's length
     :param give: False if the commands ``us`` were given at this instant already
         (:func:`limb_give`, or the step before with the same commands): giving
         a muscle its own command again at the same instant changes nothing
-
     :param TT: [s] timeline instants, room for every muscle's events
     :param TI: (2, len(TT)) int64 timeline muscle and event indices
     :param dl_limit: [m] largest |dl_MT| at the step's end
@@ -427,7 +429,7 @@ def limb_run(F, I, L, W, TT, TI, nm, u, tau, dt, dl_limit, rows):
 
 
 #: What :func:`limb_entry` does: :func:`limb_run`; :func:`limb_hold` (one step is
-#: CompiledLimb.advance); :func:`limb_give`, then :func:`limb_record`; :func:`limb_record`.
+#: Limb.advance); :func:`limb_give`, then :func:`limb_record`; :func:`limb_record`.
 MODE_RUN, MODE_HOLD, MODE_GIVE, MODE_RECORD = range(4)
 
 
@@ -456,100 +458,10 @@ def limb_entry(F, I, L, W, TT, TI, nm, mode, u, tau, dt, dl_limit, n, target, ac
     return status
 
 
-# -- the limb's arrays ---------------------------------------------------------------------
-
-class LimbArrays:
-    """The flat state of a limb: its muscles' :class:`~.fes_kernels.FesBundle`, the
-    joint array ``L``, the stage scratch ``W`` and the timeline ``TT``/``TI``.
-
-    :param plant: the joint and its muscles
-    :param dt_s: [s] the step the delay lines are sized for
-    :param pool: where a run's arrays come from and go back to (:meth:`give_back`),
-        or None for arrays of their own
-    """
-
-    def __init__(self, plant, dt_s: float, pool: ScratchPool | None = None) -> None:
-        self.plant = plant
-        self.nm = nm = len(plant.muscles)
-        self._pool = pool
-        self.bundle = FesBundle([m.params for m in plant.muscles], dt_s, pool)
-        self.L = np.zeros(L_MUSCLES + L_PER_MUSCLE * max(nm, 1))
-        j = plant.joint
-        self.L[[L_INERTIA, L_MASS, L_GRAVITY, L_COM, L_STIFFNESS, L_EQUILIBRIUM,
-                L_DAMPING]] = (j.inertia_kg_m2, j.mass_kg, j.gravity_m_per_s2,
-                               j.com_distance_m, j.stiffness_n_m_per_rad, j.equilibrium_rad,
-                               j.damping_n_m_s_per_rad)
-        for i, m in enumerate(plant.muscles):
-            slot = muscle_slot(i)
-            self.L[slot + M_SIGN] = m.sign
-            self.L[slot + M_ARM] = m.moment_arm_m
-            self.L[slot + M_REF] = m.reference_angle_rad
-        self.W = np.zeros((N_W, max(nm, 1)))
-        self._size_timeline()
-        self.L[L_THETA] = plant.joint.initial_angle_rad
-        self._place_ces()   # the new bundle is at rest already
-
-    def _size_timeline(self) -> None:
-        total = sum(int(self.bundle.I[i * fes_kernels.N_HDR + fes_kernels.H_CAPEV])
-                    for i in range(self.nm))
-        # limb_step writes a step's timeline (entries 0 .. n_events - 1) before
-        # it reads it: a handed-back one needs no zeros.
-        empty = np.zeros if self._pool is None else self._pool.empty
-        self.TT = empty((max(total, 1),))
-        self.TI = empty((2, max(total, 1)), dtype=np.int64)
-
-    def give_back(self) -> None:
-        """Hand the run's large arrays back to the pool; these arrays are not
-        used after this."""
-        if self._pool is not None:
-            self._pool.give_back(self.bundle.F, self.bundle.I, self.TT, self.TI)
-
-    def reset(self) -> None:
-        """Limb.reset: theta_0, at rest, each CE at l_rest + dl_MT(theta_0)."""
-        self.L[L_THETA] = self.plant.joint.initial_angle_rad
-        self.L[L_OMEGA] = self.L[L_T] = self.L[L_TAU] = 0.0
-        for i in range(self.nm):
-            self.bundle.reset(i)
-        self._place_ces()
-
-    def _place_ces(self) -> None:
-        """Each CE at l_rest + dl_MT(theta)."""
-        for i, m in enumerate(self.plant.muscles):
-            fs = self.bundle.view(i, 'fs')
-            fs[S_DL] = dl = dl_mt(self.L, i, self.L[L_THETA])
-            fs[S_L] = m.params.l_rest_m + dl
-
-    def stretch_message(self, i: int) -> str:
-        """Limb.step's error for muscle ``i`` stretched out of range now."""
-        theta = self.L[L_THETA]
-        return limb.stretch_message(self.plant.muscles[i].name, dl_mt(self.L, i, theta), theta)
-
-    def ensure_delay(self, dt_s: float) -> None:
-        """Room in the delay lines and the timeline for steps of ``dt_s``."""
-        cap = self.bundle.cap
-        self.bundle.ensure_delay(dt_s)
-        if self.bundle.cap != cap:
-            self._size_timeline()
-
-
-#: The arrays of the runs of :func:`simulate_limb_compiled` and :func:`run_limb_batch`
-#: (each thread its own): one run's, reused by the next of the same layout.
-_POOL = ScratchPool()
-
-
 # -- compiling ------------------------------------------------------------------------------
 
-#: [-] muscle-steps (steps times muscles) of one run from which ``simulate_limb``
-#: loads the compiled limb when it is not loaded yet (``HILL_MUSCLE_ENGINE=auto``,
-#: :func:`.engine.use_compiled`). Measured: loading costs 0.82 s with a warm
-#: cache, and the compiled limb saves about 135 us a muscle-step on the knee
-#: preset (282 against 11.7 us a step, two muscles; both BENCHMARKS.md,
-#: bench_limb_compiled.py) and 65 us on the ankle preset's one muscle (66.6
-#: against 2.5 us a step, 6 s at a 0.5 command from 0.5 to 3.5 s, by hand):
-#: loading pays from about 6,000-13,000 muscle-steps.
-RUN_MIN_MUSCLE_STEPS = 10_000
-
-#: The joint's equations (model/limb.py), compiled over this module's scope.
+#: The joint's equations (:mod:`~hill_muscle_ros.model.equations`), compiled over
+#: this module's scope.
 _EQUATIONS = ('mtu_length_change', 'joint_acceleration_sin', 'sine_near')
 _KERNELS = ('muscle_slot', 'dl_mt', 'length_free', 'plan_steady', 'resting', 'settle_ce',
             'stage_f0', 'stage_f0s', 'forces', 'limb_rk4', 'limb_integrate', 'limb_step',
@@ -577,7 +489,7 @@ _INTO_STEP = ('forces', 'limb_rk4')
 #: holding the muscle's code again.
 _INTO_ENTRY = ('limb_give', 'limb_record', 'limb_hold', 'limb_run')
 #: The modules whose code the kernels inline: their digest names the cache entries.
-_DIGEST_OF = (equations, stimulus, memory, units, unit_pool, fes_muscle, fes_kernels, limb)
+_DIGEST_OF = (equations, stimulus, memory, units, fes_kernels)
 _compiled = None
 
 
@@ -594,7 +506,7 @@ def compiled() -> types.SimpleNamespace:
     global _compiled
     if _compiled is not None:
         return _compiled
-    from . import engine
+    from .. import engine
     scope = fes_kernels.scope_calling(
         globals(), ('apply', 'begin_interval', 'eff_f_iso', 'eff_f_iso_inline', 'end_interval',
                     'give_command',
@@ -629,293 +541,3 @@ def compiled() -> types.SimpleNamespace:
         signatures={'limb_entry': entry_signature, 'limb_step': step_signature},
         options=options)
     return _compiled
-
-
-def _run(arrays: LimbArrays, u: np.ndarray, tau: np.ndarray, dt_s: float, kernels):
-    """limb_run on ``arrays``: (rows, None), or (rows, (k, message)) when step k
-    stretched a muscle out of range (the message is Limb.step's)."""
-    arrays.ensure_delay(dt_s)
-    nm = arrays.nm
-    u = np.ascontiguousarray(u, dtype=float).reshape(len(tau), nm)
-    tau = np.ascontiguousarray(tau, dtype=float)
-    # Every row is written (limb_record's every column) unless the run fails,
-    # and the rows of a failed run are not returned.
-    rows = np.empty((len(tau), 3 + 5 * nm))
-    b = arrays.bundle
-    entry = (kernels or sys.modules[__name__]).limb_entry
-    done = entry(b.F, b.I, arrays.L, arrays.W, arrays.TT, arrays.TI, nm, MODE_RUN, u, tau,
-                 float(dt_s), DL_MT_LIMIT_M, 0, 0.0, np.zeros(1), rows)
-    if done >= 0:
-        return rows, None
-    k, status = divmod(-done, STATUS_BASE)
-    if status == DELAY_FULL:   # delay_capacity bounds the commands pending
-        raise RuntimeError(f'a muscle\'s delay line overflowed at step {k}')
-    return rows, (k, arrays.stretch_message(status - DL_OUT_OF_RANGE))
-
-
-def run_limb(arrays: LimbArrays, u: np.ndarray, tau: np.ndarray, dt_s: float,
-             kernels=None) -> np.ndarray:
-    """simulate_limb's loop on ``arrays`` (from its current state): the rows of
-    :func:`~hill_muscle_ros.model.limb.limb_columns`, the time column from the state.
-
-    :param u: [-] (samples, muscles) commands, checked in [0, 1]
-    :param tau: [N m] (samples,) external torque, checked
-    :param kernels: :func:`compiled`, or None for the plain functions
-    :raises ValueError: as Limb.step, when a muscle is stretched out of range
-    """
-    rows, failure = _run(arrays, u, tau, dt_s, kernels)
-    if failure is not None:
-        raise ValueError(failure[1])
-    return rows
-
-
-def run_limb_batch(plants, u: np.ndarray, tau: np.ndarray, dt_s: float,
-                   sample_indices, kernels=None) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`~hill_muscle_ros.model.limb_batch.simulate_limb_batch`'s loop, compiled:
-    each plant run alone (a limb's result does not depend on the others').
-
-    :param u: [-] (samples, K, muscles) checked commands, the last sample the last wanted
-    :param tau: [N m] (samples,) checked external torque
-    :param sample_indices: step indices to sample, ascending
-    :return: ([rad] theta (K, S), [N] force (K, M, S))
-    :raises LimbOutOfRange: for the first limb out of range, at the earliest step
-        (the batch steps every limb before the next step)
-    """
-    from .limb_batch import LimbOutOfRange
-    kernels = compiled() if kernels is None else kernels
-    idx = np.asarray(sample_indices, dtype=np.int64)
-    nm = len(plants[0].muscles) if plants else 0
-    theta = np.empty((len(plants), len(idx)))
-    force = np.empty((len(plants), nm, len(idx)))
-    failures = []
-    for k, plant in enumerate(plants):
-        arrays = LimbArrays(plant, dt_s, _POOL)
-        try:
-            rows, failure = _run(arrays, u[:, k, :], tau, dt_s, kernels)
-        finally:
-            arrays.give_back()
-        if failure is not None:
-            failures.append((failure[0], k, failure[1]))
-            continue
-        theta[k] = rows[idx, 1]
-        for m in range(nm):
-            force[k, m] = rows[idx, 3 + 5 * m + 4]
-    if failures:
-        _, k, message = min(failures)
-        raise LimbOutOfRange(k, message)
-    return theta, force
-
-
-def simulate_limb_compiled(plant, protocol, rate_hz: float = 1000.0, kernels=None):
-    """:func:`~hill_muscle_ros.model.limb.simulate_limb` on the compiled engine.
-
-    :param kernels: :func:`compiled` (the default), or this module for the plain functions
-    :return: the :class:`~hill_muscle_ros.model.limb.LimbResult`, or None if a
-        command or the torque is outside what Limb.step accepts: the Python loop
-        then raises the error that names the value and the step
-    """
-    from .limb import TORQUE_LIMIT_N_M, LimbResult, limb_columns
-    from .simulate import sample_times
-    t = sample_times(protocol.duration_s, rate_hz)
-    u = np.asarray(protocol.commands(t, plant), dtype=float)
-    tau = np.asarray(protocol.external_torque_n_m(t), dtype=float)
-    if not (np.all((u >= 0.0) & (u <= 1.0)) and np.all(np.abs(tau) <= TORQUE_LIMIT_N_M)):
-        return None
-    dt = 1.0 / rate_hz
-    # Substeps of at most 1 ms with the samples' inputs held (model/substeps.py),
-    # as Limb.step takes them; the samples are every n-th row.
-    n = substeps_for(dt)
-    h = dt / n
-    if n > 1:
-        u, tau = repeat_rows(u, n), repeat_rows(tau, n)
-    arrays = LimbArrays(plant, h, _POOL)
-    try:
-        rows = run_limb(arrays, u, tau, h, compiled() if kernels is None else kernels)[::n]
-    finally:
-        arrays.give_back()
-    rows[:, 0] = t
-    return LimbResult(t, dict(zip(limb_columns(plant), rows.T)))
-
-
-# -- step by step ---------------------------------------------------------------------------
-
-#: [s] The step the delay lines of a :class:`CompiledLimb` are first sized for
-#: (the 1 kHz of the presets); a step of another length resizes them, keeping the state.
-FIRST_DT_S = 1e-3
-
-
-def step_engine(requested: str | None = None) -> str:
-    """The engine of a limb stepped one call at a time: :data:`.engine.COMPILED`
-    or :data:`.engine.PYTHON`.
-
-    A step-by-step limb cannot know how long it will run, so ``None`` follows
-    :func:`.engine.use_compiled` with no work to repay the loading: compiled once
-    the compiled limb is loaded in this process (or with
-    ``HILL_MUSCLE_ENGINE=compiled``), Python otherwise.
-
-    :param requested: ``'compiled'``, ``'python'`` or ``None``
-    :raises ValueError: on any other value
-    """
-    from . import engine
-    if requested is None:
-        return engine.COMPILED if engine.use_compiled(0, 1, loaded()) else engine.PYTHON
-    if requested not in (engine.COMPILED, engine.PYTHON):
-        raise ValueError(f'`engine` must be {engine.COMPILED!r}, {engine.PYTHON!r} or None, '
-                         f'got {requested!r}')
-    return requested
-
-
-class CompiledLimb:
-    """:class:`~hill_muscle_ros.model.limb.Limb`'s step-by-step interface on the
-    compiled limb (:func:`compiled`): the same outputs to 1e-9 rad and 1e-9 N, the
-    same errors, the same state after a bad input (unchanged) or a muscle
-    stretched out of range (the step taken, as Limb leaves it).
-
-    Building the first one in a process loads the compiled limb: about 0.8 s
-    from numba's disk cache, about 30 s when it compiles (a clean clone, or
-    after an edit of the model's code).
-
-    :param plant: the joint and its muscles
-    :param kernels: :func:`compiled` (the default), or this module for the plain functions
-    :param row: where :meth:`advance` writes the outputs (``limb_record``'s
-        columns: t, theta, omega, then per muscle command, recruitment,
-        dl_MT, l_CE, force), e.g. a row of a batch's array; default its own
-    """
-
-    def __init__(self, plant, kernels=None, row: np.ndarray | None = None) -> None:
-        self.plant = plant
-        self.joint = plant.joint
-        self._kernels = compiled() if kernels is None else kernels
-        self.arrays = LimbArrays(plant, FIRST_DT_S)
-        self._dt = FIRST_DT_S
-        nm = self.arrays.nm
-        self.row = np.zeros(3 + 5 * nm) if row is None else row
-        self._us = np.zeros(nm)
-        self._acc = np.zeros(1)
-        # limb_entry's 2-D views of the row and the commands, and its torque array.
-        self._rows = self.row[np.newaxis, :]
-        self._u = self._us[np.newaxis, :]
-        self._tau = np.zeros(1)
-        self._s_r = [m.sign * m.moment_arm_m for m in plant.muscles]
-        self.reset()
-
-    def reset(self) -> None:
-        """theta = theta_0, omega = 0, each CE at l_rest + dl_MT(theta_0), nothing recruited."""
-        a = self.arrays
-        a.reset()
-        self._entry(MODE_RECORD, 0.0, 0, 0.0)
-
-    @property
-    def t_s(self) -> float:
-        """[s] time."""
-        return float(self.arrays.L[L_T])
-
-    @property
-    def theta_rad(self) -> float:
-        """[rad] joint angle (theta)."""
-        return float(self.arrays.L[L_THETA])
-
-    @property
-    def omega_rad_per_s(self) -> float:
-        """[rad/s] joint angular velocity (omega)."""
-        return float(self.arrays.L[L_OMEGA])
-
-    @property
-    def external_torque_n_m(self) -> float:
-        """[N m] the external torque of the last step (tau_ext)."""
-        return float(self.arrays.L[L_TAU])
-
-    def _entry(self, mode: int, dt_s: float, n_steps: int, target_rad: float) -> int:
-        """limb_entry on this limb's arrays, commands :attr:`_us`, torque :attr:`_tau`."""
-        a = self.arrays
-        b = a.bundle
-        return self._kernels.limb_entry(b.F, b.I, a.L, a.W, a.TT, a.TI, a.nm, mode, self._u,
-                                        self._tau, dt_s, DL_MT_LIMIT_M, n_steps, target_rad,
-                                        self._acc, self._rows)
-
-    def _failed(self, status: int) -> None:
-        if status == DELAY_FULL:   # delay_capacity bounds the commands pending
-            raise RuntimeError('a muscle\'s delay line overflowed')
-        raise ValueError(self.arrays.stretch_message(status - DL_OUT_OF_RANGE))
-
-    def give_commands(self, us: Sequence[float]) -> None:
-        """Give each muscle its checked command now where it differs from its last
-        one (a sample of simulate_limb; LimbBatch.give_commands)."""
-        self._us[:] = us
-        status = self._entry(MODE_GIVE, 0.0, 0, 0.0)
-        if status != OK:
-            self._failed(status)
-
-    def advance(self, us: Sequence[float], tau: float, dt_s: float) -> None:
-        """:meth:`step` of checked inputs, the outputs into :attr:`row` only.
-
-        :raises ValueError: as Limb.step, on a muscle stretched out of range
-        """
-        # n = ceil(dt / 1 ms) substeps of dt / n, inputs held (model/substeps.py),
-        # as Limb.step; one at 1 kHz.
-        n = substeps_for(dt_s)
-        h = dt_s / n
-        a = self.arrays
-        if h != self._dt:
-            a.ensure_delay(h)
-            self._dt = h
-        self._us[:] = us
-        self._tau[0] = tau
-        status = self._entry(MODE_HOLD, h, n, 0.0)   # n steps: limb_step, limb_record
-        if status != OK:
-            self._failed(status)
-
-    def hold(self, us: Sequence[float], tau: float, dt_s: float, n_steps: int,
-             target_rad: float) -> float:
-        """``n_steps`` calls of :meth:`advance` with checked inputs held, in one
-        compiled call; the outputs of the last in :attr:`row`.
-
-        :param target_rad: [rad] angle theta* of the squared errors
-        :return: [rad^2] sum over the steps of (theta - theta*)^2 at each step's end
-        :raises ValueError: as Limb.step, on a muscle stretched out of range
-            (the limb is left after that step)
-        """
-        a = self.arrays
-        if dt_s != self._dt:
-            a.ensure_delay(dt_s)
-            self._dt = dt_s
-        self._us[:] = us
-        self._tau[0] = tau
-        status = self._entry(MODE_HOLD, dt_s, n_steps, target_rad)
-        if status != OK:
-            self._failed(status)
-        return float(self._acc[0])
-
-    def step(self, commands: Sequence[float], external_torque_n_m: float, dt_s: float):
-        """Advance one step: each muscle's command and the external torque held
-        over it (:meth:`Limb.step <hill_muscle_ros.model.limb.Limb.step>`).
-
-        :param commands: [-] recruitment command u of each muscle, in [0, 1]
-        :param external_torque_n_m: [N m] external torque (tau_ext)
-        :param dt_s: [s] step length, > 0
-        :return: the :class:`~hill_muscle_ros.model.limb.LimbOutputs` at the step's end
-        :raises ValueError: naming the input on a bad value (the state is
-            unchanged), or the muscle stretched out of range
-        """
-        us, tau = limb.check_step_inputs(self.plant, commands, external_torque_n_m, dt_s)
-        self.advance(us, tau, float(dt_s))
-        return self.outputs()
-
-    def outputs(self):
-        """The :class:`~hill_muscle_ros.model.limb.LimbOutputs` at the current instant."""
-        row = self.row.tolist()
-        cols = [row[3 + j::5] for j in range(5)]
-        torque = 0.0
-        for s_r, f in zip(self._s_r, cols[4]):
-            torque += s_r * f
-        return limb.LimbOutputs(row[0], row[1], row[2], torque, *(tuple(c) for c in cols))
-
-
-def make_limb(plant, engine: str | None = None):
-    """A :class:`~hill_muscle_ros.model.limb.Limb`, or a :class:`CompiledLimb` when
-    :func:`step_engine` of ``engine`` is compiled (the first loads the compiled
-    limb: about 0.8 s, about 30 s if it compiles)."""
-    from . import engine as engines
-    if step_engine(engine) == engines.COMPILED:
-        return CompiledLimb(plant)
-    return limb.Limb(plant)
