@@ -38,7 +38,7 @@ from gymnasium.vector import SyncVectorEnv
 from timing import Stats
 
 import hill_muscle_ros.gym as hgym
-from hill_muscle_ros.model import limb_kernels
+from hill_muscle_ros.model.limb import kernels as limb_kernels
 
 #: [-] Sub-environments per vector environment.
 NUM_ENVS = 256
@@ -137,8 +137,8 @@ def write_section(add, results: dict) -> None:
         'recruitment). Rates in environment steps (20 ms control periods of one '
         'sub-environment, 20 model steps each) per second of wall time; in brackets, per '
         'second of the process\'s CPU time (all its threads). KneeAngle-v0 on each limb '
-        'engine (its `engine` option): the compiled limb (the default where numba is '
-        'installed) and the Python `Limb`.')
+        'build (its `engine` option): the compiled kernels (the default where numba is '
+        'installed) and the same functions as plain Python.')
     add('')
     add('| environment | timed vector steps per run | native [env steps/s] | SyncVectorEnv '
         '[env steps/s] | native / Sync |')

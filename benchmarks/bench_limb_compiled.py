@@ -5,17 +5,17 @@ One run measures, on the same machine state:
 - the knee's real-time factor offline: ``simulate_limb`` of ``config/knee.yaml``
   (quadriceps and hamstrings, 1000 units each, every FES feature of the
   presets) on ``config/protocols/knee_extension.yaml`` (6 s at 1 kHz), on the
-  compiled engine (:mod:`hill_muscle_ros.model.limb_kernels`) and on the
-  Python one, alternating sample by sample (each ten consecutive runs of one
-  engine) so that load falls on both alike;
+  compiled build of the limb's kernels (:mod:`hill_muscle_ros.model.limb.kernels`)
+  and on the same functions as plain Python, alternating sample by sample
+  (each ten consecutive runs of one build) so that load falls on both alike;
 - the same on the protocol's first 3.5 s only (:data:`BEFORE_RELEASE_S`), before
   the quadriceps' stimulation stops: without the release, whose last units
   make the CE stiff until it is quasi-static (see :func:`write_section`);
 - one FES muscle's cost a step: the knee's quadriceps alone, its MTU length
   imposed (4 mm sine at 1 Hz), a 0.6 command switched on for 0.3 s of every
-  0.5 s, 2 s at 1 ms: :func:`~hill_muscle_ros.model.fes_kernels.run_muscle`
-  compiled against :meth:`FesMuscle.run`;
-- the compiled kernels' start: ``limb_kernels.compiled()`` in a fresh
+  0.5 s, 2 s at 1 ms: :meth:`Muscle.run_array
+  <hill_muscle_ros.model.muscle.Muscle.run_array>` on either build;
+- the compiled kernels' start: ``limb.kernels.compiled()`` in a fresh
   process (which compiles the muscle's kernels too) with an empty
   ``NUMBA_CACHE_DIR`` (cold) and with the cache that run filled (warm).
 
@@ -38,9 +38,9 @@ import yaml
 
 from timing import RUNS_PER_SAMPLE, Stats
 
-from hill_muscle_ros.model import engine, fes_kernels, limb_kernels
-from hill_muscle_ros.model.fes_muscle import FesMuscle
+from hill_muscle_ros.model import Muscle, engine
 from hill_muscle_ros.model.limb import LimbPlant, LimbProtocol, simulate_limb
+from hill_muscle_ros.model.limb import kernels as limb_kernels
 
 HERE = Path(__file__).resolve().parent
 REPO = HERE.parent
@@ -57,7 +57,7 @@ BEFORE_RELEASE_S = 3.5
 
 #: A fresh process's start of the compiled kernels: prints the seconds as JSON.
 START = ('import json, time; t0 = time.perf_counter(); '
-         'from hill_muscle_ros.model import limb_kernels; limb_kernels.compiled(); '
+         'from hill_muscle_ros.model.limb import kernels; kernels.compiled(); '
          'print(json.dumps(time.perf_counter() - t0))')
 
 
@@ -111,17 +111,14 @@ def bench_limb(runs: int, duration_s: float | None = None) -> dict:
 
 
 def bench_muscle(runs: int) -> dict:
-    """The knee's quadriceps alone, compiled against FesMuscle.run, per step."""
+    """The knee's quadriceps alone, its run on either build, per step."""
     params = knee().muscles[0].params
     t = np.arange(int(round(MUSCLE_S / DT_S))) * DT_S
     r = np.where((t % 0.5) < 0.3, 0.6, 0.0)
     dl = 0.004 * np.sin(2.0 * math.pi * t)
-    kernels = fes_kernels.compiled()
-    r_list, dl_list = r.tolist(), dl.tolist()
     sides = {'compiled': ([], []), 'python': ([], [])}
-    run = {'compiled': lambda: fes_kernels.run_muscle(fes_kernels.FesBundle([params]), 0, r,
-                                                      dl, DT_S, None, kernels),
-           'python': lambda: FesMuscle(params).run(r_list, dl_list, DT_S)}
+    run = {side: (lambda side=side: Muscle(params, build=side).run_array(r, dl, DT_S))
+           for side in sides}
     for i in range(runs + 1):
         for side in (('compiled', 'python') if i % 2 == 0 else ('python', 'compiled')):
             wall, cpu = _timed(run[side])
@@ -135,7 +132,7 @@ def bench_muscle(runs: int) -> dict:
 
 
 def bench_start(runs: int) -> dict:
-    """limb_kernels.compiled() in fresh processes, empty cache and filled cache."""
+    """limb.kernels.compiled() in fresh processes, empty cache and filled cache."""
     cold, warm = [], []
     with tempfile.TemporaryDirectory(prefix='numba_cache_') as root:
         for i in range(runs):
@@ -167,11 +164,13 @@ def write_section(add, m: dict) -> None:
     duration = limb['duration_s']
     rtf = {side: duration / limb[side].median for side in ('compiled', 'python')}
     rtf_cpu = {side: duration / limb[side].cpu.median for side in ('compiled', 'python')}
-    add('## The limb and the FES muscle, compiled (`model/limb_kernels.py`, `model/fes_kernels.py`)')
+    add('## The limb and the FES muscle, compiled (`model/limb/kernels.py`, '
+        '`model/fes_kernels.py`)')
     add('')
     add('`benchmarks/bench_limb_compiled.py` (alone: `.venv/bin/python benchmarks/run_all.py '
-        f'--only limb --runs {m["runs"]}`). The compiled engine agrees with the Python one '
-        'to 1e-9 rad and 1e-9 N (`test/test_limb_compiled.py`, `test/test_fes_compiled.py`). '
+        f'--only limb --runs {m["runs"]}`). The compiled build agrees with the same functions '
+        'run as plain Python to 1e-9 rad and 1e-9 N (`test/test_limb_compiled.py`, '
+        '`test/test_fes_compiled.py`). '
         f'The engines alternate sample by sample, each sample {RUNS_PER_SAMPLE} consecutive '
         'runs of one engine (a compiled knee run lasts about 3 ms; timed one by one after a '
         'Python run, which leaves the caches cold, it ran at 1682x in the bench of '
@@ -199,17 +198,18 @@ def write_section(add, m: dict) -> None:
         f'**{rtf["compiled"]:.4g}x** wall — '
         f'**{"met" if rtf["compiled"] >= TARGET_RTF else "not met"}**. A call between '
         'compiled functions passes each array as its fields, so the step\'s innermost work '
-        'is compiled into one function (limb_kernels._INTO_STEP): the forces of the RK4 '
+        'is compiled into one function (limb.kernels._INTO_STEP): the forces of the RK4 '
         'stages (one loop over the stages, so that they are compiled in once), a '
         'multi/initial muscle\'s F0 at the step\'s three instants '
         '(fes_kernels.eff_f_iso_inline) and the fatigue\'s interval bounds. The stages\' '
-        'gravity sines come from the step\'s first sine and cosine (limb.sine_near: libm\'s '
+        'gravity sines come from the step\'s first sine and cosine (equations.sine_near: '
+        'libm\'s '
         'sin had been 9 % of a run, by perf). Together, by hand, the code before and after in '
         'two processes alternating on one core: 0.863x and 0.854x the time a run (medians of '
         '31 pair ratios, either core). A run\'s large arrays come from a per-thread pool '
         '(fes_kernels.ScratchPool): fresh ones faulted on every page, a tenth of the run. '
         'A muscle in whose step no unit joins or leaves is not planned '
-        '(limb_kernels.plan_steady; doc/model.md section 4). The quarter second after the '
+        '(limb.kernels.plan_steady; doc/model.md section 4). The quarter second after the '
         'stimulation stops costs more per step: as the last units of the quadriceps leave, '
         '`fv_scaling: relative` shrinks the Hill constants with F0 and the CE\'s relaxation '
         'rate grows as 1 / F0; below 1e5 /s RK4 takes up to 200 steps a millisecond '
@@ -221,7 +221,7 @@ def write_section(add, m: dict) -> None:
         'joint and both CEs, F0 from each unit pool with its fatigue, each muscle\'s delay '
         'line and command). The margin over the goal is small, and the speed of these shared '
         'machines varies by about as much from one hour to the next.')
-    add(f'- Start of the compiled kernels (`limb_kernels.compiled()`, muscle kernels included) '
+    add(f'- Start of the compiled kernels (`limb.kernels.compiled()`, muscle kernels included) '
         f'in a fresh process: cold (empty `NUMBA_CACHE_DIR`) {start["cold"].fmt()} s, '
         f'warm (cache filled) {start["warm"].fmt()} s.')
     add('')

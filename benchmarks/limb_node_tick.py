@@ -1,10 +1,10 @@
-"""The limb node's work per step: one ``Limb.step`` against one compiled step.
+"""The limb node's work per step: one ``Limb.step`` on either build of the kernels.
 
 The limb node (``hill_muscle_ros/nodes/limb.py``) steps its limb once per model
 step inside its timer callback. This times that call, one step at a time as
 the node makes it, on the knee preset (``config/knee.yaml``, 1 kHz) for
-:class:`~hill_muscle_ros.model.limb.Limb` and
-:class:`~hill_muscle_ros.model.limb_kernels.CompiledLimb`: a held 0.3
+:class:`~hill_muscle_ros.model.limb.Limb` on the plain Python functions of its
+kernels and on their numba build: a held 0.3
 quadriceps command for :data:`STEPS_EACH` steps, then 0 (the release) for as
 many; and the compiled limb's loading in this process. Not part of ``make
 bench``; its printed numbers are quoted in the node's docstring.
@@ -17,7 +17,7 @@ import time
 
 import numpy as np
 
-from hill_muscle_ros.model import limb_kernels
+from hill_muscle_ros.model import engine
 from hill_muscle_ros.model.limb import Limb
 from hill_muscle_ros.params_file import load_plant
 from hill_muscle_ros.resources import config_dir
@@ -46,9 +46,9 @@ def time_steps(limb) -> np.ndarray:
 def main() -> None:
     plant = load_plant(config_dir() / 'knee.yaml')[0]
     t0 = time.perf_counter()
-    compiled = limb_kernels.CompiledLimb(plant)
+    compiled = Limb(plant, build=engine.COMPILED)
     load_s = time.perf_counter() - t0
-    for name, limb in (('python', Limb(plant)), ('compiled', compiled)):
+    for name, limb in (('python', Limb(plant, build=engine.PYTHON)), ('compiled', compiled)):
         a = time_steps(limb)
         print(f'{name}: per step median {np.median(a):.1f} us, mean {a.mean():.1f} us, '
               f'p99 {np.percentile(a, 99):.1f} us, max {a.max():.0f} us; mean stimulated '
