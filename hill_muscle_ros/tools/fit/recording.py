@@ -3,7 +3,9 @@
 :func:`load_muscle_recording` reads a single muscle's stimulation, MTU length
 and force (the grid is the force's), :func:`load_limb_recording` a limb's
 stimulation per muscle, external torque and joint angle (the grid is the joint
-states'). Each input holds its last message, as the nodes hold them.
+states'). Each input holds its last message (zero before the first), as the
+nodes hold them; a ``length_command_stamped`` knot track is linear between its
+stamps.
 """
 from __future__ import annotations
 
