@@ -18,7 +18,7 @@ cluster's start and stop, and on a warm LocalCluster of 2 (one cluster, a
 sweep already run on it: the workers have imported the package, as with
 ``--scheduler``). Chunks are the command's defaults.
 
-And the cost of a :class:`~hill_muscle_ros.model.limb_batch.LimbBatch` step
+And the cost of a :class:`~hill_muscle_ros.model.limb.LimbBatch` step
 per limb against K separate :class:`~hill_muscle_ros.model.limb.Limb` s stepped
 in a loop, the knee's first second of the knee extension.
 
