@@ -19,6 +19,7 @@ table of claims (:func:`pytest_terminal_summary`).
 import gc
 import os
 import random
+import sys
 import time
 from pathlib import Path
 
@@ -207,18 +208,22 @@ def pytest_terminal_summary(terminalreporter, exitstatus, config):
 
 @pytest.fixture
 def quasi_static_calls(monkeypatch):
-    """The Python engine only, and a list that records each call of
-    ``FesMuscle.quasi_static_force`` (the muscle's ``fv_scaling``): did a run
-    take a CE quasi-static?"""
-    from hill_muscle_ros.model.fes_muscle import FesMuscle
+    """The Python engine only, and a list that records the ``fv_scaling`` of each
+    call of the kernels' ``quasi_force``: did a run take a CE quasi-static?"""
+    from hill_muscle_ros.model import fes_kernels
     calls = []
-    original = FesMuscle.quasi_static_force
+    original = fes_kernels.quasi_force
 
-    def spy(self, *args):
-        calls.append(self.params.fv_scaling)
-        return original(self, *args)
+    def spy(F, I, i, *args):
+        relative = I[fes_kernels.hdr(I, i, fes_kernels.H_IP) + fes_kernels.I_RELATIVE]
+        calls.append('relative' if relative else 'absolute')
+        return original(F, I, i, *args)
 
-    monkeypatch.setattr(FesMuscle, 'quasi_static_force', spy)
+    # The kernels call it by the name each module bound at import.
+    for module in list(sys.modules.values()):
+        if (getattr(module, '__name__', '').startswith('hill_muscle_ros.model')
+                and getattr(module, 'quasi_force', None) is original):
+            monkeypatch.setattr(module, 'quasi_force', spy)
     monkeypatch.setenv('HILL_MUSCLE_ENGINE', 'python')   # the spy sees the Python engine
     return calls
 

@@ -8,9 +8,48 @@ The memory uses the naive per-unit array, not the LIFO stack under test.
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from hill_muscle_ros.model import NaiveUnitMemory, MuscleParams, Protocol
+from hill_muscle_ros.model import MuscleParams, Protocol
 from hill_muscle_ros.model.equations import force_length, force_velocity_inverse, series_force
 from hill_muscle_ros.model.memory import recruited_units
+
+
+class NaiveUnitMemory:
+    """Reference implementation: one array slot per unit, summed on every read.
+
+    This is the paper's method written plainly (Eq. 2): the oracle's memory,
+    written independently of the engine's segment stacks.
+
+    :param n_units: [-] number of virtual motor units (N)
+    :param f_iso_max_n: [N] maximal isometric force (f_iso_max)
+    :param l_opt_m: [m] CE optimal length (l_opt)
+    """
+
+    def __init__(self, n_units: int, f_iso_max_n: float, l_opt_m: float) -> None:
+        self._f_unit_max = f_iso_max_n / n_units
+        self._l_opt = l_opt_m
+        self.f_iso_j = np.zeros(n_units)
+        self.n_recruited = 0
+
+    def clear(self) -> None:
+        """De-recruit every unit and erase its memory."""
+        self.f_iso_j[:] = 0.0
+        self.n_recruited = 0
+
+    @property
+    def eff_f_iso(self) -> float:
+        """[N] Eff.f_iso as the sum over all unit slots (Eq. 2)."""
+        return float(self.f_iso_j.sum())
+
+    def update(self, m: int, l_ce_m: float) -> float:
+        """Recruit or release so that units [0, m) are recruited, new ones at
+        CE length ``l_ce_m`` [m]; return [N] Eff.f_iso."""
+        top = self.n_recruited
+        if m > top:
+            self.f_iso_j[top:m] = self._f_unit_max * force_length(l_ce_m / self._l_opt)
+        elif m < top:
+            self.f_iso_j[m:top] = 0.0
+        self.n_recruited = m
+        return self.eff_f_iso
 
 
 def reference_force(protocol: Protocol, params: MuscleParams, t_eval: np.ndarray):

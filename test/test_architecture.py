@@ -48,10 +48,6 @@ MAX_LINES = 800
 #: ``cycle``, ``layers`` and ``size`` (see the module docstring). Remove an
 #: entry once its module keeps the rule: the test below fails until you do.
 KNOWN_EXCEPTIONS = frozenset({
-    # The model's engines, being brought to one engine by the model's owner:
-    # Muscle builds a FesMuscle, which is a Muscle.
-    ('cycle', 'hill_muscle_ros.model.muscle'),
-    ('cycle', 'hill_muscle_ros.model.fes_muscle'),
     # The kernels of the FES muscle, over 800 lines, being split by the model's owner.
     ('size', 'hill_muscle_ros.model.fes_kernels'),
 })

@@ -1,6 +1,6 @@
 """A MuscleBatch holding muscles with FES features on: the compiled engine against NumPy's.
 
-On the NumPy engine each FES muscle is its own FesMuscle (the reference); on
+On the NumPy engine each FES muscle is its own Muscle (the reference); on
 the compiled engine they are stepped together on the compiled FES muscle
 (model/fes_batch_kernels.py). Every output of every step, of ``outputs()``
 and after ``set_recruitment`` must agree to 1e-9 (N, m, m/s), counts and
@@ -16,7 +16,7 @@ from hill_muscle_ros.model.batch import MuscleBatch
 
 from test_fes_compiled import (delay_activation_params, fatigue_params, fibre_type_params,
                                relative_params, spread_params)
-from test_model_fastpath import muscle_params
+from test_model_engines import muscle_params
 
 #: [N], [m], [m/s] agreement asked of every output (the forces' is the goal's 1e-9 N).
 TOL = 1e-9
@@ -72,9 +72,9 @@ def cases(draw):
 
 
 def run_both(params, actions):
-    compiled = MuscleBatch(params, engine='compiled')
-    reference = MuscleBatch(params, engine='numpy')
-    assert compiled.engine == 'compiled' and reference.engine == 'numpy'
+    compiled = MuscleBatch(params, build='compiled')
+    reference = MuscleBatch(params, build='python')
+    assert compiled.build == 'compiled' and reference.build == 'python'
     for n, (action, r, dl, dt) in enumerate(actions):
         label = f'action {n} ({action})'
         if action == 'step':
@@ -106,7 +106,7 @@ def test_a_long_delay_with_commands_piling_up_grows_the_delay_lines():
         actions.append(('set', rng.uniform(size=2), np.zeros(2), 1e-4))
         actions.append(('step', rng.uniform(size=2), np.full(2, 0.002), 1e-4))
     compiled = run_both(params, actions)
-    assert compiled._fes_bundle.cap > 2 * 31 + 4   # grown beyond a 1 ms step's room
+    assert compiled._bundle.cap > 2 * 31 + 4   # grown beyond a 1 ms step's room
 
 
 def test_the_fes_quadriceps_preset_in_a_batch_of_three(monkeypatch):

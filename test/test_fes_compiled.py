@@ -1,4 +1,5 @@
-"""The compiled FES muscle (model/fes_kernels.py) against FesMuscle, the reference.
+"""The compiled FES muscle (model/fes_kernels.py) against the same functions run as
+plain Python (``HILL_MUSCLE_ENGINE=python``'s build).
 
 Random parameters and random protocols (commands held for a few steps or
 changing every step, given at a step's start and sometimes at its end, the
@@ -12,13 +13,12 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings, strategies as st
 
 from hill_muscle_ros.model import fes_kernels
-from hill_muscle_ros.model.fes_muscle import FesMuscle
 from hill_muscle_ros.model.params import MuscleParams
 
 #: [N], [m], [m/s] agreement asked of every output (the forces' is the goal's 1e-9 N).
 TOL = 1e-9
 #: Hypothesis examples per test: enough to hit events, releases and segment splits,
-#: while the Python reference stays quick (units below 200).
+#: while the plain Python build stays quick (units below 200).
 EXAMPLES = 40
 
 
@@ -29,10 +29,8 @@ def kernels():
 
 
 def _reference(params, r_start, r_end, dl, dt):
-    muscle = FesMuscle(params)
-    columns = [[0.0] * len(dl) for _ in range(fes_kernels.N_OUT)]
-    muscle.run(r_start, dl, dt, r_end, columns)
-    return np.array(columns).T
+    """The outputs of each step on the plain Python build of the kernels."""
+    return fes_kernels.run_muscle(fes_kernels.FesBundle([params]), 0, r_start, dl, dt, r_end)
 
 
 def _compare(kernels, params, protocol):
@@ -137,35 +135,35 @@ SETTINGS = settings(max_examples=EXAMPLES, deadline=None,
 
 @SETTINGS
 @given(params=delay_activation_params(), protocol=protocols())
-def test_delay_and_activation_match_the_reference(kernels, params, protocol):
+def test_delay_and_activation_match_the_plain_build(kernels, params, protocol):
     _compare(kernels, params, protocol)
 
 
 @SETTINGS
 @given(params=fatigue_params(), protocol=protocols())
-def test_fatigue_matches_the_reference(kernels, params, protocol):
+def test_fatigue_matches_the_plain_build(kernels, params, protocol):
     _compare(kernels, params, protocol)
 
 
 @SETTINGS
 @given(params=fibre_type_params(), protocol=protocols())
-def test_fibre_types_match_the_reference(kernels, params, protocol):
+def test_fibre_types_match_the_plain_build(kernels, params, protocol):
     _compare(kernels, params, protocol)
 
 
 @SETTINGS
 @given(params=spread_params(), protocol=protocols())
-def test_unit_length_spread_matches_the_reference(kernels, params, protocol):
+def test_unit_length_spread_matches_the_plain_build(kernels, params, protocol):
     _compare(kernels, params, protocol)
 
 
 @SETTINGS
 @given(params=relative_params(), protocol=protocols())
-def test_relative_fv_scaling_matches_the_reference(kernels, params, protocol):
+def test_relative_fv_scaling_matches_the_plain_build(kernels, params, protocol):
     _compare(kernels, params, protocol)
 
 
-def test_knee_quadriceps_preset_matches_the_reference(kernels):
+def test_knee_quadriceps_preset_matches_the_plain_build(kernels):
     """Every feature at once, 1000 units: the knee preset's quadriceps for 2 s of
     a pulse train switched on and off."""
     from hill_muscle_ros.model.limb import LimbPlant
@@ -191,12 +189,11 @@ def test_delay_line_grows_for_a_shorter_step(kernels):
     second = fes_kernels.run_muscle(bundle, 0, r[::-1], np.zeros(40), 1e-4, None, kernels)
     assert bundle.cap > cap
     ref = _reference(params, r, None, np.zeros(40), 1e-3)
-    muscle = FesMuscle(params)
-    muscle.run(r, np.zeros(40), 1e-3)
-    cols = [[0.0] * 40 for _ in range(fes_kernels.N_OUT)]
-    muscle.run(r[::-1], np.zeros(40), 1e-4, None, cols)
+    plain = fes_kernels.FesBundle([params], dt_s=1e-4)
+    fes_kernels.run_muscle(plain, 0, r, np.zeros(40), 1e-3)
+    ref_second = fes_kernels.run_muscle(plain, 0, r[::-1], np.zeros(40), 1e-4)
     assert np.abs(first - ref[:40]).max() <= TOL
-    assert np.abs(second - np.array(cols).T).max() <= TOL
+    assert np.abs(second - ref_second).max() <= TOL
 
 
 def test_a_new_bundle_starts_fresh_though_its_layout_is_kept(kernels):

@@ -12,7 +12,6 @@ from gymnasium.wrappers import ClipAction  # noqa: E402
 from hill_muscle_ros.gym import (FORCE_TRACKING_ID, KNEE_ANGLE_ID, ForceTrackingEnv,  # noqa: E402
                                  ForceTrackingVectorEnv, KneeAngleEnv, KneeAngleVectorEnv)
 from hill_muscle_ros.model import Muscle, MuscleParams  # noqa: E402
-from hill_muscle_ros.model.fes_muscle import FesMuscle  # noqa: E402
 from hill_muscle_ros.model.limb import Limb  # noqa: E402
 from hill_muscle_ros.params_file import load_plant  # noqa: E402
 from hill_muscle_ros.resources import config_dir  # noqa: E402
@@ -220,7 +219,7 @@ def test_force_tracking_params_and_variant_reach_the_muscle():
 
 def test_force_tracking_yaml_with_fatigue_uses_the_fes_engine_and_observes_fitness():
     env = ForceTrackingEnv(str(FES_QUADRICEPS))
-    assert isinstance(env.muscle, FesMuscle)
+    assert not env.muscle.params.fes_defaults   # the features reach the muscle
     assert env.observation_space.shape == (4 * 5 + 1,)
     obs, _ = env.reset(seed=0)
     assert obs[-1] == 1.0   # a fresh muscle
@@ -415,7 +414,7 @@ def test_force_tracking_fes_features_off_is_the_paper_dynamics_on_the_same_muscl
     preset = ForceTrackingEnv(FES_QUADRICEPS).params
     env = ForceTrackingEnv(FES_QUADRICEPS, fes_features=False, length_max_m=0.0)
     p = env.params
-    assert p.fes_defaults and not isinstance(env.muscle, FesMuscle)
+    assert p.fes_defaults and env.muscle.params.fes_defaults
     # the muscle and its recruitment curve are the preset's
     assert (p.f_iso_max_n, p.k_se_n_per_m, p.recruitment_curve, p.pw_threshold_s) == \
         (preset.f_iso_max_n, preset.k_se_n_per_m, preset.recruitment_curve,
@@ -441,7 +440,7 @@ def test_force_tracking_overrides_switch_features_on_and_reach_the_engine():
     env = ForceTrackingEnv(overrides={'fatigue': 'riener', 'tau_act_s': 0.02,
                                       'tau_deact_s': 0.03})
     assert (env.params.fatigue, env.params.tau_act_s) == ('riener', 0.02)
-    assert isinstance(env.muscle, FesMuscle)
+    assert (env.muscle.params.fatigue, env.muscle.params.tau_act_s) == ('riener', 0.02)
     assert env.observation_space.shape == (21,)   # fatigue on: the fitness is observed
     env.reset(seed=0)
     # Full width: with activation dynamics the force of the first period is

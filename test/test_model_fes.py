@@ -8,7 +8,6 @@ import pytest
 from hypothesis import given, strategies as st
 
 from hill_muscle_ros.model import Muscle, MuscleParams, Protocol, simulate
-from hill_muscle_ros.model.fes_muscle import FesMuscle
 from hill_muscle_ros.model.equations import fes_velocity, quasi_static_force
 from hill_muscle_ros.model.protocol import commands_from_pulse_widths
 from hill_muscle_ros.model.stimulus import command_from_pulse_width
@@ -23,34 +22,6 @@ VARIANTS = [(u, l) for u in ('multi', 'single') for l in ('initial', 'instantane
 
 def _protocol(name):
     return Protocol.from_yaml(protocol_path(name))
-
-
-def _fes_simulate(protocol, params, rate_hz=1000.0):
-    """simulate() with the FES engine forced, even where every feature is off."""
-    original = Muscle.__new__
-
-    def forced(cls, p=None):
-        return object.__new__(FesMuscle)
-    Muscle.__new__ = forced
-    try:
-        return simulate(protocol, params, rate_hz)
-    finally:
-        Muscle.__new__ = original
-
-
-def test_defaults_make_the_papers_muscle_and_features_make_the_fes_one():
-    assert type(Muscle(MuscleParams())) is Muscle
-    assert type(Muscle(MuscleParams(tau_act_s=0.05))) is FesMuscle
-
-
-@pytest.mark.parametrize('units,length', VARIANTS)
-@pytest.mark.parametrize('name', ['I', 'II'])
-def test_fes_engine_with_every_feature_off_equals_the_papers_loop(name, units, length):
-    params = MuscleParams(units=units, length=length)
-    paper = simulate(_protocol(name), params)
-    fes = _fes_simulate(_protocol(name), params)
-    np.testing.assert_allclose(fes.force_n, paper.force_n, rtol=0, atol=SAME_MODEL_TOL_N)
-    np.testing.assert_array_equal(fes.recruitment, paper.recruitment)
 
 
 # -- recruitment curves ---------------------------------------------------------------
@@ -189,7 +160,7 @@ def test_batch_equals_separate_muscles_on_every_feature_to_1e_9_newton():
             assert abs(out.force_n[i] - ref.force_n) <= SAME_MODEL_TOL_N, \
                 (list(FEATURES)[i], k)
             # The batch's compiled engine runs the compiled FES muscle, which
-            # agrees with FesMuscle to rounding, not bit for bit.
+            # agrees with the single Muscle to rounding, not bit for bit.
             assert abs(out.recruitment[i] - ref.recruitment) <= SAME_MODEL_TOL
             assert abs(out.mean_fitness[i] - ref.mean_fitness) <= SAME_MODEL_TOL
 

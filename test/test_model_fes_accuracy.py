@@ -125,18 +125,19 @@ def test_holding_r_over_each_step_would_miss_the_target(monkeypatch):
     """The target is not loose: the same muscle with the recruitment held
     over each whole step (every step's events moved to its end) is off by far
     more, so the splitting is what the test measures."""
-    from hill_muscle_ros.model import engine, fes_muscle
-    # The patch changes the Python FesMuscle: simulate() must not take the
-    # compiled FES muscle, which the fine-step reference may have loaded.
+    from hill_muscle_ros.model import engine, fes_kernels
+    from hill_muscle_ros.model.memory import recruited_units
+    # The patch changes the plain functions, which the Python engine calls by
+    # name; the compiled build, loaded earlier, is left alone.
     monkeypatch.setenv(engine.ENV_VAR, engine.PYTHON)
-    original = fes_muscle.FesMuscle._events
 
-    def at_step_end(self, s0, s1, *args):
-        return [(s1, m) for _, m in original(self, s0, s1, *args)[-1:]]
-    fes_muscle.FesMuscle._events = at_step_end
-    try:
-        error = _max_error('varying', 'multi-initial', 1e-5)
-    finally:
-        fes_muscle.FesMuscle._events = original
+    def at_step_end(F, I, i, s0, s1, a0, u_d, tau, m0):
+        n = I[fes_kernels.hdr(I, i, fes_kernels.H_IP) + fes_kernels.I_N]
+        m1 = recruited_units(fes_kernels.activation_at(a0, u_d, tau, s1 - s0), n)
+        if m1 != m0:
+            fes_kernels.add_event(F, I, i, s1, fes_kernels.A_RECRUIT, m1, 0.0, 0.0, 0.0)
+        return m1
+    monkeypatch.setattr(fes_kernels, 'plan_events', at_step_end)
+    error = _max_error('varying', 'multi-initial', 1e-5)
     # Measured 0.33 N on this protocol.
     assert error > 4 * ACCURACY_N

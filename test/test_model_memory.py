@@ -1,10 +1,14 @@
-"""The LIFO run stack equals the paper's per-unit memory (Eq. 2)."""
+"""The engine's unit memory (the segment stacks of model/fes_kernels.py) against
+the paper's per-unit memory (Eq. 2), and its LIFO order."""
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hill_muscle_ros.model import Muscle, MuscleParams, NaiveUnitMemory, UnitMemory
+from hill_muscle_ros.model import MuscleParams
 from hill_muscle_ros.model.memory import recruited_units
+
+from engines import KernelPool
+from reference import NaiveUnitMemory
 
 P = MuscleParams()
 
@@ -12,31 +16,26 @@ recruitments = st.floats(min_value=0.0, max_value=1.0)
 lengths = st.floats(min_value=0.02, max_value=0.2)
 
 
-@settings(max_examples=300, deadline=None)
+def _pool(n_units: int = 1000) -> KernelPool:
+    return KernelPool(MuscleParams(n_units=n_units))
+
+
+def _update(pool: KernelPool, m: int, l_ce_m: float) -> float:
+    """Recruit or release to ``m`` units at CE length ``l_ce_m``; return [N] Eff.f_iso."""
+    x = l_ce_m / P.l_opt_m
+    pool.update(m, x, 0.0)
+    return pool.eff_f_iso(x, 0.0)
+
+
+@settings(max_examples=200, deadline=None)
 @given(st.sampled_from([1, 7, 1000, 100_000]),
        st.lists(st.tuples(recruitments, lengths), min_size=1, max_size=200))
-def test_lifo_stack_equals_naive_per_unit_array(n_units, sequence):
-    lifo = UnitMemory(n_units, P.f_iso_max_n, P.l_opt_m)
+def test_segment_stack_equals_naive_per_unit_array(n_units, sequence):
+    pool = _pool(n_units)
     naive = NaiveUnitMemory(n_units, P.f_iso_max_n, P.l_opt_m)
     for r, l_ce in sequence:
         m = recruited_units(r, n_units)
-        assert lifo.update(m, l_ce) == pytest.approx(naive.update(m, l_ce), abs=1e-9)
-        assert lifo.n_recruited == naive.n_recruited == m
-
-
-@settings(max_examples=50, deadline=None)
-@given(st.lists(st.tuples(recruitments, st.floats(min_value=-0.02, max_value=0.02)),
-                min_size=1, max_size=300))
-def test_multi_initial_muscle_force_equals_one_with_naive_memory(sequence):
-    """Full muscle run: swap the LIFO memory for the naive one; forces agree to 1e-9 N."""
-    params = MuscleParams(units='multi', length='initial')
-    fast, slow = Muscle(params), Muscle(params)
-    slow._memory = NaiveUnitMemory(params.n_units, params.f_iso_max_n, params.l_opt_m)
-    for r, dl in sequence:
-        a = fast.step(r, dl, 1e-3)
-        b = slow.step(r, dl, 1e-3)
-        assert a.force_n == pytest.approx(b.force_n, abs=1e-9)
-        assert a.eff_f_iso_n == pytest.approx(b.eff_f_iso_n, abs=1e-9)
+        assert _update(pool, m, l_ce) == pytest.approx(naive.update(m, l_ce), abs=1e-9)
 
 
 def test_recruited_units_rounds_half_up():
@@ -45,29 +44,27 @@ def test_recruited_units_rounds_half_up():
 
 
 def test_total_does_not_drift_after_many_changes():
-    """Totals are rebuilt from the run below, so a return to a level is exact."""
-    mem = UnitMemory(1000, P.f_iso_max_n, P.l_opt_m)
-    mem.update(400, 0.125)
-    base = mem.eff_f_iso
+    """Totals are rebuilt from the segment below, so a return to a level is exact."""
+    pool = _pool()
+    base = _update(pool, 400, 0.125)
     for k in range(10_000):
-        mem.update(400 + (k % 600) + 1, 0.08 + 1e-6 * k)
-        mem.update(400, 0.1)
-    assert mem.eff_f_iso == base
-    assert mem.n_runs == 1
+        _update(pool, 400 + (k % 600) + 1, 0.08 + 1e-6 * k)
+        back = _update(pool, 400, 0.1)
+    assert back == base
 
 
 def test_de_recruiting_everything_erases_the_memory():
-    mem = UnitMemory(1000, P.f_iso_max_n, P.l_opt_m)
-    mem.update(300, 0.1)
-    mem.update(900, 0.12)
-    mem.update(0, 0.1)
-    assert (mem.eff_f_iso, mem.n_recruited, mem.n_runs) == (0.0, 0, 0)
+    pool = _pool()
+    _update(pool, 300, 0.1)
+    _update(pool, 900, 0.12)
+    assert _update(pool, 0, 0.1) == 0.0
+    assert _update(pool, 500, 0.1) == pytest.approx(500 * P.f_iso_max_n / 1000, rel=1e-12)
 
 
 def test_highest_units_are_de_recruited_first():
-    mem = UnitMemory(1000, P.f_iso_max_n, P.l_opt_m)
-    mem.update(500, 0.100)   # FL = 1
-    mem.update(1000, 0.125)  # FL(1.25)
-    mem.update(600, 0.09)    # drop 400 of the FL(1.25) units
+    pool = _pool()
+    _update(pool, 500, 0.100)   # FL = 1
+    _update(pool, 1000, 0.125)  # FL(1.25)
+    f0 = _update(pool, 600, 0.09)    # drop 400 of the FL(1.25) units
     f_unit = P.f_iso_max_n / 1000
-    assert mem.eff_f_iso == pytest.approx(500 * f_unit + 100 * f_unit * 0.8264375)
+    assert f0 == pytest.approx(500 * f_unit + 100 * f_unit * 0.8264375)

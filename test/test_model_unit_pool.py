@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 
 from hill_muscle_ros.model import MuscleParams
 from hill_muscle_ros.model.equations import force_length
-from hill_muscle_ros.model.unit_pool import UnitPool
+from engines import KernelPool as UnitPool
 
 #: [N] two exact evaluations of the same sum, differing in rounding only.
 SUM_TOL_N = 1e-9

@@ -8,9 +8,7 @@ import yaml
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
-from hill_muscle_ros.model import Muscle, MuscleParams, engine
-from hill_muscle_ros.model.compiled_muscle import CompiledFesMuscle
-from hill_muscle_ros.model.fes_muscle import FesMuscle
+from hill_muscle_ros.model import MuscleParams, engine, fes_kernels
 from hill_muscle_ros.nodes import simulator
 from hill_muscle_ros.model.stimulus import command_from_pulse_width
 from ros_helpers import Probe, ProcessGroup, RecordingLogger, node_command, ros_env
@@ -153,23 +151,23 @@ def test_a_live_change_rebuilds_the_compiled_muscle_without_compiling(fes_sim):
     assert 'loading the compiled muscle' not in out[out.index(line):]
 
 
-def test_a_muscle_with_every_fes_feature_off_keeps_the_papers_python_muscle():
+@COMPILED_ENGINE
+def test_a_muscle_with_every_fes_feature_off_runs_on_the_same_compiled_engine():
     logger = RecordingLogger()
     muscle = simulator.load_muscle(MuscleParams(), logger)
-    assert type(muscle) is Muscle
-    assert logger.lines == [('info', "muscle engine: python (every FES feature off: the "
-                                     "paper's model)")]
+    assert muscle.build == engine.COMPILED
+    assert logger.lines[-1][1].startswith('muscle engine: compiled, loaded in')
 
 
 def test_a_compiled_muscle_that_fails_to_load_falls_back_to_python_with_a_warning(monkeypatch):
-    def broken(params):
+    def broken():
         raise ImportError('no module named numba')
     monkeypatch.setenv(engine.ENV_VAR, engine.COMPILED)
     monkeypatch.setattr(engine, 'numba_available', lambda: True)
-    monkeypatch.setattr(simulator.compiled_muscle, 'CompiledFesMuscle', broken)
+    monkeypatch.setattr(fes_kernels, 'compiled', broken)
     logger = RecordingLogger()
     muscle = simulator.load_muscle(MuscleParams(**FES), logger)
-    assert type(muscle) is FesMuscle
+    assert muscle.build == engine.PYTHON
     assert ('warning', 'the compiled muscle failed to load (ImportError: no module named '
             'numba): the muscle runs on the Python engine') in logger.lines
 
@@ -178,6 +176,7 @@ def test_a_compiled_muscle_that_fails_to_load_falls_back_to_python_with_a_warnin
 def test_a_rebuild_keeps_the_engine_the_node_started_with():
     simulator.load_muscle(MuscleParams(**FES), RecordingLogger())   # loads the kernels, as __init__
     params = MuscleParams(**dict(FES, emd_s=0.03))
-    assert type(simulator.rebuild_muscle(params, True, RecordingLogger())) is CompiledFesMuscle
-    assert type(simulator.rebuild_muscle(params, False, RecordingLogger())) is FesMuscle
-    assert type(simulator.rebuild_muscle(MuscleParams(), True, RecordingLogger())) is Muscle
+    assert simulator.rebuild_muscle(params, True, RecordingLogger()).build == engine.COMPILED
+    assert simulator.rebuild_muscle(params, False, RecordingLogger()).build == engine.PYTHON
+    assert simulator.rebuild_muscle(MuscleParams(), True,
+                                    RecordingLogger()).build == engine.COMPILED

@@ -1,12 +1,9 @@
-"""simulate() of a muscle with FES features on: the compiled FES muscle against FesMuscle.
+"""simulate() of a muscle with FES features on: the compiled build against the plain one.
 
-``simulate`` takes the compiled FES run (model/fes_kernels.py) under the
-engine's rule (model/engine.py); here ``HILL_MUSCLE_ENGINE`` forces each
-engine in turn, and every column of the result must agree to 1e-9 (N, m,
-m/s) with the Python run of FesMuscle, the reference, and n_recruited exactly.
+``simulate`` runs the muscle on the build :func:`hill_muscle_ros.model.engine.kernels`
+chooses; here ``HILL_MUSCLE_ENGINE`` forces each in turn, and every column of
+the result must agree to 1e-9 (N, m, m/s), n_recruited exactly.
 """
-import importlib
-
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, assume, given, settings, strategies as st
@@ -21,8 +18,6 @@ from test_fes_compiled import _params
 TOL = 1e-9
 #: [s] longest random protocol: the Python reference stays quick.
 MAX_DURATION_S = 0.4
-#: The module (the package's ``simulate`` attribute is the function).
-simulate_module = importlib.import_module('hill_muscle_ros.model.simulate')
 PRESET = resources.config_dir() / 'fes_quadriceps.yaml'
 PROTOCOLS = resources.config_dir() / 'protocols'
 
@@ -49,16 +44,7 @@ def _assert_same(got, ref):
 
 def _compare(monkeypatch, protocol, params, rate_hz=1000.0):
     ref = _run(monkeypatch, engine.PYTHON, protocol, params, rate_hz)
-    calls = []
-    original = simulate_module._simulate_fes_compiled
-
-    def spy(*args):
-        calls.append(args)
-        return original(*args)
-
-    monkeypatch.setattr(simulate_module, '_simulate_fes_compiled', spy)
     got = _run(monkeypatch, engine.COMPILED, protocol, params, rate_hz)
-    assert len(calls) == 1   # the compiled run was taken
     _assert_same(got, ref)
 
 
@@ -81,7 +67,7 @@ def fes_params(draw):
                       unit_length_spread=draw(st.sampled_from([0.0, 0.3])),
                       recruitment_order=draw(st.sampled_from(['size', 'random'])))
     params = _params(**fields)
-    assume(not params.fes_defaults)   # a FesMuscle, not the paper's Muscle
+    assume(not params.fes_defaults)   # some FES feature on
     return params
 
 
@@ -111,30 +97,17 @@ def test_quadriceps_preset_matches_the_python_run(kernels, monkeypatch, name):
     _compare(monkeypatch, Protocol.from_yaml(PROTOCOLS / name), params)
 
 
-def test_auto_stays_on_python_for_a_short_run_until_loaded(monkeypatch):
-    """auto: a run shorter than FES_RUN_MIN_STEPS does not load the compiled FES
-    muscle; once it is loaded, the same run takes it."""
-    params, _ = load_muscle_params(PRESET)
-    protocol = Protocol.from_yaml(PROTOCOLS / 'protocol_I.yaml')
-    assert 6000 < simulate_module.FES_RUN_MIN_STEPS
+def test_auto_takes_the_compiled_build_where_numba_is(kernels, monkeypatch):
     monkeypatch.setenv(engine.ENV_VAR, 'auto')
-    monkeypatch.setattr(fes_kernels, '_compiled', None)
-    calls = []
-    monkeypatch.setattr(simulate_module, '_simulate_fes_compiled',
-                        lambda *args: calls.append(args))
-    simulate(protocol, params)
-    assert calls == [] and fes_kernels._compiled is None
-    monkeypatch.setattr(fes_kernels, '_compiled', object())   # loaded
-    simulate(protocol, params)
-    assert len(calls) == 1
+    assert engine.kernels(fes_kernels) is kernels
 
 
-def test_python_engine_never_takes_the_compiled_run(kernels, monkeypatch):
+def test_python_engine_never_loads_the_compiled_build(monkeypatch):
     params, _ = load_muscle_params(PRESET)
     protocol = Protocol.from_yaml(PROTOCOLS / 'protocol_I.yaml')
-    calls = []
-    monkeypatch.setattr(simulate_module, '_simulate_fes_compiled',
-                        lambda *args: calls.append(args))
+
+    def refuse():
+        raise AssertionError('the compiled build was asked for')
+    monkeypatch.setattr(fes_kernels, 'compiled', refuse)
     monkeypatch.setenv(engine.ENV_VAR, 'python')
-    simulate(protocol, params)
-    assert calls == []
+    assert simulate(protocol, params).force_n.max() > 0.0

@@ -117,6 +117,25 @@ def choice() -> str:
     return PYTHON
 
 
+def kernels(module: types.ModuleType, build: str | None = None) -> object:
+    """The build of a kernel module to run: the one place the engine is chosen.
+
+    :param module: a module of plain kernel functions with a ``compiled()``
+        that returns their numba build (e.g. :mod:`.fes_kernels`)
+    :param build: :data:`COMPILED` or :data:`PYTHON` to ask for one, or None
+        for :func:`choice` (``HILL_MUSCLE_ENGINE``)
+    :return: ``module.compiled()`` for :data:`COMPILED`, else ``module``
+        itself: the very same functions, run as plain Python
+    :raises ValueError: if ``build`` or :data:`ENV_VAR` holds an unknown value
+    :raises ImportError: if it asks for ``compiled`` and numba cannot be imported
+    """
+    if build is None:
+        build = choice()
+    elif build not in (COMPILED, PYTHON):
+        raise ValueError(f'`build` must be {COMPILED!r}, {PYTHON!r} or None, got {build!r}')
+    return module.compiled() if build == COMPILED else module
+
+
 def use_compiled(work: int, min_work: int, loaded: bool) -> bool:
     """Whether a loop of ``work`` iterations should take its compiled version now.
 

@@ -187,7 +187,7 @@ MAX_EVENTS_PER_PIECE = 64
 
 
 #: Largest h lambda per RK4 step, lambda the bound on the CE's relaxation rate
-#: (:meth:`FesMuscle.stiffness_rate`). Classical RK4 is stable on the real axis
+#: (:func:`relaxation_rate`). Classical RK4 is stable on the real axis
 #: up to 2.785, but a step of h lambda near 1 across a kink of Eq. 3 (the
 #: tendon force leaving the eccentric plateau) errs by over 1 N with a stiff
 #: tendon (limb reference, k_SE = 300 kN/m); 0.5 keeps that within 0.15 N. The
@@ -287,7 +287,7 @@ def fes_velocity(l_ce_m: float, dl_mt_m: float, f0_n: float, k_se: float, l_rest
 def relaxation_rate(l_ce_m: float, dl_mt_m: float, f0_n: float, k_se: float,
                     l_rest_m: float, a: float, b: float, a_ecc: float, b_ecc: float,
                     f_iso_max_n: float, relative: bool) -> float:
-    """[1/s] |d v_CE / d l_CE| at F0 = ``f0_n``: see :meth:`FesMuscle.stiffness_rate`
+    """[1/s] |d v_CE / d l_CE| at F0 = ``f0_n``: see :func:`relaxation_rate`
     (the arguments as :func:`fes_velocity`'s)."""
     if f0_n <= 0.0:
         return 0.0

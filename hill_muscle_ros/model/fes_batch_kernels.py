@@ -4,7 +4,7 @@ A batch on the compiled engine keeps its muscles with FES features on in one
 :class:`~hill_muscle_ros.model.fes_kernels.FesBundle` (muscle j of the bundle
 is batch muscle ``index[j]``) and steps them all in one call of
 :func:`step_all`, each exactly as the NumPy engine's
-:class:`~hill_muscle_ros.model.fes_muscle.FesMuscle` does it: the command
+:class:`~hill_muscle_ros.model.muscle.Muscle` does it: the command
 given now (``set_recruitment``), then ``step`` (which gives it again at the
 same instant: no change) and the outputs. :func:`give_all` is
 ``set_recruitment`` alone, with the state the batch copies afterwards, and
@@ -22,7 +22,7 @@ import types
 
 import numpy as np
 
-from . import equations, fes_kernels, fes_muscle, memory, stimulus, unit_pool, units
+from . import equations, fes_kernels, memory, stimulus, units
 from .fes_kernels import (H_FS, H_IP, H_JS, I_MULTI, J_NREC, OK, S_CMD, S_DL, S_L,
                           S_MU, S_R, S_T, give_command, hdr, muscle_advance, muscle_outputs,
                           pool_mean_fitness)
@@ -35,7 +35,7 @@ from .fes_kernels import (H_FS, H_IP, H_JS, I_MULTI, J_NREC, OK, S_CMD, S_DL, S_
 
 
 def read_state(F, I, j, row):
-    """Muscle ``j``'s state as FesMuscle's attributes give it, into ``row``
+    """Muscle ``j``'s state as Muscle's attributes give it, into ``row``
     (the ROW_* columns): what MuscleBatch copies after a command."""
     fs, js, ip = hdr(I, j, H_FS), hdr(I, j, H_JS), hdr(I, j, H_IP)
     row[ROW_RECRUITMENT] = F[fs + S_R]
@@ -49,7 +49,7 @@ def read_state(F, I, j, row):
 
 def give_all(F, I, r, index, done, state):
     """Give each muscle j not ``done`` the command ``r[index[j]]`` now
-    (FesMuscle.set_recruitment), then its state into ``state[j]``; ``done[j]``
+    (Muscle.set_recruitment), then its state into ``state[j]``; ``done[j]``
     becomes True, or stays False if its delay line is full (nothing changed)."""
     for j in range(index.shape[0]):
         if done[j]:
@@ -61,7 +61,7 @@ def give_all(F, I, r, index, done, state):
 
 def step_all(F, I, r, dl1, dt, index, done, out):
     """One step of each muscle j not ``done``, as the NumPy engine takes it:
-    command ``r[index[j]]`` given now, then FesMuscle.step(r, dl1[index[j]], dt)
+    command ``r[index[j]]`` given now, then Muscle.step(r, dl1[index[j]], dt)
     and its outputs into ``out[j]``; ``done[j]`` as in :func:`give_all`."""
     for j in range(index.shape[0]):
         if done[j]:
@@ -76,7 +76,7 @@ def step_all(F, I, r, dl1, dt, index, done, out):
 
 
 def outputs_all(F, I, out):
-    """Every muscle's outputs now (FesMuscle.outputs) into ``out[j]``."""
+    """Every muscle's outputs now (Muscle.outputs) into ``out[j]``."""
     for j in range(out.shape[0]):
         muscle_outputs(F, I, j, out[j])
 
@@ -105,7 +105,7 @@ def batch_entry(F, I, mode, r, dl1, dt, index, done, out):
 
 _KERNELS = ('read_state', 'give_all', 'step_all', 'outputs_all', 'batch_entry')
 #: The modules whose code the kernels inline: their digest names the cache entries.
-_DIGEST_OF = (equations, stimulus, memory, units, unit_pool, fes_muscle, fes_kernels)
+_DIGEST_OF = (equations, stimulus, memory, units, fes_kernels)
 #: The functions of :mod:`.fes_kernels` called here, bound to their compiled versions.
 _CALLED = ('give_command', 'hdr', 'muscle_advance', 'muscle_outputs', 'pool_mean_fitness')
 _compiled = None

@@ -1,21 +1,22 @@
-"""The FES muscle and the limb over flat arrays: plain functions for Python and numba.
+"""The muscle over flat arrays: the one implementation, for numba and plain Python.
 
-:class:`~hill_muscle_ros.model.fes_muscle.FesMuscle` and
-:class:`~hill_muscle_ros.model.limb.Limb` keep their state in objects, lists
-and deques: readable, and the reference. Here the same model runs over
-fixed-size arrays, so that numba compiles it (:func:`compiled`); the plain
-functions also run unchanged as Python (slowly: for the tests).
+Every muscle of the package runs these functions: :class:`~.muscle.Muscle`
+(the CLI, the simulator node, the gym), :class:`~.batch.MuscleBatch` through
+:mod:`.fes_batch_kernels`, and each muscle of a limb through the limb's
+kernels. They are compiled by numba (:func:`compiled`) or run unchanged as
+plain Python (``HILL_MUSCLE_ENGINE=python``: slowly, for debugging), chosen
+once by :func:`.engine.kernels`. The equations they evaluate are the scalar
+functions of :mod:`.equations` (FL, FV and its inverse, the springs, the
+activation's closed form, the fatigue laws, the RK4 update); the FL sums over
+a unit layout are in :mod:`.units`. The paper's model is the muscle with every
+FES feature off.
 
-Written once: every equation is a function of the module where it lives,
-called by the reference and here alike (the activation's closed form and its
-inverse in :mod:`.stimulus`, Eq. 3 inverted with relative constants, the
-CE's relaxation rate, the RK4 substep count and the whole-muscle Riener law
-in :mod:`.fes_muscle`, the FL sums over a unit layout in :mod:`.units`, the
-per-unit fatigue's closed forms in :mod:`.unit_pool`, the curves in
-:mod:`.equations`). Only the bookkeeping takes another form: the delay line is
-a ring buffer, the plan of recruitment changes a table of events, the unit
-pool's two segment stacks arrays of N + 2 rows; they hold the same numbers
-in the same order, so the results agree with the reference to rounding.
+The step is split at the instants where the delayed command switches and
+where the activation crosses a unit's recruitment level (the closed form gives
+those instants), so that each unit stores the CE length of its own
+recruitment instant and the force rises when it does, not at the next step.
+Within each piece RK4 evaluates the effective isometric force at its stage
+times, including the fatigue clocks.
 
 State: two flat arrays, ``F`` (float64) and ``I`` (int64), holding each
 muscle's regions (:data:`REGIONS`: parameters, state, unit layout, stacks,
@@ -25,8 +26,19 @@ muscle index. Two arrays rather than one per region: a compiled call passes
 each array's whole descriptor, and with twenty of them a call cost about 300
 ns (measured: Eff.f_iso of a 50-unit muscle, 307 ns a call with the arrays
 in a tuple, 53 ns with these two). :class:`FesBundle` builds them from
-parameters; a limb's muscles are muscles 0, 1, ... of one bundle
-(:mod:`.limb_kernels`).
+parameters; a limb's muscles are muscles 0, 1, ... of one bundle.
+
+The unit pool (multi): units recruited and released at the same instants
+share their whole history, so they share their fitness. The units along the
+recruitment order are split into segments of one history each: the recruited
+prefix [0, M) is a stack of segments (each also stores the CE length at which
+it was recruited), the resting suffix [M, N) another. Every recruited
+segment's excess fitness mu - mu_min decays by the same factor exp(-dt / T_fat)
+in a step, and every resting segment's deficit 1 - mu by exp(-dt / T_rec): so
+each is stored divided by a common clock, and the totals over a stack are
+static running sums, read at any instant in O(1) per fibre type without
+rounding drift (doc/model.md section 7.3). A recruitment change moves the
+segments between the stacks it spans and splits at most one.
 """
 from __future__ import annotations
 
@@ -38,7 +50,7 @@ from typing import Sequence
 
 import numpy as np
 
-from . import equations, fes_muscle, memory, stimulus, unit_pool, units
+from . import equations, memory, stimulus, units
 from .equations import (ECC_PLATEAU, FL_A, FL_B, FL_C, MAX_EVENTS_PER_PIECE, MAX_SUBSTEPS,
                         QUASI_STATIC_RATE_PER_S, RK4_MAX_H_LAMBDA, activation_at, fes_velocity,
                         fitness_at, force_length, force_velocity, force_velocity_inverse,
@@ -49,10 +61,13 @@ from .equations import (ECC_PLATEAU, FL_A, FL_B, FL_C, MAX_EVENTS_PER_PIECE, MAX
 from .memory import recruited_units
 from .params import MuscleParams
 from .stimulus import DelayLine
-from .unit_pool import _RENORMALISE_AFTER_TAUS
 from .units import (FL_ROOT_HIGH, FL_ROOT_LOW, PHI, UnitLayout, fl_clear, length_scale,
                     type_fl_sum, unit_length_scale)
 
+#: Elapsed time over the fastest time constant after which the unit pool's
+#: common clocks are renormalised: exp(-500) = 7e-218 stays far from underflow,
+#: and stored values divided by it (at most e^500 = 1.4e217) far from overflow.
+_RENORMALISE_AFTER_TAUS = 500.0
 #: [s] two instants closer than this are one (the delay line's tolerance).
 TIME_TOL_S = DelayLine.TIME_TOLERANCE_S
 
@@ -75,9 +90,9 @@ N_FS = S_CACHE + N_CACHE
 # Columns of the integer state ``js``.
 J_NREC, J_M, J_RTOP, J_UN, J_DHEAD, J_DCOUNT, J_NEV = range(7)
 N_JS = 7
-# Columns of a recruited segment's static sums per type (as UnitPool's).
+# Columns of a recruited segment's static sums per type.
 C_G, C_N, C_C1, C_C2 = range(4)
-#: Actions of the plan (FesMuscle.plan's names).
+#: Actions of the plan of a step's recruitment changes.
 A_PIECE, A_JUMP, A_RECRUIT, A_RISE, A_RELEASE, A_END = range(6)
 #: Rows of a muscle's outputs, as :class:`~hill_muscle_ros.model.muscle.MuscleOutputs`.
 N_OUT = 12
@@ -196,7 +211,7 @@ def moment(F, I, i, k, c, p0, p1):
 
 def pool_static_row(F, I, i, p0, p1, x_o, row):
     """Per type: g = f_max sum FL(c x_o) (initial), n, sum c, sum c^2 over [p0, p1)
-    (UnitPool._static_row), written to F from offset ``row`` (K rows of 4)."""
+   , written to F from offset ``row`` (K rows of 4)."""
     fp = hdr(I, i, H_FP)
     ip = hdr(I, i, H_IP)
     k_types, initial = I[ip + I_K], I[ip + I_INITIAL]
@@ -223,7 +238,7 @@ def pool_static_row(F, I, i, p0, p1, x_o, row):
 
 
 def pool_push_recruited(F, I, i, end, x_o, exn, row):
-    """Push a recruited segment (UnitPool._push_recruited); ``exn`` and ``row`` are
+    """Push a recruited segment; ``exn`` and ``row`` are
     offsets in F of its excesses (K) and its static row (K rows of 4)."""
     ip, js = hdr(I, i, H_IP), hdr(I, i, H_JS)
     top = I[js + J_RTOP]
@@ -258,7 +273,7 @@ def pool_clocks(F, I, i, t, d, h):
 
 
 def pool_advance_to(F, I, i, t):
-    """Renormalise the clocks when they near underflow (UnitPool.advance_to)."""
+    """Renormalise the clocks when they near underflow."""
     fp, js, ip = hdr(I, i, H_FP), hdr(I, i, H_JS), hdr(I, i, H_IP)
     fs = hdr(I, i, H_FS)
     if not (I[ip + I_FATIGUE]
@@ -281,7 +296,7 @@ def pool_advance_to(F, I, i, t):
 
 
 def pool_recruit(F, I, i, m, x_o, t):
-    """Recruit positions [M, m) at ``t`` with CE length ``x_o`` (UnitPool._recruit)."""
+    """Recruit positions [M, m) at ``t`` with CE length ``x_o``."""
     ip, js = hdr(I, i, H_IP), hdr(I, i, H_JS)
     k_types, fatigue = I[ip + I_K], I[ip + I_FATIGUE]
     d, h = scratch(I, i, SCR_D), scratch(I, i, SCR_H)
@@ -316,7 +331,7 @@ def pool_recruit(F, I, i, m, x_o, t):
 
 
 def pool_release(F, I, i, m, t):
-    """Release positions [m, M) at ``t``, the last recruited first (UnitPool._release)."""
+    """Release positions [m, M) at ``t``, the last recruited first."""
     ip, js = hdr(I, i, H_IP), hdr(I, i, H_JS)
     k_types, fatigue = I[ip + I_K], I[ip + I_FATIGUE]
     d, h = scratch(I, i, SCR_D), scratch(I, i, SCR_H)
@@ -365,7 +380,7 @@ def pool_release(F, I, i, m, t):
 
 
 def pool_update(F, I, i, m, x_ce, t):
-    """Recruit or release so that positions [0, m) are recruited (UnitPool.update)."""
+    """Recruit or release so that positions [0, m) are recruited."""
     js = hdr(I, i, H_JS)
     pool_advance_to(F, I, i, t)
     forget_eff_f_iso(F, I, i)
@@ -377,7 +392,7 @@ def pool_update(F, I, i, m, x_ce, t):
 
 def pool_eff_f_iso_initial(F, I, i, t):
     """[N] Eff.f_iso of the recruited units of a multi muscle with ``length:
-    initial`` (UnitPool.eff_f_iso), a function of the instant ``t`` alone:
+    initial``, a function of the instant ``t`` alone:
     from the cache (:func:`forget_eff_f_iso`) if it holds ``t``."""
     js, ip, fs = hdr(I, i, H_JS), hdr(I, i, H_IP), hdr(I, i, H_FS)
     top = I[js + J_RTOP]
@@ -405,7 +420,7 @@ def pool_eff_f_iso_initial(F, I, i, t):
 
 
 def pool_eff_f_iso(F, I, i, x_ce, t):
-    """[N] Eff.f_iso of the recruited units (UnitPool.eff_f_iso)."""
+    """[N] Eff.f_iso of the recruited units."""
     fp, js = hdr(I, i, H_FP), hdr(I, i, H_JS)
     ip, fs = hdr(I, i, H_IP), hdr(I, i, H_FS)
     if I[ip + I_INITIAL]:
@@ -468,7 +483,7 @@ def pool_eff_f_iso_clipped(F, I, i, x_ce, t):
 
 
 def pool_mean_fitness(F, I, i, t):
-    """[-] mean fitness over all N units (UnitPool.mean_fitness)."""
+    """[-] mean fitness over all N units."""
     fs, js = hdr(I, i, H_FS), hdr(I, i, H_JS)
     ip = hdr(I, i, H_IP)
     if not I[ip + I_FATIGUE]:
@@ -492,7 +507,7 @@ def pool_mean_fitness(F, I, i, t):
 # -- the muscle ----------------------------------------------------------------------------------
 
 def eff_f_iso(F, I, i, l, t):
-    """[N] Eff.f_iso at CE length ``l`` and instant ``t`` (FesMuscle.eff_f_iso)."""
+    """[N] Eff.f_iso at CE length ``l`` and instant ``t``."""
     fs, fp, ip = hdr(I, i, H_FS), hdr(I, i, H_FP), hdr(I, i, H_IP)
     if I[ip + I_MULTI]:
         return pool_eff_f_iso(F, I, i, l / F[fp + P_L_OPT], t)
@@ -529,7 +544,7 @@ def eff_f_iso_inline(F, I, i, l, t):
 
 
 def velocity(F, I, i, l, dl, f0):
-    """[m/s] d l_CE / dt at F0 = ``f0`` (FesMuscle._velocity)."""
+    """[m/s] d l_CE / dt at F0 = ``f0``."""
     fp, ip = hdr(I, i, H_FP), hdr(I, i, H_IP)
     return fes_velocity(l, dl, f0, F[fp + P_K_SE], F[fp + P_L_REST], F[fp + P_A], F[fp + P_B],
                         F[fp + P_A_ECC], F[fp + P_B_ECC], F[fp + P_F_ISO_MAX],
@@ -545,12 +560,12 @@ def rate_at(F, I, i, l, dl, f0):
 
 
 def stiffness_rate(F, I, i, l, dl, t):
-    """[1/s] the CE's relaxation rate (FesMuscle.stiffness_rate)."""
+    """[1/s] the CE's relaxation rate."""
     return rate_at(F, I, i, l, dl, eff_f_iso(F, I, i, l, t))
 
 
 def peak_rate(F, I, i, l, dl, s0, s1):
-    """[1/s] the CE's relaxation rate over [s0, s1] (FesMuscle.peak_rate)."""
+    """[1/s] the CE's relaxation rate over [s0, s1]."""
     r0 = stiffness_rate(F, I, i, l, dl, s0)
     r1 = stiffness_rate(F, I, i, l, dl, s0 + 0.5 * (s1 - s0))
     r2 = stiffness_rate(F, I, i, l, dl, s1)
@@ -558,7 +573,7 @@ def peak_rate(F, I, i, l, dl, s0, s1):
 
 
 def quasi_force(F, I, i, v, f0):
-    """[N] the CE's force moving at ``v`` with F0 = ``f0`` (FesMuscle.quasi_static_force)."""
+    """[N] the CE's force moving at ``v`` with F0 = ``f0``."""
     fp, ip = hdr(I, i, H_FP), hdr(I, i, H_IP)
     return quasi_static_force(v, f0, F[fp + P_A], F[fp + P_B],
                               F[fp + P_A_ECC], F[fp + P_B_ECC], F[fp + P_F_ISO_MAX],
@@ -573,7 +588,7 @@ def single_fatigue(F, I, i):
 
 def begin_interval(F, I, i, s0, s1):
     """The single muscle's fitness law over [s0, s1], a held at its midpoint value
-    (FesMuscle.begin_interval)."""
+   ."""
     fs, fp = hdr(I, i, H_FS), hdr(I, i, H_FP)
     if not single_fatigue(F, I, i):
         return
@@ -589,7 +604,7 @@ def begin_interval(F, I, i, s0, s1):
 
 
 def end_interval(F, I, i, s1):
-    """The single muscle's fitness at ``s1`` (FesMuscle.end_interval)."""
+    """The single muscle's fitness at ``s1``."""
     fs = hdr(I, i, H_FS)
     if single_fatigue(F, I, i):
         F[fs + S_MU] = fitness_at(F[fs + S_LAW + 1], F[fs + S_LAW + 2], F[fs + S_LAW + 3],
@@ -597,7 +612,7 @@ def end_interval(F, I, i, s1):
 
 
 def set_activation(F, I, i, a, t):
-    """a = R at ``t``, the memory updated from l_CE now (FesMuscle._set_activation)."""
+    """a = R at ``t``, the memory updated from l_CE now."""
     fs, fp, js, ip = hdr(I, i, H_FS), hdr(I, i, H_FP), hdr(I, i, H_JS), hdr(I, i, H_IP)
     if I[ip + I_MULTI]:
         m = recruited_units(a, I[ip + I_N])
@@ -619,7 +634,7 @@ def tau_for(F, I, i, a, u_d):
 
 
 def set_piece(F, I, i, s0, a0, u_d, tau):
-    """The activation's closed form from ``s0`` (FesMuscle._piece)."""
+    """The activation's closed form from ``s0``."""
     fs = hdr(I, i, H_FS)
     F[fs + S_PIECE] = s0
     F[fs + S_PIECE + 1] = a0
@@ -629,7 +644,7 @@ def set_piece(F, I, i, s0, a0, u_d, tau):
 
 def settle_now(F, I, i):
     """Apply a delayed command due now if the activation follows it at once
-    (FesMuscle.settle_now)."""
+   ."""
     fs, fp = hdr(I, i, H_FS), hdr(I, i, H_FP)
     t = F[fs + S_T]
     u_d = delay_settle(F, I, i, t)
@@ -641,7 +656,7 @@ def settle_now(F, I, i):
 
 
 def give_command(F, I, i, u):
-    """Queue command ``u`` now and apply what is due (FesMuscle.give_command);
+    """Queue command ``u`` now and apply what is due;
     False if the delay line is full (nothing changed)."""
     fs = hdr(I, i, H_FS)
     if not delay_push(F, I, i, F[fs + S_T], u):
@@ -667,7 +682,7 @@ def add_event(F, I, i, t, action, v0, v1, v2, v3):
 
 
 def group_target(m0, step, count, j):
-    """[-] the M of event ``j`` of a piece (FesMuscle._events): every unit, or
+    """[-] the M of event ``j`` of a piece: every unit, or
     :data:`MAX_EVENTS_PER_PIECE` groups of equal counts (Python's round: half to even)."""
     if count <= MAX_EVENTS_PER_PIECE:
         return m0 + step * (j + 1)
@@ -680,7 +695,7 @@ def group_target(m0, step, count, j):
 
 
 def plan_events(F, I, i, s0, s1, a0, u_d, tau, m0):
-    """Recruitment events of a moving piece (FesMuscle._events); returns M at s1."""
+    """Recruitment events of a moving piece; returns M at s1."""
     ip = hdr(I, i, H_IP)
     n = I[ip + I_N]
     m1 = recruited_units(activation_at(a0, u_d, tau, s1 - s0), n)
@@ -700,7 +715,7 @@ def plan_events(F, I, i, s0, s1, a0, u_d, tau, m0):
 
 def plan(F, I, i, t0, t1):
     """The recruitment changes of the step [t0, t1] into muscle ``i``'s event
-    table (FesMuscle.plan); consumes the delayed commands due in the step."""
+    table; consumes the delayed commands due in the step."""
     fs, js = hdr(I, i, H_FS), hdr(I, i, H_JS)
     cap = hdr(I, i, H_CAPDQ)
     I[js + J_NEV] = 0
@@ -732,7 +747,7 @@ def plan(F, I, i, t0, t1):
 
 def plan_piece(F, I, i, s0, s1, u_d, a, m):
     """Events of one piece [s0, s1] of constant delayed command (the loop body of
-    FesMuscle.plan); returns a and M at s1."""
+    :func:`plan`); returns a and M at s1."""
     fp, ip = hdr(I, i, H_FP), hdr(I, i, H_IP)
     multi = I[ip + I_MULTI] != 0
     tau = tau_for(F, I, i, a, u_d) if u_d != a else 0.0
@@ -767,7 +782,7 @@ def plan_piece(F, I, i, s0, s1, u_d, a, m):
 
 
 def apply(F, I, i, e, t):
-    """Apply event ``e`` of muscle ``i``'s plan at ``t`` (FesMuscle.apply)."""
+    """Apply event ``e`` of muscle ``i``'s plan at ``t``."""
     fs, fp, js, ip = hdr(I, i, H_FS), hdr(I, i, H_FP), hdr(I, i, H_JS), hdr(I, i, H_IP)
     action = I[hdr(I, i, H_EVA) + e]
     if action == A_PIECE:
@@ -794,7 +809,7 @@ def apply(F, I, i, e, t):
 # -- one muscle with its MTU length imposed --------------------------------------------------
 
 def muscle_rk4(F, I, i, s0, s1, t0, dl0, rate):
-    """One RK4 step of l_CE over [s0, s1] (FesMuscle._rk4)."""
+    """One RK4 step of l_CE over [s0, s1]."""
     fs, fp, ip = hdr(I, i, H_FS), hdr(I, i, H_FP), hdr(I, i, H_IP)
     h = s1 - s0
     initial = I[ip + I_INITIAL] != 0
@@ -831,7 +846,7 @@ def muscle_rk4(F, I, i, s0, s1, t0, dl0, rate):
 
 
 def muscle_integrate(F, I, i, s0, s1, t0, dl0, rate):
-    """RK4 of l_CE over [s0, s1], no recruitment change inside (FesMuscle._integrate)."""
+    """RK4 of l_CE over [s0, s1], no recruitment change inside."""
     fs = hdr(I, i, H_FS)
     h = s1 - s0
     if h <= 0.0:
@@ -854,7 +869,7 @@ def muscle_integrate(F, I, i, s0, s1, t0, dl0, rate):
 
 def muscle_advance(F, I, i, u, dl1, dt):
     """One step: command ``u`` given at its start, dl_MT ramping to ``dl1``
-    (FesMuscle._advance); returns :data:`OK` or :data:`DELAY_FULL`."""
+   ; returns :data:`OK` or :data:`DELAY_FULL`."""
     fs, js, ip = hdr(I, i, H_FS), hdr(I, i, H_JS), hdr(I, i, H_IP)
     t0, dl0 = F[fs + S_T], F[fs + S_DL]
     t1 = t0 + dt
@@ -878,7 +893,7 @@ def muscle_advance(F, I, i, u, dl1, dt):
 
 
 def muscle_outputs(F, I, i, out):
-    """The outputs now into ``out`` (12,), MuscleOutputs' order (FesMuscle.outputs)."""
+    """The outputs now into ``out`` (12,), MuscleOutputs' order."""
     fs, fp, js, ip = hdr(I, i, H_FS), hdr(I, i, H_FP), hdr(I, i, H_JS), hdr(I, i, H_IP)
     l, dl, t = F[fs + S_L], F[fs + S_DL], F[fs + S_T]
     r = F[fs + S_R]
@@ -906,7 +921,7 @@ def muscle_outputs(F, I, i, out):
 
 
 def muscle_run(F, I, i, r_start, dl_end, dt, r_end, have_r_end, out):
-    """Advance ``len(dl_end)`` steps (FesMuscle.run), outputs of step k in ``out[k]``.
+    """Advance ``len(dl_end)`` steps, outputs of step k in ``out[k]``.
 
     :return: the number of steps done (fewer if the delay line filled up)
     """
@@ -1065,7 +1080,7 @@ class FesBundle:
                 prefix[t, :, :] = np.concatenate(([0.0], np.cumsum(types_ == t, dtype=float)))
 
     def reset(self, i: int) -> None:
-        """Muscle ``i`` at rest (FesMuscle.reset): no command, every unit fresh and free."""
+        """Muscle ``i`` at rest: no command, every unit fresh and free."""
         p = self.params[i]
         fs, js = self.view(i, 'fs'), self.view(i, 'js')
         fs[:] = 0.0
@@ -1088,6 +1103,35 @@ class FesBundle:
         out = np.zeros(N_OUT)
         (kernels or _plain()).muscle_outputs(self.F, self.I, i, out)
         return out
+
+
+def fitness_profile(bundle: FesBundle, i: int) -> np.ndarray:
+    """[-] mu of every unit of multi muscle ``i`` along the recruitment order now,
+    read off its two segment stacks: O(N), for figures and tests (not a kernel).
+
+    :raises ValueError: for a ``single`` muscle, which has no units of its own
+    """
+    ip, fs, js = bundle.view(i, 'ip'), bundle.view(i, 'fs'), bundle.view(i, 'js')
+    if not ip[I_MULTI]:
+        raise ValueError('`fitness_profile` needs `units: multi`, got single')
+    n, k = int(ip[I_N]), int(ip[I_K])
+    mu = np.ones(n)
+    if not ip[I_FATIGUE]:
+        return mu
+    tp = bundle.view(i, 'tp').reshape(4, k)
+    elapsed = fs[S_T] - fs[S_EPOCH]
+    d, h = np.exp(-elapsed * tp[T_RATE_FAT]), np.exp(-elapsed * tp[T_RATE_REC])
+    types = bundle.view(i, 'tpos')
+    r_end, r_exn = bundle.view(i, 'r_end'), bundle.view(i, 'r_exn').reshape(n + 2, k)
+    for seg in range(1, js[J_RTOP] + 1):   # segment 0 is the empty sentinel
+        p0, p1 = r_end[seg - 1], r_end[seg]
+        mu[p0:p1] = (tp[T_MU_MIN] + r_exn[seg] * d)[types[p0:p1]]
+    u_start, u_end = bundle.view(i, 'u_start'), bundle.view(i, 'u_end')
+    u_dn = bundle.view(i, 'u_dn').reshape(n + 2, k)
+    for seg in range(js[J_UN]):
+        p0, p1 = u_start[seg], u_end[seg]
+        mu[p0:p1] = (1.0 - u_dn[seg] * h)[types[p0:p1]]
+    return mu
 
 
 class ScratchPool(threading.local):
@@ -1212,7 +1256,7 @@ _KERNELS = ('hdr', 'scratch', 'forget_eff_f_iso', 'per_type', 'per_sum', 'moment
             'apply', 'muscle_rk4', 'muscle_integrate', 'muscle_advance', 'muscle_outputs',
             'muscle_run')
 #: The modules whose code the kernels inline: their digest names the cache entries.
-_DIGEST_OF = (equations, stimulus, memory, units, unit_pool, fes_muscle)
+_DIGEST_OF = (equations, stimulus, memory, units)
 #: The compiled namespace once built (None until then).
 _compiled = None
 
@@ -1290,7 +1334,7 @@ def scope_calling(scope: dict, names: Sequence[str]) -> dict:
 
 def run_muscle(bundle: FesBundle, i: int, r_start, dl_end_m, dt_s: float, r_end=None,
                kernels=None) -> np.ndarray:
-    """Run muscle ``i`` of ``bundle`` for ``len(dl_end_m)`` steps (FesMuscle.run).
+    """Run muscle ``i`` of ``bundle`` for ``len(dl_end_m)`` steps.
 
     :param r_start: [-] command given at the start of each step
     :param dl_end_m: [m] dl_MT at the end of each step

@@ -1,4 +1,12 @@
-"""The muscle: state, recruitment memory and one integration step.
+"""The muscle: one class over the one engine's state.
+
+:class:`Muscle` is a thin facade. Its state is a one-muscle
+:class:`~.fes_kernels.FesBundle` (flat arrays), and every step, recruitment
+and output is a function of :mod:`.fes_kernels` over those arrays, built from
+the equations of :mod:`.equations`. Which build runs (numba-compiled, or the
+very same functions as plain Python) is chosen once, by
+:func:`.engine.kernels`. The paper's model is this muscle with every FES
+feature off (``params.fes_defaults``): no second implementation.
 
 The single continuous state is the CE length ``l_ce``; its derivative is the
 inverse force-velocity relation evaluated at the tendon force (doc/model.md
@@ -11,21 +19,24 @@ Euler would be off by about 0.3 N.
 from __future__ import annotations
 
 import math
-from typing import Callable, NamedTuple, Sequence
+from typing import NamedTuple, Sequence
 
-from .equations import (ECC_PLATEAU, FL_A, FL_B, FL_C, force_length, force_velocity_inverse,
-                        parallel_force, series_force)
-from .memory import UnitMemory, recruited_units
+import numpy as np
+
+from . import engine, fes_kernels
+from .fes_kernels import I_MULTI, J_NREC, J_RTOP, N_OUT, S_CMD, S_DL, S_L, S_R, S_T, FesBundle
 from .params import MuscleParams
-from .substeps import MAX_SUBSTEP_S, length_ramp, substeps_for
+from .stimulus import command_from_pulse_width
+from .substeps import length_ramp, substeps_for
 
 #: Largest |dl_mt| accepted as an input: far beyond the range where FL is
 #: non-zero (l_ce / l_opt outside about 0.4..1.6), so anything larger is
 #: a unit error (mm for m) rather than an experiment.
 DL_MT_LIMIT_M = 1.0
 
-_tuple_new = tuple.__new__
 _INF = math.inf
+#: Index of ``n_recruited`` in :class:`MuscleOutputs` (an int there, a float in the kernels').
+_N_RECRUITED = 2
 
 
 class MuscleOutputs(NamedTuple):
@@ -107,216 +118,237 @@ def check_dl_mt(dl_mt_m: float, name: str = 'dl_mt_m') -> float:
 
 
 class Muscle:
-    """One Hill-type muscle-tendon unit with the motor-unit memory.
+    """One Hill-type muscle-tendon unit with the motor-unit memory, and any FES
+    feature its parameters switch on (delay, activation, fatigue, fibre types).
 
     Use :meth:`step` to advance by ``dt`` and read the returned
-    :class:`MuscleOutputs`; :meth:`reset` returns to the resting state.
+    :class:`MuscleOutputs`; :meth:`reset` returns to the resting state. The
+    stimulation input of :meth:`step` and :meth:`run` is the recruitment
+    *command* u (after the recruitment curve, before the delay and the
+    activation); ``recruitment`` is the activation a = R in force. With the
+    paper's model (no delay, instantaneous activation) the two are equal.
 
-    All stepping goes through one hot loop, :meth:`run`, which advances any
-    number of steps over input sequences: :meth:`step` (the ROS node, once a
-    tick) calls it with one step, :func:`~hill_muscle_ros.model.simulate.simulate`
-    (the CLI) with a whole protocol, or the same loop compiled
-    (:func:`~hill_muscle_ros.model.kernels.run_compiled`) where that pays. :meth:`outputs` and :meth:`eff_f_iso`
-    evaluate the readable curves of :mod:`.equations` and are the reference the
-    tests compare the hot loop against.
-
-    With any FES extension switched on in ``params``, ``Muscle(params)`` makes
-    a :class:`~hill_muscle_ros.model.fes_muscle.FesMuscle`, which has the same
-    interface; with every FES parameter at its default it is this class, the
-    paper's model, with its specialised loop.
+    The first muscle built in a process on the compiled engine loads the
+    compiled kernels: about 1 s from numba's disk cache, about 25 s when they
+    compile (a clean clone, or after an edit of the model's code).
 
     :param params: the muscle's parameters (paper defaults if omitted)
+    :param build: :data:`.engine.COMPILED` or :data:`.engine.PYTHON`, or None
+        (the default) for what ``HILL_MUSCLE_ENGINE`` chooses (:func:`.engine.kernels`)
+    :raises ImportError: if the compiled build is asked for and numba is missing
     """
 
-    def __new__(cls, params: MuscleParams | None = None) -> 'Muscle':
-        if cls is Muscle and params is not None and not params.fes_defaults:
-            from .fes_muscle import FesMuscle   # it subclasses Muscle: imported late
-            return super().__new__(FesMuscle)
-        return super().__new__(cls)
-
-    def __init__(self, params: MuscleParams | None = None) -> None:
+    def __init__(self, params: MuscleParams | None = None, build: str | None = None) -> None:
         self.params = params if params is not None else MuscleParams()
-        p = self.params
-        self._multi = p.units == 'multi'
-        self._initial = p.length == 'initial'
-        self._memory = UnitMemory(p.n_units, p.f_iso_max_n, p.l_opt_m)
-        # The hot loop, built once so that a single step pays no set-up.
-        self._run = _hot_loop(self)
-        self.reset()
+        self._kernels = engine.kernels(fes_kernels, build)
+        self._bundle = FesBundle([self.params])
+        self._r = np.zeros(1)
+        self._dl = np.zeros(1)
+        self._out = np.zeros((1, N_OUT))
+        self._row = np.zeros(N_OUT)
+        self._views()
 
-    # -- state ---------------------------------------------------------------
+    def _views(self) -> None:
+        """Views of the state (taken anew whenever the bundle's arrays move)."""
+        self._fs = self._bundle.view(0, 'fs')
+        self._js = self._bundle.view(0, 'js')
+        self._multi = bool(self._bundle.view(0, 'ip')[I_MULTI])
+
+    # -- state -----------------------------------------------------------------
 
     def reset(self) -> None:
-        """Return to the unique resting state and erase the motor-unit memory."""
-        self.t_s = 0.0
-        self.l_ce_m = self.params.l_rest_m
-        self.dl_mt_m = 0.0
-        self.recruitment = 0.0
-        self.n_recruited = 0
-        self._memory.clear()
-        # Single/initial: the isometric force of the one unit, fixed at recruitment.
-        self._f_iso_single_n = 0.0
-        # [N] Eff.f_iso (initial) or Eff.f_iso / FL(l_ce / l_opt) (instantaneous):
-        # everything the recruitment contributes, so that the hot loop needs
-        # only a multiplication to get Eff.f_iso.
-        self._gain_n = 0.0
-        # Velocity of the free CE when Eff.f_iso = 0 (it follows the MTU).
-        self._v_free = 0.0
-        # (l_ce, dl_mt, gain, v_ce) at the end of the last run: v_ce is a pure
-        # function of the first three, so it is valid whenever they match.
-        self._v_end = (math.nan, math.nan, math.nan, math.nan)
+        """Return to rest: no command, a = 0, every unit fresh and unrecruited,
+        the motor-unit memory erased."""
+        self._bundle.reset(0)
+
+    @property
+    def build(self) -> str:
+        """:data:`.engine.COMPILED` or :data:`.engine.PYTHON`: the build this muscle runs."""
+        return engine.PYTHON if self._kernels is fes_kernels else engine.COMPILED
+
+    @property
+    def t_s(self) -> float:
+        """[s] simulated time."""
+        return float(self._fs[S_T])
+
+    @property
+    def l_ce_m(self) -> float:
+        """[m] CE length (l_CE)."""
+        return float(self._fs[S_L])
+
+    @property
+    def dl_mt_m(self) -> float:
+        """[m] MTU length change from rest (dl_MT)."""
+        return float(self._fs[S_DL])
+
+    @property
+    def recruitment(self) -> float:
+        """[-] recruitment R = a in force now."""
+        return float(self._fs[S_R])
+
+    @property
+    def command(self) -> float:
+        """[-] the recruitment command u given last."""
+        return float(self._fs[S_CMD])
+
+    @property
+    def n_recruited(self) -> int:
+        """[-] recruited units M (``single``: 1 if R > 0 else 0)."""
+        return int(self._js[J_NREC])
 
     @property
     def n_runs(self) -> int:
-        """Distinct recruitment instants held in the memory (multi/initial)."""
-        return self._memory.n_runs
+        """Groups of units recruited at one instant that the memory holds (multi;
+        0 for single): one per distinct recruitment instant still in force."""
+        return int(self._js[J_RTOP]) if self._multi else 0
+
+    @property
+    def mean_fitness(self) -> float:
+        """[-] mean fitness of all units now (1 without fatigue)."""
+        return self.outputs().mean_fitness
+
+    def fitness_profile(self) -> np.ndarray:
+        """[-] fitness of every unit along the recruitment order now (multi), O(N).
+
+        :raises ValueError: for a ``single`` muscle
+        """
+        return fes_kernels.fitness_profile(self._bundle, 0)
 
     def set_recruitment(self, recruitment: float) -> None:
-        """Apply a recruitment level now, using the current CE length for new units.
+        """Give the recruitment command u now (R directly, bypassing the curve).
 
-        Idempotent: applying the same level again changes nothing.
+        It takes effect after ``emd_s``, through the activation; with no delay
+        and instantaneous activation (the paper's model), now: new units store
+        the CE length of this instant, and a release to zero frees the CE.
+        Idempotent: giving the same command again changes nothing.
 
-        :param recruitment: [-] recruitment R in [0, 1]
-        :raises ValueError: if R is outside [0, 1] or not finite
+        :param recruitment: [-] command u in [0, 1]
+        :raises ValueError: if u is outside [0, 1] or not finite
         """
-        self._apply_recruitment(check_recruitment(recruitment))
-        if self.eff_f_iso() == 0.0:
-            self.l_ce_m = self.params.l_rest_m + self.dl_mt_m   # released: the CE is free
-
-    def _apply_recruitment(self, r: float) -> float:
-        """Update the memory for a validated R at the current CE length.
-
-        :param r: [-] recruitment R in [0, 1], already validated
-        :return: [N] the new gain (see :meth:`reset`)
-        """
-        p = self.params
-        if self._multi:
-            m = recruited_units(r, p.n_units)
-            if self._initial:
-                gain = self._memory.update(m, self.l_ce_m)
-            else:
-                gain = m / p.n_units * p.f_iso_max_n
-        else:
-            m = 1 if r > 0.0 else 0
-            if self._initial:
-                if r == 0.0:
-                    self._f_iso_single_n = 0.0
-                elif self.recruitment == 0.0:
-                    self._f_iso_single_n = p.f_iso_max_n * force_length(
-                        self.l_ce_m / p.l_opt_m)
-                gain = r * self._f_iso_single_n
-            else:
-                gain = r * p.f_iso_max_n
-        self.recruitment = r
-        self.n_recruited = m
-        self._gain_n = gain
-        return gain
+        self.give_command(check_recruitment(recruitment))
 
     def set_pulse_width(self, pulse_width_s: float) -> None:
-        """Apply an FES pulse width now, through the recruitment curve
+        """Give an FES pulse width now, through the recruitment curve
         (:func:`~hill_muscle_ros.model.stimulus.command_from_pulse_width`).
 
         :param pulse_width_s: [s] stimulation pulse width (PW), >= 0
         """
-        from .stimulus import command_from_pulse_width   # stimulus imports params only
-        self.set_recruitment(command_from_pulse_width(pulse_width_s, self.params))
+        self.give_command(command_from_pulse_width(pulse_width_s, self.params))
 
-    def eff_f_iso(self, l_ce_m: float | None = None) -> float:
-        """Effective isometric force (Eff.f_iso) of the four variants.
+    def give_command(self, u: float) -> None:
+        """Queue command ``u`` at the current instant and apply what is due now.
 
-        Implements Eq. (2) of the paper (multi/initial) and its three
-        siblings of doc/model.md section 2. This is the readable reference; the
-        hot loop of :meth:`run` computes the same value inline.
-
-        :param l_ce_m: [m] CE length for the instantaneous variants
-            (the current one if omitted)
-        :return: [N] Eff.f_iso
+        :param u: [-] recruitment command in [0, 1], already validated
         """
-        p = self.params
-        if self._initial:
-            if self._multi:
-                return self._memory.eff_f_iso
-            return self.recruitment * self._f_iso_single_n if self.recruitment > 0 else 0.0
-        l_ce = self.l_ce_m if l_ce_m is None else l_ce_m
-        scale = self.n_recruited / p.n_units if self._multi else self.recruitment
-        # x = l_CE (1 / l_opt), as every engine's step takes it (kernels.eff_f_iso).
-        return scale * p.f_iso_max_n * force_length(l_ce * (1.0 / p.l_opt_m))
+        bundle = self._bundle
+        if not self._kernels.give_command(bundle.F, bundle.I, 0, float(u)):
+            raise RuntimeError(f'the delay line of the muscle is full '
+                               f'(emd_s {self.params.emd_s!r})')
+
+    def eff_f_iso(self, l_ce_m: float | None = None, t_s: float | None = None) -> float:
+        """[N] Eff.f_iso at CE length ``l_ce_m`` and instant ``t_s`` (default: now).
+
+        Implements Eq. (2) of the paper (multi/initial) and its siblings of
+        doc/model.md section 2, with each unit's fitness and length scale.
+
+        :param l_ce_m: [m] CE length (l_CE), the current one if omitted
+        :param t_s: [s] instant within the current piece, now if omitted
+        """
+        bundle = self._bundle
+        l = self.l_ce_m if l_ce_m is None else float(l_ce_m)
+        t = self.t_s if t_s is None else float(t_s)
+        return float(self._kernels.eff_f_iso(bundle.F, bundle.I, 0, l, t))
 
     def outputs(self) -> MuscleOutputs:
-        """The outputs at the current instant, derived from the state.
-
-        Evaluates the readable curves of :mod:`.equations`; :meth:`run` returns
-        the same values from its inlined arithmetic.
-        """
-        p = self.params
-        l_ce, dl = self.l_ce_m, self.dl_mt_m
-        f_se = series_force(p.k_se_n_per_m, dl, l_ce, p.l_rest_m)
-        f_pe = parallel_force(p.k_pe_n_per_m, dl)
-        f0 = self.eff_f_iso()
-        if f0 > 0.0:
-            v_ce = force_velocity_inverse(f_se, f0, p.fv_a_n, p.fv_b_m_per_s,
-                                          p.fv_a_ecc_n, p.fv_b_ecc_m_per_s)
-        else:
-            v_ce = self._v_free
-        return MuscleOutputs(self.t_s, self.recruitment, self.n_recruited, dl, l_ce,
-                             v_ce, f_se, f_pe, f_se + f_pe, f0, self.recruitment, 1.0)
+        """The outputs at the current instant, derived from the state."""
+        bundle = self._bundle
+        self._kernels.muscle_outputs(bundle.F, bundle.I, 0, self._row)
+        return _as_outputs(self._row)
 
     # -- dynamics ------------------------------------------------------------
+
+    def _ready(self, dt_s: float) -> None:
+        """Size the delay line for steps of ``dt_s`` (keeps the state)."""
+        if fes_kernels.delay_capacity(self.params.emd_s, dt_s) > self._bundle.cap:
+            self._bundle.ensure_delay(dt_s)
+            self._views()
+
+    def _call_run(self, r_start: np.ndarray, dl_end: np.ndarray, dt_s: float,
+                  r_end: np.ndarray, have_r_end: bool, out: np.ndarray) -> None:
+        self._ready(dt_s)
+        bundle = self._bundle
+        done = self._kernels.muscle_run(bundle.F, bundle.I, 0, r_start, dl_end, dt_s, r_end,
+                                        have_r_end, out)
+        if done != len(dl_end):   # delay_capacity bounds the commands pending
+            raise RuntimeError(f'the delay line of the muscle overflowed at step {done} '
+                               f'(emd_s {self.params.emd_s!r}, dt_s {dt_s!r})')
+
+    def run_array(self, r_start, dl_mt_end_m, dt_s: float, r_end=None) -> np.ndarray:
+        """Advance ``len(dl_mt_end_m)`` steps, each integrated whole; return the
+        outputs after each step as rows of an array (:class:`MuscleOutputs`' order).
+
+        Step k gives the command ``r_start[k]`` at its start, integrates with
+        the MTU length ramping linearly to ``dl_mt_end_m[k]``, then gives
+        ``r_end[k]`` (default: none) before its outputs: :func:`.simulate`
+        passes ``r_end[k] = r_start[k + 1]`` so each sample shows the
+        recruitment of its instant. Inputs are not validated (:meth:`step`
+        validates, :func:`.simulate` checks whole arrays).
+
+        :param r_start: [-] command u in [0, 1] given at the start of each step
+        :param dl_mt_end_m: [m] MTU length change at the end of each step
+        :param dt_s: [s] step length, > 0: the integrator's own step (at most
+            :data:`~.substeps.MAX_SUBSTEP_S` for RK4's accuracy)
+        :param r_end: [-] command given after each step, before the outputs
+        :return: (steps, 12) outputs
+        """
+        # Contiguous and writable, as the compiled signature takes them (a
+        # read-only view, e.g. of a recording, is copied).
+        r_start = np.require(r_start, dtype=float, requirements=('C', 'W'))
+        dl_end = np.require(dl_mt_end_m, dtype=float, requirements=('C', 'W'))
+        have_end = r_end is not None
+        r_end = np.require(r_end, dtype=float, requirements=('C', 'W')) if have_end else r_start
+        out = np.empty((len(dl_end), N_OUT))
+        self._call_run(r_start, dl_end, float(dt_s), r_end, have_end, out)
+        return out
 
     def run(self, r_start: Sequence[float], dl_mt_end_m: Sequence[float], dt_s: float,
             r_end: Sequence[float] | None = None,
             columns: Sequence[list] | None = None) -> MuscleOutputs:
-        """Advance ``len(dl_mt_end_m)`` steps: the one hot loop of the model.
+        """:meth:`run_array`, returning the outputs after the last step.
 
-        Step k applies the recruitment ``r_start[k]`` (new units store the CE
-        length of that instant), integrates the CE length over ``dt_s`` with R
-        held and the MTU length ramping linearly to ``dl_mt_end_m[k]``, then
-        applies ``r_end[k]`` (default: ``r_start[k]``, which changes nothing)
-        and evaluates the outputs. :func:`.simulate` passes ``r_end[k] =
-        r_start[k + 1]`` so each sample shows the recruitment of its instant.
-
-        The integrator is classical RK4 (doc/model.md section 4). When Eff.f_iso
-        is zero the CE offers no resistance and takes the length that makes
-        f_SE zero. The curves of :mod:`.equations` (Eq. 1, Eq. 3, the springs)
-        are inlined here because function calls dominate a pure-Python step;
-        the tests check this loop against them. Inputs are not validated:
-        :meth:`step` validates, :func:`.simulate` checks whole arrays.
-
-        :param r_start: [-] recruitment R in [0, 1] held over each step
-        :param dl_mt_end_m: [m] MTU length change at the end of each step
-        :param dt_s: [s] step length, > 0: the integrator's own step, taken
-            whole (:meth:`step` and :func:`.simulate` cut a longer one into
-            substeps of at most 1 ms first)
-        :param r_end: [-] recruitment applied after each step, before the outputs
         :param columns: if given, twelve preallocated lists in the order of
             :class:`MuscleOutputs`; step k writes index k of each
-        :return: the outputs after the last step
+        :return: the outputs after the last step (now, for no step)
         """
-        return self._run(r_start, dl_mt_end_m, dt_s, r_end, columns)
+        if len(dl_mt_end_m) == 0:
+            return self.outputs()
+        out = self.run_array(r_start, dl_mt_end_m, dt_s, r_end)
+        if columns is not None:
+            for j, column in enumerate(columns):
+                column[:len(out)] = out[:, j].tolist()
+        return _as_outputs(out[-1])
 
     def advance(self, dl_mt_end_m: float, dt_s: float) -> None:
-        """Integrate the CE length over one step with the recruitment held.
-
-        The MTU length ramps linearly from its current value to
-        ``dl_mt_end_m``; see :meth:`run`. A step longer than 1 ms is
-        integrated in substeps, as :meth:`step`'s.
+        """Integrate over one step with the command held, the MTU length ramping
+        linearly to ``dl_mt_end_m``; a step longer than 1 ms in substeps, as
+        :meth:`step`'s.
 
         :param dl_mt_end_m: [m] MTU length change at the end of the step
         :param dt_s: [s] step length, > 0
         """
-        self._substeps(self.recruitment, dl_mt_end_m, dt_s)
+        self._substeps(self.command, float(dl_mt_end_m), float(dt_s))
 
     def step(self, recruitment: float, dl_mt_m: float, dt_s: float) -> MuscleOutputs:
-        """Advance one step: recruit now, then integrate with R held.
+        """Advance one step: give the command now, then integrate with it held.
 
-        The memory changes only at the start of the step, from the CE length of
-        that instant (doc/model.md section 4). A step longer than
-        :data:`~.substeps.MAX_SUBSTEP_S` (1 ms) is integrated in n = ceil(dt / 1 ms)
-        equal substeps, R held and dl_MT ramping linearly across them
-        (:mod:`.substeps`): ``dt_s`` is how often the caller samples, not the
-        integrator's step.
+        The memory changes only at the instants the recruitment changes, from
+        the CE length of that instant (doc/model.md sections 4 and 7). A step
+        longer than :data:`~.substeps.MAX_SUBSTEP_S` (1 ms) is integrated in
+        n = ceil(dt / 1 ms) equal substeps, the command held and dl_MT ramping
+        linearly across them (:mod:`.substeps`): ``dt_s`` is how often the
+        caller samples, not the integrator's step.
 
-        :param recruitment: [-] recruitment R in [0, 1], held over the step
+        :param recruitment: [-] recruitment command u in [0, 1], held over the step
         :param dl_mt_m: [m] MTU length change at the end of the step (dl_MT)
         :param dt_s: [s] step length, > 0
         :return: the outputs at the end of the step
@@ -332,185 +364,26 @@ class Muscle:
             if not (math.isfinite(dt_s) and dt_s > 0.0):
                 raise ValueError(f'`dt_s` must be positive and finite, got {dt_s!r}')
             check_recruitment(recruitment)
-        return self._substeps(r, dl, dt_s)
+        return self._substeps(r, dl, float(dt_s))
 
-    def _substeps(self, r: float, dl_mt_end_m: float, dt_s: float) -> MuscleOutputs:
-        """One output step of ``dt_s`` as n = ceil(dt / 1 ms) substeps of the hot
-        loop (:mod:`.substeps`), R held and dl_MT ramping linearly across them.
-
-        :param r: [-] recruitment R, validated, held over the step
-        :param dl_mt_end_m: [m] dl_MT at the end of the step, validated
-        :param dt_s: [s] step length, validated
-        :return: the outputs at the end of the step
-        """
-        if dt_s <= MAX_SUBSTEP_S:   # the node's 1 kHz tick: no lists to build
-            return self._run((r,), (dl_mt_end_m,), dt_s, None, None)
+    def _substeps(self, u: float, dl_mt_end_m: float, dt_s: float) -> MuscleOutputs:
+        """One output step of ``dt_s`` as n = ceil(dt / 1 ms) substeps
+        (:mod:`.substeps`), the command held and dl_MT ramping linearly."""
         n = substeps_for(dt_s)
-        return self._run((r,) * n, length_ramp(self.dl_mt_m, dl_mt_end_m, n), dt_s / n,
-                         None, None)
-
-
-def _hot_loop(muscle: Muscle) -> Callable[..., MuscleOutputs]:
-    """Build the one hot loop of a muscle: see :meth:`Muscle.run`.
-
-    The parameters are bound once, as closure constants; the state is read
-    from and written back to the muscle on every call, so :meth:`Muscle.reset`,
-    :meth:`Muscle.set_recruitment` and the public state attributes stay the
-    single source of truth.
-    """
-    p = muscle.params
-    k_se, k_pe, l_rest, l_opt = p.k_se_n_per_m, p.k_pe_n_per_m, p.l_rest_m, p.l_opt_m
-    a, b, a_ecc, b_ecc = p.fv_a_n, p.fv_b_m_per_s, p.fv_a_ecc_n, p.fv_b_ecc_m_per_s
-    two_b_ecc = 2.0 * b_ecc
-    # x = l_CE (1 / l_opt), as every engine's step takes it (kernels.eff_f_iso).
-    inv_l_opt = 1.0 / l_opt
-    initial = muscle._initial
-    apply_recruitment = muscle._apply_recruitment
-
-    def f0_at(l_ce: float, gain: float) -> float:
-        """[N] Eff.f_iso at CE length ``l_ce`` (Eq. 1 inlined)."""
-        if initial:
-            return gain
-        x = l_ce * inv_l_opt
-        fl = (FL_A * x + FL_B) * x + FL_C
-        return gain * fl if fl > 0.0 else 0.0
-
-    def velocity_at_f0(l_ce: float, dl_mt: float, f0: float) -> float:
-        """[m/s] d l_ce / dt = FV_inv(f_SE, F0) for a given Eff.f_iso ``f0``;
-        the springs and Eq. 3 inlined (the SE spring never pushes: f <= 0 is slack)."""
-        return fv_inverse(k_se * (dl_mt - (l_ce - l_rest)), f0)
-
-    def fv_inverse(f: float, f0: float) -> float:
-        """[m/s] FV_inv(f, F0): Eq. 3 inverted at SE force ``f`` (slack at or below 0)."""
-        if f <= 0.0:
-            return -f0 * b / a
-        if f <= f0:
-            return b * (f - f0) / (f + a)
-        if f < ECC_PLATEAU * f0:
-            # 2 b' (f - F0) is b' (2 f - 2 F0) exactly: doubling never rounds.
-            return two_b_ecc * (f - f0) / (3.0 * f0 - 2.0 * f + a_ecc)
-        return f0 * b_ecc / a_ecc
-
-    if initial:
-        # Eff.f_iso is the gain itself, fixed while R is held: the RK4 stages
-        # call the FV inverse directly (this is the path the node and the
-        # benchmarks' multi/initial take, so it saves a call per stage).
-        velocity = velocity_at_f0
-    else:
-        def velocity(l_ce: float, dl_mt: float, gain: float) -> float:
-            """[m/s] d l_ce / dt with Eff.f_iso following the CE length (Eq. 1)."""
-            x = l_ce * inv_l_opt
-            fl = (FL_A * x + FL_B) * x + FL_C
-            return velocity_at_f0(l_ce, dl_mt, gain * fl if fl > 0.0 else 0.0)
-
-    def run(r_start: Sequence[float], dl_mt_end_m: Sequence[float], dt: float,
-            r_end: Sequence[float] | None,
-            columns: Sequence[list] | None) -> MuscleOutputs:
-        """:meth:`Muscle.run` of the muscle this loop was built for (``dt`` [s])."""
-        half_dt = 0.5 * dt
-        c_half, c_full = k_se * half_dt, k_se * dt
-        if r_end is None:
-            r_end = r_start
-        if columns is not None:
-            (c_t, c_r, c_m, c_dl, c_l, c_v, c_se, c_pe, c_force, c_f0, c_u, c_mu) = columns
-        l = muscle.l_ce_m
-        dl0 = muscle.dl_mt_m
-        t = muscle.t_s
-        v_free = muscle._v_free
-        r_now = muscle.recruitment
-        m_now = muscle.n_recruited
-        gain = muscle._gain_n
-        # f0 and v are the outputs at the current instant; while the
-        # recruitment is unchanged, v is also the first RK4 stage of the
-        # next step (same state, same inputs), so it is computed once.
-        f0 = gain if initial else f0_at(l, gain)
-        if f0 > 0.0:
-            # One call per step (the node's Muscle.step) would otherwise
-            # recompute the velocity the previous call ended with: reuse it
-            # when the state and the gain are exactly those it was made from.
-            cached = muscle._v_end
-            v = (cached[3] if cached[0] == l and cached[1] == dl0 and cached[2] == gain
-                 else velocity(l, dl0, gain))
+        if n == 1:   # the node's 1 kHz tick: no arrays to build
+            r, dls, out = self._r, self._dl, self._out
+            r[0] = u
+            dls[0] = dl_mt_end_m
         else:
-            v = v_free
-        for k, dl1 in enumerate(dl_mt_end_m):
-            r = r_start[k]
-            if r != r_now:
-                muscle.l_ce_m = l
-                gain = apply_recruitment(r)
-                r_now, m_now = r, muscle.n_recruited
-                f0 = f0_at(l, gain)
-                if f0 > 0.0:
-                    v = velocity(l, dl0, gain)
-            if f0 > 0.0:
-                # The stages' SE forces as k_SE (dl - (l - l_rest)) - k_SE h k,
-                # as every engine writes them (kernels.step_one says why).
-                from_rest = l - l_rest
-                f_mid = k_se * (0.5 * (dl0 + dl1) - from_rest)
-                f_end = k_se * (dl1 - from_rest)
-                if initial:
-                    k2 = fv_inverse(f_mid - c_half * v, gain)
-                    k3 = fv_inverse(f_mid - c_half * k2, gain)
-                    k4 = fv_inverse(f_end - c_full * k3, gain)
-                else:
-                    k2 = fv_inverse(f_mid - c_half * v, f0_at(l + half_dt * v, gain))
-                    k3 = fv_inverse(f_mid - c_half * k2, f0_at(l + half_dt * k2, gain))
-                    k4 = fv_inverse(f_end - c_full * k3, f0_at(l + dt * k3, gain))
-                l = l + dt / 6.0 * (v + 2.0 * k2 + 2.0 * k3 + k4)
-            else:
-                l = l_rest + dl1
-            if not initial:
-                f0 = f0_at(l, gain)
-            if f0 == 0.0:
-                # Nothing recruited, or the instantaneous CE left the FL range
-                # within the step: the free CE takes up the SE slack (doc/model.md 4).
-                l = l_rest + dl1
-                if not initial:
-                    # The outputs and the next step read the state: Eff.f_iso at
-                    # the free length, which may be back inside the FL range.
-                    f0 = f0_at(l, gain)
-            v_free = (dl1 - dl0) / dt
-            dl0 = dl1
-            t += dt
-            r = r_end[k]
-            if r != r_now:
-                muscle.l_ce_m = l
-                gain = apply_recruitment(r)
-                r_now, m_now = r, muscle.n_recruited
-                f0 = f0_at(l, gain)
-                if f0 == 0.0:
-                    # Released at this instant: the free CE takes up the slack
-                    # at once, so the sample shows f_SE = 0 (doc/model.md 4).
-                    l = l_rest + dl1
-                    f0 = f0_at(l, gain)   # as above: read off the state
-            v = fv_inverse(k_se * (dl1 - (l - l_rest)), f0) if f0 > 0.0 else v_free
-            if columns is not None:
-                stretch = dl1 - (l - l_rest)
-                f_se = k_se * stretch if stretch > 0.0 else 0.0
-                f_pe = k_pe * dl1 if dl1 > 0.0 else 0.0
-                c_t[k] = t
-                c_r[k] = r_now
-                c_m[k] = m_now
-                c_dl[k] = dl1
-                c_l[k] = l
-                c_v[k] = v
-                c_se[k] = f_se
-                c_pe[k] = f_pe
-                c_force[k] = f_se + f_pe
-                c_f0[k] = f0
-                c_u[k] = r_now
-                c_mu[k] = 1.0
-        muscle.l_ce_m = l
-        muscle.dl_mt_m = dl0
-        muscle.t_s = t
-        muscle._v_free = v_free
-        muscle._v_end = (l, dl0, gain, v)
-        stretch = dl0 - (l - l_rest)
-        f_se = k_se * stretch if stretch > 0.0 else 0.0
-        f_pe = k_pe * dl0 if dl0 > 0.0 else 0.0
-        # NamedTuple's generated __new__ is a Python function; building the
-        # tuple directly gives the same object at a quarter of the cost.
-        return _tuple_new(MuscleOutputs, (t, r_now, m_now, dl0, l, v, f_se, f_pe,
-                                          f_se + f_pe, f0, r_now, 1.0))
+            r = np.full(n, u)
+            dls = np.array(length_ramp(self.dl_mt_m, dl_mt_end_m, n))
+            out = np.empty((n, N_OUT))
+        self._call_run(r, dls, dt_s / n, r, False, out)
+        return _as_outputs(out[-1])
 
-    return run
+
+def _as_outputs(row: np.ndarray) -> MuscleOutputs:
+    """A kernel output row as :class:`MuscleOutputs` (Python floats, the count an int)."""
+    values = row.tolist()
+    values[_N_RECRUITED] = int(values[_N_RECRUITED])
+    return MuscleOutputs(*values)

@@ -20,19 +20,17 @@ from . import engine
 #: loads it from the cache). Together they are every function numba compiles
 #: for the package (a clean clone's test suite compiles nothing beyond them).
 KERNEL_SETS = {
-    'fes_muscle': ('fes_kernels', 'compiled'),        # the simulator node, FesMuscle
+    'muscle': ('fes_kernels', 'compiled'),            # Muscle: simulate, the simulator node
     'limb': ('limb.kernels', 'compiled'),             # Limb: the limb node, simulate_limb
-    'muscle_batch': ('kernels', 'compiled'),          # MuscleBatch, the sweeps
-    'muscle_run': ('kernels', 'compiled_run'),        # simulate() of the paper's muscle
-    'fes_batch': ('fes_batch_kernels', 'compiled'),   # batches of FES muscles, the gym
+    'batch': ('fes_batch_kernels', 'compiled'),       # MuscleBatch: sweeps, the gym
 }
 
 #: The kernel sets in the groups that build in one process each, in order:
 #: the limb's and the FES batch's kernels call the FES muscle's, which a
 #: process compiles (or loads) once for all three. Measured in a clean clone,
 #: one process after the other (cold cache): the FES muscle 12.9 s, the limb
-#: 10.3 s, the FES batch 0.9 s; the muscle batch 5.2 s, its run 1.5 s.
-KERNEL_GROUPS = (('fes_muscle', 'limb', 'fes_batch'), ('muscle_batch', 'muscle_run'))
+#: 10.3 s, the FES batch 0.9 s.
+KERNEL_GROUPS = (('muscle', 'limb', 'batch'),)
 
 
 def compile_kernel_group(names) -> list[tuple[str, float, float]]:

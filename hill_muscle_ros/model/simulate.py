@@ -6,10 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import engine, fes_kernels, kernels
-from .substeps import output_rows, substep_inputs, substeps_for
-from .fes_muscle import FesMuscle
 from .muscle import Muscle
+from .substeps import output_rows, substep_inputs, substeps_for
 from .params import MuscleParams
 from .protocol import Protocol
 
@@ -27,16 +25,6 @@ COLUMNS = (
     ('command', 'command'),
     ('mean_fitness', 'mean_fitness'),
 )
-
-#: [-] steps of one run from which ``simulate`` loads the compiled FES muscle
-#: (:mod:`.fes_kernels`) when it is not loaded yet (``HILL_MUSCLE_ENGINE=auto``,
-#: :func:`.engine.use_compiled`). Measured by hand (05:25 UTC, load 0.4-0.9):
-#: loading costs 0.57-0.76 s in a fresh process with a warm cache, and the
-#: compiled run saves 12.4 us a step (single units with a 20 ms delay: 12.9
-#: against 0.47 us) to 30.5 us (config/fes_quadriceps.yaml: 31.5 against 1.0
-#: us) on protocol_I: loading pays from about 19,000-61,000 steps.
-FES_RUN_MIN_STEPS = 40_000
-
 
 @dataclass(frozen=True)
 class SimulationResult:
@@ -104,16 +92,9 @@ def simulate(protocol: Protocol, params: MuscleParams | None = None,
     dl_MT linearly between the protocol's values at the two ends. Pulse
     widths pass through the muscle's recruitment curve.
 
-    The paper's model runs :meth:`Muscle.run
-    <hill_muscle_ros.model.muscle.Muscle.run>`'s loop compiled
-    (:func:`.kernels.run_compiled`, the same results) where that pays:
-    once it is loaded in the process, or for runs of at least
-    :data:`.kernels.RUN_MIN_STEPS` steps; ``HILL_MUSCLE_ENGINE=compiled``
-    always, ``python`` never (:mod:`.engine`). A muscle with FES features
-    on runs :meth:`FesMuscle.run
-    <hill_muscle_ros.model.fes_muscle.FesMuscle.run>`'s loop on the compiled
-    FES muscle (:func:`.fes_kernels.run_muscle`) by the same rule, from
-    :data:`FES_RUN_MIN_STEPS` steps.
+    The whole run is one call of :meth:`Muscle.run_array
+    <hill_muscle_ros.model.muscle.Muscle.run_array>`, on the engine
+    :func:`.engine.kernels` chooses (compiled, or ``HILL_MUSCLE_ENGINE=python``).
 
     The rate is that of the samples, not the integrator's: a step longer than
     :data:`.substeps.MAX_SUBSTEP_S` (1 ms) is integrated in
@@ -138,64 +119,11 @@ def simulate(protocol: Protocol, params: MuscleParams | None = None,
     muscle.set_recruitment(float(r[0]))
     first = muscle.outputs()
     n_steps = len(t) - 1
-    # The engines integrate substeps of at most 1 ms (model/substeps.py): the
+    # The engine integrates substeps of at most 1 ms (model/substeps.py): the
     # rate sets the samples only. With n = 1 the inputs are the samples'.
     n = substeps_for(dt)
     r_start, dl_end, r_end = substep_inputs(r, dl, n)
-    h = dt / n
-    work = n_steps * n
-    rows = output_rows(n, n_steps)
-    if type(muscle) is FesMuscle and engine.use_compiled(work, FES_RUN_MIN_STEPS,
-                                                         fes_kernels.loaded()):
-        return _simulate_fes_compiled(muscle.params, t, r_start, dl_end, h, r_end, rows,
-                                      first)
-    if type(muscle) is Muscle and engine.use_compiled(work, kernels.RUN_MIN_STEPS,
-                                                      kernels.run_loaded()):
-        # The same loop compiled (model/kernels.py), when it is loaded or the
-        # run repays loading it (HILL_MUSCLE_ENGINE: model/engine.py). It
-        # writes straight into the result's rows, after the first sample.
-        out = np.empty((kernels.N_RUN_OUTPUTS, work + 1))
-        out[:, 0] = first
-        kernels.run_compiled(muscle, r_start, dl_end, h, r_end, out=out, first=1)
-        if n > 1:
-            out = np.concatenate([out[:, :1], out[:, 1:][:, rows]], axis=1)
-        fields = dict(zip(first._fields, out))
-        fields['n_recruited'] = out[kernels.RUN_M].astype(type(first.n_recruited))
-        fields['t_s'] = t   # the sample times are the inputs themselves
-        return SimulationResult(**fields)
-    # Plain lists of Python floats: indexing them is several times cheaper
-    # than indexing NumPy arrays in the hot loop.
-    columns = [[0.0] * work for _ in first]
-    muscle.run(r_start.tolist(), dl_end.tolist(), h, r_end=r_end.tolist(), columns=columns)
-    # The sample times are the inputs themselves.
-    fields = {'t_s': t}
-    for name, value, col in zip(first._fields, first, columns):
-        if name not in fields:
-            array = np.empty(n_steps + 1, dtype=type(value))
-            array[0] = value
-            array[1:] = col[rows]
-            fields[name] = array
-    return SimulationResult(**fields)
-
-
-def _simulate_fes_compiled(params: MuscleParams, t: np.ndarray, r_start: np.ndarray,
-                           dl_end: np.ndarray, h: float, r_end: np.ndarray, rows: slice,
-                           first) -> SimulationResult:
-    """:meth:`FesMuscle.run <hill_muscle_ros.model.fes_muscle.FesMuscle.run>`'s
-    loop of :func:`simulate` on the compiled FES muscle (:func:`.fes_kernels.run_muscle`).
-
-    :param r_start: [-] the command at each substep's start (:func:`.substeps.substep_inputs`)
-    :param dl_end: [m] dl_MT at each substep's end
-    :param h: [s] the substep
-    :param r_end: [-] the command given at each substep's end
-    :param rows: the substeps that end at the samples after the first
-    :param first: the outputs at t = 0, after the command ``r_start[0]``
-    """
-    # From rest: the first step gives r[0] at t = 0 itself, which is all that
-    # set_recruitment(r[0]) did to the reference before its first step.
-    bundle = fes_kernels.FesBundle([params], dt_s=h)
-    out = fes_kernels.run_muscle(bundle, 0, r_start, dl_end, h, r_end,
-                                 kernels=fes_kernels.compiled())[rows]
+    out = muscle.run_array(r_start, dl_end, dt / n, r_end)[output_rows(n, n_steps)]
     fields = {'t_s': t}   # the sample times are the inputs themselves
     for name, value, column in zip(first._fields, first, out.T):
         if name not in fields:

@@ -32,7 +32,7 @@ import numpy as np
 #: paper's muscle (F0 = 45 N, k_SE = 10 kN/m), a stability limit of 8.4 ms,
 #: yet Protocol II's force at 1 s is 9.58 N at a 100 ms step instead of 18.6 N.
 #: A stiffer tendon needs less than 1 ms: the FES muscle and the limb cut each
-#: substep further by their own relaxation rates (fes_muscle.RK4_MAX_H_LAMBDA).
+#: substep further by their own relaxation rates (equations.RK4_MAX_H_LAMBDA).
 MAX_SUBSTEP_S = 1.0e-3
 
 

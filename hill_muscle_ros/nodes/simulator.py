@@ -29,28 +29,21 @@ of simulated time). A knot that arrives after its time is applied at the next
 step, counted and reported. A plain ``length_command`` means "now": it drops
 the track and holds its value, as before.
 
-Engine: a muscle with every FES feature off is the paper's :class:`Muscle`,
-whose Python step is already cheap (a compiled single step costs about as
-much: doc/model.md, the engines). Any other muscle runs on the compiled FES muscle
-(:class:`~hill_muscle_ros.model.compiled_muscle.CompiledFesMuscle`) when
-:func:`~hill_muscle_ros.model.engine.choice` is compiled (numba installed,
-``HILL_MUSCLE_ENGINE`` not ``python``), else on the Python
-:class:`~hill_muscle_ros.model.fes_muscle.FesMuscle`; both give the same steps
-to 1e-9. One step as a tick makes it, knee quadriceps preset
-(``config/fes_quadriceps.yaml``, 1000 steps of pulse widths then 1000
-released; ``benchmarks/muscle_node_tick.py``, 2026-12-02, two runs, load
-average 0.4-0.8): median 2.5-4.8 against 11.7-17.2 us, 99th percentile 64-99
-us against 1.3-2.3 ms, worst 0.2-1.1 against 6.9-7.3 ms; released, 6.4-11.4
-against 133-146 us on average. It is loaded in ``__init__``
-(:func:`load_muscle`, the limb node's :func:`._engine.load_engine`), before
-any publisher, subscription, service or timer exists, never in a tick: under
-a second from numba's disk cache, about 30 s when it compiles (a clean clone,
-or after an edit of the model's code). The node logs which engine runs and
-how long loading took; a compiled muscle that fails to load falls back to
-Python with a warning. A live parameter change rebuilds the muscle from the
-kernels already loaded (:func:`rebuild_muscle`, nothing compiles in the
-callback: 0.7-3 ms for the preset, 0.4-0.8 ms for FesMuscle, three builds in
-one process); a node that started on Python stays on Python.
+Engine: the :class:`~hill_muscle_ros.model.Muscle` runs the model's one
+implementation compiled by numba when :func:`~hill_muscle_ros.model.engine.choice`
+says so (numba installed, ``HILL_MUSCLE_ENGINE`` not ``python``), else the very
+same functions as plain Python; both give the same steps to 1e-9. One step as
+a tick makes it (``benchmarks/muscle_node_tick.py``) costs a few
+microseconds compiled and 0.1-0.2 ms as plain Python. The compiled build is
+loaded in ``__init__`` (:func:`load_muscle`, through
+:func:`._engine.load_engine`, as the limb node's), before any publisher,
+subscription, service or timer exists, never in a tick: about a second from
+numba's disk cache, about 30 s when it compiles (a clean clone, or after an
+edit of the model's code). The node logs which build runs and how long
+loading took; a compiled build that fails to load falls back to Python with a
+warning. A live parameter change rebuilds the muscle on the build already
+loaded (:func:`rebuild_muscle`: nothing compiles in the callback); a node
+that started on Python stays on Python.
 
 Run: ``ros2 run hill_muscle_ros simulator --ros-args --params-file muscle.yaml``
 or ``hill-muscle simulator --ros-args ...``.
@@ -72,7 +65,8 @@ from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
 from ..model import CommandTrack, Muscle, MuscleParams
-from ..model import compiled_muscle
+from ..model import engine as engines
+from ..model import fes_kernels
 from ..model.muscle import check_dl_mt, check_recruitment
 from ..qos import OUTPUT_HISTORY_DEPTH, OUTPUT_QOS, RELIABLE_QOS
 from ..timebase import NS_PER_S
@@ -151,50 +145,42 @@ def check_frame_id(frame_id: str) -> str:
     return frame_id
 
 
-def load_muscle(params: MuscleParams, logger) -> Muscle | compiled_muscle.CompiledFesMuscle:
-    """The muscle the node steps, made at start-up; logs which engine runs it.
-
-    A muscle with every FES feature off is the paper's :class:`Muscle`, whose
-    Python step is already cheap. Any other is the compiled FES muscle when
-    :func:`~hill_muscle_ros.model.engine.choice` says so, else the Python
-    :class:`~hill_muscle_ros.model.fes_muscle.FesMuscle` (both agree to 1e-9;
-    :func:`._engine.load_engine`).
+def load_muscle(params: MuscleParams, logger) -> Muscle:
+    """The muscle the node steps, made at start-up; logs which build runs it
+    (compiled or plain Python, as :func:`~hill_muscle_ros.model.engine.choice`
+    says; :func:`._engine.load_engine`).
 
     :param params: the muscle's parameters
     :param logger: the node's logger
     """
-    if params.fes_defaults:
-        logger.info('muscle engine: python (every FES feature off: the paper\'s model)')
-        return Muscle(params)
-    return load_engine('muscle', lambda: compiled_muscle.CompiledFesMuscle(params),
-                       lambda: Muscle(params), compiled_muscle.loaded, logger)
+    return load_engine('muscle', lambda: Muscle(params, build=engines.COMPILED),
+                       lambda: Muscle(params, build=engines.PYTHON), fes_kernels.loaded,
+                       logger)
 
 
-def rebuild_muscle(params: MuscleParams, compiled: bool, logger
-                   ) -> Muscle | compiled_muscle.CompiledFesMuscle:
+def rebuild_muscle(params: MuscleParams, compiled: bool, logger) -> Muscle:
     """The muscle remade after a live parameter change, inside a callback.
 
-    Compiled only if the node runs the compiled FES muscle already (``compiled``:
-    its kernels are loaded, so this compiles nothing), and the new parameters
-    switch an FES feature on; else the Python model, as :class:`Muscle` makes it.
-    A compiled muscle that fails to build falls back to Python, with a warning.
+    On the compiled build only if the node's muscle was compiled until now
+    (``compiled``: the kernels are loaded, so this compiles nothing); else on
+    the plain Python functions. A compiled muscle that fails to build falls
+    back to Python, with a warning.
 
     :param params: the new parameters
     :param compiled: whether the node's muscle was compiled until now
     :param logger: the node's logger
     """
-    if compiled and not params.fes_defaults and compiled_muscle.loaded():
+    if compiled and fes_kernels.loaded():
         try:
-            return compiled_muscle.CompiledFesMuscle(params)
-        except Exception as err:   # noqa: BLE001 -- the Python muscle computes the same steps
+            return Muscle(params, build=engines.COMPILED)
+        except Exception as err:   # noqa: BLE001 -- the Python build computes the same steps
             logger.warning(f'the compiled muscle failed to build ({type(err).__name__}: '
                            f'{err}): the muscle runs on the Python engine')
-    return Muscle(params)
+    return Muscle(params, build=engines.PYTHON)
 
 
 class Simulator(Node):
-    """ROS 2 shell around :class:`~hill_muscle_ros.model.Muscle` or, for an FES
-    muscle, its compiled twin (:func:`load_muscle`).
+    """ROS 2 shell around :class:`~hill_muscle_ros.model.Muscle` (:func:`load_muscle`).
 
     :raises StartupError: on an invalid parameter at start-up
     """
@@ -248,7 +234,7 @@ class Simulator(Node):
         # (about 30 s) happens before the node can be seen as started, never in a tick.
         self._muscle = load_muscle(params, self.get_logger())
         #: Whether the node steps the compiled FES muscle (a rebuild keeps to it).
-        self._compiled = isinstance(self._muscle, compiled_muscle.CompiledFesMuscle)
+        self._compiled = self._muscle.build == engines.COMPILED
         self._rate_hz = rate_hz
         self._dt_s = 1.0 / rate_hz
         # [-] held recruitment command u (zero-order hold): a `recruitment`
@@ -621,7 +607,7 @@ class Simulator(Node):
             # Never compiles here (rebuild_muscle): at most the arrays of the
             # loaded compiled muscle are built anew.
             self._muscle = rebuild_muscle(new, self._compiled, self.get_logger())
-            self._compiled = isinstance(self._muscle, compiled_muscle.CompiledFesMuscle)
+            self._compiled = self._muscle.build == engines.COMPILED
             self._reset_to_rest()
             self.get_logger().info(f'{", ".join(changed)} changed: muscle rebuilt at rest '
                                    f'(engine: {"compiled" if self._compiled else "python"})')

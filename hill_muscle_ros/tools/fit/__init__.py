@@ -43,16 +43,10 @@ first instant where every input and the force have a message.
 
 Cost: each evaluation runs the nominal parameters and one forward-difference
 perturbation per fitted parameter (K = n + 1 runs) and hands scipy the
-residual and the Jacobian together (``jac=``). The runs use the scalar hot
-loop of :class:`~hill_muscle_ros.model.muscle.Muscle`, the one ``simulate``
-uses: on Protocol II at 1 kHz one run takes about 12 ms, where
-:class:`~hill_muscle_ros.model.batch.MuscleBatch` takes about 0.5 s for K = 4
-(its per-step NumPy overhead only pays off for hundreds of muscles). Muscles
-with FES extensions on run :class:`~hill_muscle_ros.model.fes_muscle.FesMuscle`,
-which is several times slower per step. Where the runs a fit expects repay
-loading the compiled loop (:meth:`MuscleReplay.compiled`: an ``--edge-search``
-replays the recording once per candidate move, hundreds of times), every run
-of that fit takes it, with the same forces to about 1e-9 N. A limb run is far
+residual and the Jacobian together (``jac=``). The runs use
+:class:`~hill_muscle_ros.model.muscle.Muscle`, as ``simulate`` does: muscles
+with and without FES extensions run the same engine, compiled where numba is
+(:meth:`MuscleReplay.compiled`). A limb run is far
 dearer (the joint and every CE integrated together on sub-steps): a limb fit
 takes the compiled limb once an evaluation's runs repay loading it
 (BENCHMARKS.md, section 8).

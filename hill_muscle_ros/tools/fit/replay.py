@@ -13,7 +13,6 @@ from typing import Any, Sequence
 import numpy as np
 
 from ...model import Muscle, MuscleParams
-from ...model.fes_muscle import FesMuscle
 from ...model.limb import LimbPlant, LimbProtocol, simulate_limb
 from ...model.muscle import MuscleOutputs
 from ...model.protocol import Knots, commands_from_pulse_widths
@@ -36,39 +35,30 @@ def replay_runs(n_parameters: int) -> int:
 class MuscleReplay:
     """The recorded inputs replayed through the muscle, for any parameters.
 
-    The runs take the compiled muscle (:func:`~hill_muscle_ros.model.kernels.run_compiled`,
-    or the compiled FES muscle) where :func:`~hill_muscle_ros.model.engine.use_compiled`
-    says ``runs`` runs of the recording repay loading it, or where it is
-    loaded already: the same forces to about 1e-9 N (test_muscle_compiled,
-    test_fes_compiled), one engine for every run of a fit.
+    Every run takes the build of the one engine that
+    :func:`~hill_muscle_ros.model.engine.kernels` chooses (compiled where numba
+    is), one build for every run of a fit.
 
     :param recording: the inputs and the force samples to predict
-    :param runs: [-] runs the caller expects to ask for in all (:func:`replay_runs`);
-        it chooses the engine only
+    :param runs: [-] runs the caller expects to ask for in all (:func:`replay_runs`),
+        for its reports
     """
 
     def __init__(self, recording: MuscleRecording, runs: int = 1) -> None:
         self.recording = recording
         self.runs = runs
         self.dt_s = 1.0 / recording.rate_hz
-        self._dl_end = recording.dl_mt_m[1:].tolist()
+        self._dl_end = recording.dl_mt_m[1:]
 
-    def compiled(self, fes: bool) -> bool:
-        """Whether the runs take the compiled engine (loading it here if they repay it).
+    def compiled(self, fes: bool = False) -> bool:
+        """Whether the runs take the compiled build (loading it here if so).
 
-        :param fes: the FES muscle's engine rather than the paper's loop
+        :param fes: kept for callers; every muscle runs the same engine
         """
-        from ...model import engine, fes_kernels, kernels
-        from ...model.simulate import FES_RUN_MIN_STEPS
-        work = (len(self.recording.stimulation) - 1) * self.runs
-        if fes:
-            if not engine.use_compiled(work, FES_RUN_MIN_STEPS, fes_kernels.loaded()):
-                return False
-            fes_kernels.compiled()
-            return True
-        if not engine.use_compiled(work, kernels.RUN_MIN_STEPS, kernels.run_loaded()):
+        from ...model import engine, fes_kernels
+        if engine.choice() != engine.COMPILED:
             return False
-        kernels.compiled_run()
+        fes_kernels.compiled()
         return True
 
     def commands(self, params: MuscleParams) -> np.ndarray:
@@ -81,45 +71,23 @@ class MuscleReplay:
     def force(self, params: MuscleParams, fes: bool = False) -> np.ndarray:
         """[N] the force at every grid instant, from rest.
 
-        :param fes: run the FES engine even if every FES extension is off
+        :param fes: kept for callers; every muscle runs the same engine
         """
-        u = self.commands(params).tolist()
-        muscle = FesMuscle(params) if fes else Muscle(params)
-        muscle.set_recruitment(u[0])
-        first = muscle.outputs()
-        n_steps = len(u) - 1
-        force = np.empty(n_steps + 1)
-        force[0] = first.force_n
+        u = np.asarray(self.commands(params), dtype=float)
+        muscle = Muscle(params)
+        muscle.set_recruitment(float(u[0]))
+        force = np.empty(len(u))
+        force[0] = muscle.outputs().force_n
         # As the simulator node: a command acts from the step after it, so a
         # release to zero shows one sample later than in `simulate`'s own table.
-        if self.compiled(fes):
-            force[1:] = self._force_compiled(muscle, fes, u)
-            return force
-        columns = [[0.0] * n_steps for _ in first]
-        muscle.run(u[:-1], self._dl_end, self.dt_s, columns=columns)
-        force[1:] = columns[first._fields.index('force_n')]
+        rows = muscle.run_array(u[:-1], self._dl_end, self.dt_s)
+        force[1:] = rows[:, MuscleOutputs._fields.index('force_n')]
         return force
-
-    def _force_compiled(self, muscle: Muscle, fes: bool, u: list) -> np.ndarray:
-        """[N] the force after each step, :meth:`force`'s loop on the compiled engine."""
-        from ...model import fes_kernels, kernels
-        if fes:
-            # From rest: its first step gives u[0] at t = 0, all that
-            # set_recruitment(u[0]) did to the reference before its first step.
-            bundle = fes_kernels.FesBundle([muscle.params], dt_s=self.dt_s)
-            rows = fes_kernels.run_muscle(bundle, 0, u[:-1], self._dl_end, self.dt_s,
-                                          kernels=fes_kernels.compiled())
-            return rows[:, MuscleOutputs._fields.index('force_n')]
-        return kernels.run_compiled(muscle, u[:-1], self._dl_end, self.dt_s)[kernels.RUN_FORCE]
 
     def predict(self, params: Sequence[MuscleParams]) -> np.ndarray:
         """[N] the force at the recorded samples, one row per parameter set."""
         index = self.recording.sample_index
-        # One engine for all: the paper's loop and the FES engine agree to about
-        # 1e-9 N, not to the bit, and a forward difference across the two (an FES
-        # constant moved off its default) would turn that into a false slope.
-        fes = not all(p.fes_defaults for p in params)
-        return np.array([self.force(p, fes)[index] for p in params])
+        return np.array([self.force(p)[index] for p in params])
 
 
 def _held_knots(values: np.ndarray, t_s: np.ndarray) -> Knots:

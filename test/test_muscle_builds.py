@@ -1,10 +1,10 @@
-"""CompiledFesMuscle (model/compiled_muscle.py) against FesMuscle, the reference.
+"""A compiled Muscle against the same Muscle on the plain Python functions.
 
 Step by step as the simulator node steps it: random FES features (each
 strategy of test_fes_compiled), random commands and MTU lengths, a reset
 part-way; every output of every step, and the outputs read between steps,
-agree to 1e-9 (N, m, m/s). Bad inputs raise FesMuscle's errors and leave the
-state as it was.
+agree to 1e-9 (N, m, m/s). Bad inputs raise the same errors on both builds
+and leave the state as it was.
 """
 import math
 
@@ -12,9 +12,7 @@ import numpy as np
 import pytest
 from hypothesis import given, strategies as st
 
-from hill_muscle_ros.model import Muscle
-from hill_muscle_ros.model.compiled_muscle import CompiledFesMuscle
-from hill_muscle_ros.model.fes_muscle import FesMuscle
+from engines import compiled, plain
 from hill_muscle_ros.model.muscle import DL_MT_LIMIT_M
 from hill_muscle_ros.model.params import MuscleParams
 from test_fes_compiled import (SETTINGS, TOL, delay_activation_params, fatigue_params,
@@ -35,10 +33,10 @@ def _gap(a, b) -> float:
 
 @SETTINGS
 @given(params=any_fes_params, protocol=protocols(), reset_at=st.floats(0.0, 1.0))
-def test_each_step_matches_fes_muscle_across_a_reset(params, protocol, reset_at):
+def test_each_compiled_step_matches_the_plain_build_across_a_reset(params, protocol, reset_at):
     r_start, _, dl, dt = protocol
     reset_step = int(reset_at * len(dl))
-    ref, got = FesMuscle(params), CompiledFesMuscle(params)
+    ref, got = plain(params), compiled(params)
     for k, (r, d) in enumerate(zip(r_start.tolist(), dl.tolist())):
         if k == reset_step:
             ref.reset()
@@ -57,8 +55,8 @@ BAD_STEPS = [(math.nan, 0.0, 1e-3), (1.5, 0.0, 1e-3), (-0.1, 0.0, 1e-3),
 
 
 @pytest.mark.parametrize('args', BAD_STEPS)
-def test_a_bad_step_raises_fes_muscles_error_and_changes_nothing(args):
-    ref, got = FesMuscle(FES_PARAMS), CompiledFesMuscle(FES_PARAMS)
+def test_a_bad_step_raises_the_same_error_on_both_builds_and_changes_nothing(args):
+    ref, got = plain(FES_PARAMS), compiled(FES_PARAMS)
     for _ in range(30):
         ref.step(0.7, 0.001, 1e-3)
         got.step(0.7, 0.001, 1e-3)
@@ -72,14 +70,13 @@ def test_a_bad_step_raises_fes_muscles_error_and_changes_nothing(args):
     assert _gap(got.step(0.2, 0.0, 1e-3), ref.step(0.2, 0.0, 1e-3)) <= TOL
 
 
-def test_the_knee_quadriceps_preset_releases_as_fes_muscle():
+def test_the_knee_quadriceps_preset_releases_alike_on_both_builds():
     """1000 units, every feature: pulse widths up through the curve, then 0."""
     from hill_muscle_ros.params_file import load_muscle_params
     from hill_muscle_ros.resources import config_dir
     from hill_muscle_ros.model.stimulus import command_from_pulse_width
     params = load_muscle_params(config_dir() / 'fes_quadriceps.yaml')[0]
-    assert type(Muscle(params)) is FesMuscle
-    ref, got = FesMuscle(params), CompiledFesMuscle(params)
+    ref, got = plain(params), compiled(params)
     u = [command_from_pulse_width(f * params.pw_max_s, params)
          for f in np.repeat([0.25, 0.5, 1.0], 200)] + [0.0] * 600
     for k, r in enumerate(u):
