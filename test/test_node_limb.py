@@ -154,14 +154,14 @@ def test_by_default_the_node_steps_the_compiled_limb_loaded_before_it_starts(sha
 
 
 def test_a_compiled_limb_that_fails_to_load_falls_back_to_python_with_a_warning(monkeypatch):
-    def broken(plant):
+    def broken():
         raise ImportError('no module named numba')
     monkeypatch.setenv(engine.ENV_VAR, engine.COMPILED)
     monkeypatch.setattr(engine, 'numba_available', lambda: True)
-    monkeypatch.setattr(limb_node.limb_kernels, 'CompiledLimb', broken)
+    monkeypatch.setattr(limb_node.limb_kernels, 'compiled', broken)
     logger = RecordingLogger()
     limb = limb_node.load_limb(PLANT, logger)
-    assert type(limb) is Limb
+    assert (type(limb), limb.build) == (Limb, engine.PYTHON)
     assert ('warning', 'the compiled limb failed to load (ImportError: no module named numba): '
             'the limb runs on the Python engine') in logger.lines
 
@@ -170,7 +170,7 @@ def test_an_unknown_engine_falls_back_to_python_naming_the_value(monkeypatch):
     monkeypatch.setenv(engine.ENV_VAR, 'fast')
     logger = RecordingLogger()
     limb = limb_node.load_limb(PLANT, logger)
-    assert type(limb) is Limb
+    assert (type(limb), limb.build) == (Limb, engine.PYTHON)
     assert [level for level, _ in logger.lines] == ['warning']
     assert "`HILL_MUSCLE_ENGINE` must be one of auto, compiled, python, got 'fast'" in \
         logger.lines[0][1]

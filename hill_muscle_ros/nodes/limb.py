@@ -22,17 +22,17 @@ to 0 after ``input_timeout_s`` of simulated time without a message on its
 inputs. A ``reset`` service (std_srvs/Trigger) returns the limb to its initial
 state with every held input at 0.
 
-Engine: the node steps the compiled limb
-(:class:`~hill_muscle_ros.model.limb_kernels.CompiledLimb`) when
+Engine: the node steps a :class:`~hill_muscle_ros.model.limb.Limb` on the
+compiled build of the limb's kernels when
 :func:`~hill_muscle_ros.model.engine.choice` is compiled (numba installed,
-``HILL_MUSCLE_ENGINE`` not ``python``), else the Python
-:class:`~hill_muscle_ros.model.limb.Limb`; both give the same steps to 1e-9
-rad. The compiled step is far cheaper where it matters: one step as a tick
-makes it, knee preset (``benchmarks/limb_node_tick.py``, 2026-12-02, two runs,
-load average about 1.5): median 6.4 against 43 us, 99th percentile 0.44-0.47
-against 14 ms, worst 0.5-0.8 against 19-22 ms; in Python the release of the
-quadriceps' 1000 units (0.80-0.89 ms a step) puts a 1 kHz node behind real
-time for the whole release. The compiled limb is loaded in ``__init__``,
+``HILL_MUSCLE_ENGINE`` not ``python``), else on the very same functions as
+plain Python; both give the same steps to 1e-9 rad. The compiled step is far
+cheaper: one step as a tick makes it, knee preset
+(``benchmarks/limb_node_tick.py``, two runs, load average 2.7): median 7.3
+against 238-240 us, mean 8 against 400 us, 99th percentile 23-25 us against
+6.0 ms; on the plain functions the release of the quadriceps' 1000 units
+(0.49-0.50 ms a step on average) takes half of every 1 kHz tick. The compiled
+build is loaded in ``__init__``,
 before any publisher, subscription, service or timer exists (so before the
 node can be seen as started), never in a tick: 0.8 s from numba's disk
 cache, about 30 s when it compiles (a clean clone, or after an edit of the
@@ -60,8 +60,8 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
-from ..model import limb_kernels
-from ..model.limb import TORQUE_LIMIT_N_M, Limb, LimbPlant
+from ..model import engine as engines
+from ..model.limb import TORQUE_LIMIT_N_M, Limb, LimbPlant, kernels as limb_kernels
 from ..model.muscle import check_recruitment
 from ..qos import OUTPUT_QOS, RELIABLE_QOS
 from ..timebase import NS_PER_S
@@ -81,20 +81,21 @@ from ._topics import (QOS_OVERRIDES_PREFIX, check_qos_overrides, overridable_pub
 NODE_NAME = 'limb'
 
 
-def load_limb(plant: LimbPlant, logger) -> Limb | limb_kernels.CompiledLimb:
-    """The limb the node steps: compiled when :func:`~hill_muscle_ros.model.engine.choice`
-    says so, else Python; logs which, and how long loading took (:func:`._engine.load_engine`).
+def load_limb(plant: LimbPlant, logger) -> Limb:
+    """The limb the node steps: on the compiled build when
+    :func:`~hill_muscle_ros.model.engine.choice` says so, else on the plain
+    functions; logs which, and how long loading took (:func:`._engine.load_engine`).
 
     :param plant: the joint and its muscles
     :param logger: the node's logger
     """
-    return load_engine('limb', lambda: limb_kernels.CompiledLimb(plant), lambda: Limb(plant),
-                       limb_kernels.loaded, logger)
+    return load_engine('limb', lambda: Limb(plant, build=engines.COMPILED),
+                       lambda: Limb(plant, build=engines.PYTHON), limb_kernels.loaded, logger)
 
 
 class LimbNode(Node):
-    """ROS 2 shell around :class:`~hill_muscle_ros.model.limb.Limb` or its compiled
-    twin (:func:`load_limb`).
+    """ROS 2 shell around :class:`~hill_muscle_ros.model.limb.Limb` on either build
+    of its kernels (:func:`load_limb`).
 
     :raises StartupError: on an invalid parameter or plant at start-up
     """
