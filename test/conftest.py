@@ -210,12 +210,12 @@ def pytest_terminal_summary(terminalreporter, exitstatus, config):
 def quasi_static_calls(monkeypatch):
     """The Python engine only, and a list that records the ``fv_scaling`` of each
     call of the kernels' ``quasi_force``: did a run take a CE quasi-static?"""
-    from hill_muscle_ros.model import fes_kernels
+    from hill_muscle_ros.model.muscle import kernels as muscle_kernels, state as muscle_state
     calls = []
-    original = fes_kernels.quasi_force
+    original = muscle_kernels.quasi_force
 
     def spy(F, I, i, *args):
-        relative = I[fes_kernels.hdr(I, i, fes_kernels.H_IP) + fes_kernels.I_RELATIVE]
+        relative = I[muscle_state.hdr(I, i, muscle_state.H_IP) + muscle_state.I_RELATIVE]
         calls.append('relative' if relative else 'absolute')
         return original(F, I, i, *args)
 

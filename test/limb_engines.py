@@ -37,7 +37,7 @@ def run_on(value: str, fn, *args, **kwargs):
 
 def spy_quasi_static(monkeypatch, plant) -> list[str]:
     """The plain-Python engine, and a list of the ``fv_scaling`` of the muscle of
-    each call of the kernels' quasi-static force (``fes_kernels.quasi_force``,
+    each call of the kernels' quasi-static force (``muscle_kernels.quasi_force``,
     which :func:`kernels.forces` asks for a CE taken quasi-static): did a run of
     ``plant`` take a CE quasi-static, and which?"""
     calls = []

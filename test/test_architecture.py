@@ -48,8 +48,6 @@ MAX_LINES = 800
 #: ``cycle``, ``layers`` and ``size`` (see the module docstring). Remove an
 #: entry once its module keeps the rule: the test below fails until you do.
 KNOWN_EXCEPTIONS = frozenset({
-    # The kernels of the FES muscle, over 800 lines, being split by the model's owner.
-    ('size', 'hill_muscle_ros.model.fes_kernels'),
 })
 
 #: Packages the model must not import (of this package, and rclpy).

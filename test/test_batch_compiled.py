@@ -1,6 +1,6 @@
 """MuscleBatch on both builds steps each muscle exactly as a separate Muscle.
 
-The batch runs the one engine (model/fes_batch_kernels.py over the muscle's
+The batch runs the one engine (model/muscle/batch_kernels.py over the muscle's
 kernels), compiled by numba or as plain Python. Both builds must agree with
 each other and with separate `Muscle` runs to 1e-9 N, on all four variants,
 with the recruitment held and changing; a batch asked for the compiled build
@@ -18,8 +18,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hill_muscle_ros.model import Muscle, MuscleParams, fes_batch_kernels, fes_kernels
-from hill_muscle_ros.model.batch import MuscleBatch
+from hill_muscle_ros.model import Muscle, MuscleParams
+from hill_muscle_ros.model.muscle import batch_kernels as fes_batch_kernels
+from hill_muscle_ros.model.muscle import kernels as muscle_kernels
+from hill_muscle_ros.model.muscle.batch import MuscleBatch
 
 from test_model_engines import muscle_params
 
@@ -225,7 +227,7 @@ def test_reset_erases_the_memory():
 
 def test_without_numba_the_compiled_engine_asked_for_raises(monkeypatch):
     monkeypatch.setitem(sys.modules, 'numba', None)   # import numba raises ImportError
-    monkeypatch.setattr(fes_kernels, '_compiled', None)
+    monkeypatch.setattr(muscle_kernels, '_compiled', None)
     monkeypatch.setattr(fes_batch_kernels, '_compiled', None)
     with pytest.raises(ImportError, match='numba'):
         MuscleBatch([MuscleParams()], build='compiled')
@@ -239,7 +241,7 @@ def test_an_unknown_build_is_refused_by_name():
 
 def test_package_import_and_a_plain_batch_import_no_numba():
     code = ('import sys; import hill_muscle_ros; from hill_muscle_ros.tools import cli; '
-            'cli.build_parser(); import hill_muscle_ros.model.batch as b; '
+            'cli.build_parser(); import hill_muscle_ros.model.muscle.batch as b; '
             'from hill_muscle_ros.model import MuscleParams; '
             'b.MuscleBatch([MuscleParams()], build="python").step(0.5, 0.0, 1e-3); '
             'print("numba" in sys.modules, "llvmlite" in sys.modules)')

@@ -2,7 +2,7 @@
 
 On the NumPy engine each FES muscle is its own Muscle (the reference); on
 the compiled engine they are stepped together on the compiled FES muscle
-(model/fes_batch_kernels.py). Every output of every step, of ``outputs()``
+(model/muscle/batch_kernels.py). Every output of every step, of ``outputs()``
 and after ``set_recruitment`` must agree to 1e-9 (N, m, m/s), counts and
 commands exactly, with paper's-model muscles mixed in, steps of changing
 length (delay lines growing) and resets.
@@ -12,7 +12,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
 from hill_muscle_ros.model import MuscleParams
-from hill_muscle_ros.model.batch import MuscleBatch
+from hill_muscle_ros.model.muscle.batch import MuscleBatch
 
 from test_fes_compiled import (delay_activation_params, fatigue_params, fibre_type_params,
                                relative_params, spread_params)

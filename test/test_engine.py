@@ -1,6 +1,6 @@
 """The engine: compiled and plain builds of one muscle's run agree; the choice of build.
 
-`Muscle` runs the kernels of model/fes_kernels.py compiled by numba, or the same
+`Muscle` runs the kernels of model/muscle/kernels.py compiled by numba, or the same
 functions as plain Python (``HILL_MUSCLE_ENGINE=python``). Both builds must give
 the same 12 output columns and leave the muscle in the same state, on all four
 variants of the paper's model, with R held, changing on every step, released

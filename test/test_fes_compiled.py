@@ -1,4 +1,4 @@
-"""The compiled FES muscle (model/fes_kernels.py) against the same functions run as
+"""The compiled FES muscle (model/muscle/kernels.py) against the same functions run as
 plain Python (``HILL_MUSCLE_ENGINE=python``'s build).
 
 Random parameters and random protocols (commands held for a few steps or
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, assume, given, settings, strategies as st
 
-from hill_muscle_ros.model import fes_kernels
+from hill_muscle_ros.model.muscle import kernels as muscle_kernels, state as muscle_state
 from hill_muscle_ros.model.params import MuscleParams
 
 #: [N], [m], [m/s] agreement asked of every output (the forces' is the goal's 1e-9 N).
@@ -25,18 +25,18 @@ EXAMPLES = 40
 
 @pytest.fixture(scope='module')
 def kernels():
-    return fes_kernels.compiled()
+    return muscle_kernels.compiled()
 
 
 def _reference(params, r_start, r_end, dl, dt):
     """The outputs of each step on the plain Python build of the kernels."""
-    return fes_kernels.run_muscle(fes_kernels.FesBundle([params]), 0, r_start, dl, dt, r_end)
+    return muscle_kernels.run_muscle(muscle_state.FesBundle([params]), 0, r_start, dl, dt, r_end)
 
 
 def _compare(kernels, params, protocol):
     r_start, r_end, dl, dt = protocol
     ref = _reference(params, r_start, r_end, dl, dt)
-    got = fes_kernels.run_muscle(fes_kernels.FesBundle([params]), 0, r_start, dl, dt,
+    got = muscle_kernels.run_muscle(muscle_state.FesBundle([params]), 0, r_start, dl, dt,
                                  r_end, kernels)
     assert np.abs(got - ref).max() <= TOL, np.abs(got - ref).max(axis=0)
 
@@ -182,16 +182,16 @@ def test_delay_line_grows_for_a_shorter_step(kernels):
     """A bundle sized for 1 ms steps runs 0.1 ms steps with a 31 ms delay: the
     ring buffer grows, keeping the commands pending."""
     params = MuscleParams(emd_s=0.031, tau_act_s=0.01, tau_deact_s=0.01, n_units=20)
-    bundle = fes_kernels.FesBundle([params], dt_s=1e-3)
+    bundle = muscle_state.FesBundle([params], dt_s=1e-3)
     r = np.linspace(0.0, 1.0, 40)
-    first = fes_kernels.run_muscle(bundle, 0, r, np.zeros(40), 1e-3, None, kernels)
+    first = muscle_kernels.run_muscle(bundle, 0, r, np.zeros(40), 1e-3, None, kernels)
     cap = bundle.cap
-    second = fes_kernels.run_muscle(bundle, 0, r[::-1], np.zeros(40), 1e-4, None, kernels)
+    second = muscle_kernels.run_muscle(bundle, 0, r[::-1], np.zeros(40), 1e-4, None, kernels)
     assert bundle.cap > cap
     ref = _reference(params, r, None, np.zeros(40), 1e-3)
-    plain = fes_kernels.FesBundle([params], dt_s=1e-4)
-    fes_kernels.run_muscle(plain, 0, r, np.zeros(40), 1e-3)
-    ref_second = fes_kernels.run_muscle(plain, 0, r[::-1], np.zeros(40), 1e-4)
+    plain = muscle_state.FesBundle([params], dt_s=1e-4)
+    muscle_kernels.run_muscle(plain, 0, r, np.zeros(40), 1e-3)
+    ref_second = muscle_kernels.run_muscle(plain, 0, r[::-1], np.zeros(40), 1e-4)
     assert np.abs(first - ref[:40]).max() <= TOL
     assert np.abs(second - ref_second).max() <= TOL
 
@@ -203,11 +203,11 @@ def test_a_new_bundle_starts_fresh_though_its_layout_is_kept(kernels):
     params = MuscleParams(n_units=200, fibre_fractions=[0.4, 0.6], recruitment_order='random',
                           recruitment_seed=5, fatigue='riener', tau_fatigue_s=[3.0, 1.0],
                           emd_s=0.02, tau_act_s=0.03)
-    used = fes_kernels.FesBundle([params])
+    used = muscle_state.FesBundle([params])
     n = 300
-    fes_kernels.run_muscle(used, 0, np.full(n, 0.6), np.zeros(n), 1e-3, None, kernels)
-    new = fes_kernels.FesBundle([params])
-    scratch = fes_kernels.FesBundle._filled((params,), new.cap)
+    muscle_kernels.run_muscle(used, 0, np.full(n, 0.6), np.zeros(n), 1e-3, None, kernels)
+    new = muscle_state.FesBundle([params])
+    scratch = muscle_state.FesBundle._filled((params,), new.cap)
     np.testing.assert_array_equal(new.F, scratch.F)
     np.testing.assert_array_equal(new.I, scratch.I)
     assert not np.array_equal(used.F, new.F)

@@ -488,7 +488,7 @@ def test_force_vector_env_with_observe_fitness_equals_single_envs():
 
 
 def test_knee_variant_and_features_options_reach_every_muscle():
-    from hill_muscle_ros.model.fes_kernels import I_INITIAL, I_MULTI
+    from hill_muscle_ros.model.muscle.state import I_INITIAL, I_MULTI
     env = KneeAngleEnv(units='single', length='instantaneous', fes_features=False)
     for m in env.plant.muscles:
         p = m.params

@@ -7,7 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hill_muscle_ros.model import Muscle, MuscleParams
-from hill_muscle_ros.model.batch import MuscleBatch
+from hill_muscle_ros.model.muscle.batch import MuscleBatch
 
 from test_model_engines import muscle_params
 

@@ -144,7 +144,7 @@ FEATURES = {
 
 
 def test_batch_equals_separate_muscles_on_every_feature_to_1e_9_newton():
-    from hill_muscle_ros.model.batch import MuscleBatch
+    from hill_muscle_ros.model.muscle.batch import MuscleBatch
     params = [MuscleParams(**kw) for kw in FEATURES.values()]
     batch = MuscleBatch(params)
     singles = [Muscle(p) for p in params]

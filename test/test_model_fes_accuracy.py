@@ -125,19 +125,22 @@ def test_holding_r_over_each_step_would_miss_the_target(monkeypatch):
     """The target is not loose: the same muscle with the recruitment held
     over each whole step (every step's events moved to its end) is off by far
     more, so the splitting is what the test measures."""
-    from hill_muscle_ros.model import engine, fes_kernels
+    from hill_muscle_ros.model import engine
+    from hill_muscle_ros.model.equations import activation_at
+    from hill_muscle_ros.model.muscle import kernels as muscle_kernels
+    from hill_muscle_ros.model.muscle import state as muscle_state
     from hill_muscle_ros.model.memory import recruited_units
     # The patch changes the plain functions, which the Python engine calls by
     # name; the compiled build, loaded earlier, is left alone.
     monkeypatch.setenv(engine.ENV_VAR, engine.PYTHON)
 
     def at_step_end(F, I, i, s0, s1, a0, u_d, tau, m0):
-        n = I[fes_kernels.hdr(I, i, fes_kernels.H_IP) + fes_kernels.I_N]
-        m1 = recruited_units(fes_kernels.activation_at(a0, u_d, tau, s1 - s0), n)
+        n = I[muscle_state.hdr(I, i, muscle_state.H_IP) + muscle_state.I_N]
+        m1 = recruited_units(activation_at(a0, u_d, tau, s1 - s0), n)
         if m1 != m0:
-            fes_kernels.add_event(F, I, i, s1, fes_kernels.A_RECRUIT, m1, 0.0, 0.0, 0.0)
+            muscle_kernels.add_event(F, I, i, s1, muscle_state.A_RECRUIT, m1, 0.0, 0.0, 0.0)
         return m1
-    monkeypatch.setattr(fes_kernels, 'plan_events', at_step_end)
+    monkeypatch.setattr(muscle_kernels, 'plan_events', at_step_end)
     error = _max_error('varying', 'multi-initial', 1e-5)
     # Measured 0.33 N on this protocol.
     assert error > 4 * ACCURACY_N

@@ -1,4 +1,4 @@
-"""The engine's unit memory (the segment stacks of model/fes_kernels.py) against
+"""The engine's unit memory (the segment stacks of model/muscle/kernels.py) against
 the paper's per-unit memory (Eq. 2), and its LIFO order."""
 import pytest
 from hypothesis import given, settings

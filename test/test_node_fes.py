@@ -8,7 +8,8 @@ import yaml
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
-from hill_muscle_ros.model import MuscleParams, engine, fes_kernels
+from hill_muscle_ros.model import MuscleParams, engine
+from hill_muscle_ros.model.muscle import kernels as muscle_kernels
 from hill_muscle_ros.nodes import simulator
 from hill_muscle_ros.model.stimulus import command_from_pulse_width
 from ros_helpers import Probe, ProcessGroup, RecordingLogger, node_command, ros_env
@@ -164,7 +165,7 @@ def test_a_compiled_muscle_that_fails_to_load_falls_back_to_python_with_a_warnin
         raise ImportError('no module named numba')
     monkeypatch.setenv(engine.ENV_VAR, engine.COMPILED)
     monkeypatch.setattr(engine, 'numba_available', lambda: True)
-    monkeypatch.setattr(fes_kernels, 'compiled', broken)
+    monkeypatch.setattr(muscle_kernels, 'compiled', broken)
     logger = RecordingLogger()
     muscle = simulator.load_muscle(MuscleParams(**FES), logger)
     assert muscle.build == engine.PYTHON

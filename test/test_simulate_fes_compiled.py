@@ -9,7 +9,8 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings, strategies as st
 
 from hill_muscle_ros import resources
-from hill_muscle_ros.model import Protocol, engine, fes_kernels
+from hill_muscle_ros.model import Protocol, engine
+from hill_muscle_ros.model.muscle import kernels as muscle_kernels
 from hill_muscle_ros.model.simulate import COLUMNS, simulate
 from hill_muscle_ros.params_file import load_muscle_params
 from test_fes_compiled import _params
@@ -24,7 +25,7 @@ PROTOCOLS = resources.config_dir() / 'protocols'
 
 @pytest.fixture(scope='module')
 def kernels():
-    return fes_kernels.compiled()
+    return muscle_kernels.compiled()
 
 
 def _run(monkeypatch, value, protocol, params, rate_hz):
@@ -99,7 +100,7 @@ def test_quadriceps_preset_matches_the_python_run(kernels, monkeypatch, name):
 
 def test_auto_takes_the_compiled_build_where_numba_is(kernels, monkeypatch):
     monkeypatch.setenv(engine.ENV_VAR, 'auto')
-    assert engine.kernels(fes_kernels) is kernels
+    assert engine.kernels(muscle_kernels) is kernels
 
 
 def test_python_engine_never_loads_the_compiled_build(monkeypatch):
@@ -108,6 +109,6 @@ def test_python_engine_never_loads_the_compiled_build(monkeypatch):
 
     def refuse():
         raise AssertionError('the compiled build was asked for')
-    monkeypatch.setattr(fes_kernels, 'compiled', refuse)
+    monkeypatch.setattr(muscle_kernels, 'compiled', refuse)
     monkeypatch.setenv(engine.ENV_VAR, 'python')
     assert simulate(protocol, params).force_n.max() > 0.0

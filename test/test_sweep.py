@@ -2,7 +2,7 @@
 
 The reference for every force is :func:`hill_muscle_ros.model.simulate.simulate`,
 one parameter set at a time on the scalar engine; the sweep computes them in
-batches (:class:`~hill_muscle_ros.model.batch.MuscleBatch`), here, on a local
+batches (:class:`~hill_muscle_ros.model.muscle.batch.MuscleBatch`), here, on a local
 Dask cluster and on a scheduler and workers started as separate processes.
 Limb sweeps: the reference is :func:`hill_muscle_ros.model.limb.simulate_limb`
 on plants built here from the plant file, one at a time.

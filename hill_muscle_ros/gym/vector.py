@@ -7,7 +7,7 @@ single environment's :meth:`~._common.TrackingEnv.draw_episode` from a
 generator seeded alike.
 
 - :class:`ForceTrackingVectorEnv` steps the K muscles on
-  :class:`~hill_muscle_ros.model.batch.MuscleBatch`: the same muscle to the
+  :class:`~hill_muscle_ros.model.muscle.batch.MuscleBatch`: the same muscle to the
   batch engine's agreement with the scalar one (1e-9 N,
   ``test/test_model_batch.py``).
 - :class:`KneeAngleVectorEnv` steps the K limbs on
@@ -28,7 +28,7 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from ..model.batch import MuscleBatch
+from ..model.muscle.batch import MuscleBatch
 from ..model.limb import LimbBatch
 from ..model.protocol import commands_from_pulse_widths
 from ._common import MODEL_DT_S, History, TrackingEnv, check_pulse_widths

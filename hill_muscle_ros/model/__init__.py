@@ -1,11 +1,11 @@
 """The model core: pure Python and NumPy, no ROS.
 
 The equations (Eq. 1, Eq. 3 and the FES laws, :mod:`.equations`), the one
-engine over flat state (:mod:`.fes_kernels`, the limb's kernels), the facades
+engine over flat state (:mod:`hill_muscle_ros.model.muscle.kernels`, the limb's kernels), the facades
 over it (:class:`Muscle`, :class:`MuscleBatch`, the limb's), parameters,
 protocols and the offline simulation loops.
 """
-from .batch import BatchOutputs, MuscleBatch
+from .muscle.batch import BatchOutputs, MuscleBatch
 from .command_track import MAX_KNOTS, CommandTrack
 from .equations import force_length, force_velocity, force_velocity_inverse
 from .limb import LimbBatch, LimbBatchOutputs, LimbOutOfRange, simulate_limb_batch

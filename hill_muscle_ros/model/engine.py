@@ -9,7 +9,7 @@ numba, lazily, so importing the package never loads it.
 Choice: the environment variable :data:`ENV_VAR` (``HILL_MUSCLE_ENGINE``)
 takes ``auto`` (the default: compiled if numba can be imported), ``compiled``
 (numba required) or ``python`` (the plain Python loops everywhere, and the
-NumPy engine for a :class:`~hill_muscle_ros.model.batch.MuscleBatch` built with
+NumPy engine for a :class:`~hill_muscle_ros.model.muscle.batch.MuscleBatch` built with
 ``engine='auto'``: for debugging, or to rule the compiled code out).
 :func:`choice` reads it on every call, so a process may change it. Since
 loading compiled code has a fixed cost, ``auto`` takes a compiled loop only
@@ -121,7 +121,7 @@ def kernels(module: types.ModuleType, build: str | None = None) -> object:
     """The build of a kernel module to run: the one place the engine is chosen.
 
     :param module: a module of plain kernel functions with a ``compiled()``
-        that returns their numba build (e.g. :mod:`.fes_kernels`)
+        that returns their numba build (e.g. :mod:`hill_muscle_ros.model.muscle.kernels`)
     :param build: :data:`COMPILED` or :data:`PYTHON` to ask for one, or None
         for :func:`choice` (``HILL_MUSCLE_ENGINE``)
     :return: ``module.compiled()`` for :data:`COMPILED`, else ``module``

@@ -3,7 +3,7 @@
 Units are always recruited in a fixed order (1..M) and de-recruited in
 reverse, so the recruited set is a prefix of M = floor(N R + 0.5) units. The
 memory of each unit's recruitment length and fitness lives in the engine's
-unit pool (:mod:`.fes_kernels`), as segment stacks.
+unit pool (:mod:`hill_muscle_ros.model.muscle.kernels`), as segment stacks.
 """
 from __future__ import annotations
 

@@ -20,9 +20,9 @@ from . import engine
 #: loads it from the cache). Together they are every function numba compiles
 #: for the package (a clean clone's test suite compiles nothing beyond them).
 KERNEL_SETS = {
-    'muscle': ('fes_kernels', 'compiled'),            # Muscle: simulate, the simulator node
+    'muscle': ('muscle.kernels', 'compiled'),         # Muscle: simulate, the simulator node
     'limb': ('limb.kernels', 'compiled'),             # Limb: the limb node, simulate_limb
-    'batch': ('fes_batch_kernels', 'compiled'),       # MuscleBatch: sweeps, the gym
+    'batch': ('muscle.batch_kernels', 'compiled'),    # MuscleBatch: sweeps, the gym
 }
 
 #: The kernel sets in the groups that build in one process each, in order:

@@ -53,7 +53,7 @@ def unit_length_scale(position, spread: float):
     """[-] c_p of the unit at 0-based position ``position`` of the order (a float,
     or an array of them: the same operations element by element).
 
-    Plain arithmetic, so that the compiled engine (model/fes_kernels.py) runs it too.
+    Plain arithmetic, so that the compiled engine (model/muscle/kernels.py) runs it too.
     """
     frac = ((position + 1.0) * PHI) % 1.0
     return 1.0 + spread * (2.0 * frac - 1.0)

@@ -66,7 +66,7 @@ from std_srvs.srv import Trigger
 
 from ..model import CommandTrack, Muscle, MuscleParams
 from ..model import engine as engines
-from ..model import fes_kernels
+from ..model.muscle import kernels as muscle_kernels
 from ..model.muscle import check_dl_mt, check_recruitment
 from ..qos import OUTPUT_HISTORY_DEPTH, OUTPUT_QOS, RELIABLE_QOS
 from ..timebase import NS_PER_S
@@ -154,7 +154,7 @@ def load_muscle(params: MuscleParams, logger) -> Muscle:
     :param logger: the node's logger
     """
     return load_engine('muscle', lambda: Muscle(params, build=engines.COMPILED),
-                       lambda: Muscle(params, build=engines.PYTHON), fes_kernels.loaded,
+                       lambda: Muscle(params, build=engines.PYTHON), muscle_kernels.loaded,
                        logger)
 
 
@@ -170,7 +170,7 @@ def rebuild_muscle(params: MuscleParams, compiled: bool, logger) -> Muscle:
     :param compiled: whether the node's muscle was compiled until now
     :param logger: the node's logger
     """
-    if compiled and fes_kernels.loaded():
+    if compiled and muscle_kernels.loaded():
         try:
             return Muscle(params, build=engines.COMPILED)
         except Exception as err:   # noqa: BLE001 -- the Python build computes the same steps

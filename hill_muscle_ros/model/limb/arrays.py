@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import fes_kernels
-from ..fes_kernels import DELAY_FULL, S_DL, S_L, FesBundle, ScratchPool
+from ..muscle import state as muscle_state
+from ..muscle.state import DELAY_FULL, S_DL, S_L, FesBundle, ScratchPool
 from ..muscle import DL_MT_LIMIT_M
 from .kernels import (DL_OUT_OF_RANGE, L_COM, L_DAMPING, L_EQUILIBRIUM, L_GRAVITY,
                       L_INERTIA, L_MASS, L_MUSCLES, L_OMEGA, L_PER_MUSCLE, L_STIFFNESS, L_T,
@@ -30,7 +30,7 @@ def row_length(n_muscles: int) -> int:
 
 class LimbArrays:
     """The flat state of a limb: its muscles'
-    :class:`~hill_muscle_ros.model.fes_kernels.FesBundle`, the joint array ``L``,
+    :class:`~hill_muscle_ros.model.muscle.state.FesBundle`, the joint array ``L``,
     the stage scratch ``W`` and the timeline ``TT``/``TI``; new, the limb is at
     rest (:meth:`reset`).
 
@@ -62,7 +62,7 @@ class LimbArrays:
         self._place_ces()   # the new bundle is at rest already
 
     def _size_timeline(self) -> None:
-        total = sum(int(self.bundle.I[i * fes_kernels.N_HDR + fes_kernels.H_CAPEV])
+        total = sum(int(self.bundle.I[i * muscle_state.N_HDR + muscle_state.H_CAPEV])
                     for i in range(self.nm))
         # limb_step writes a step's timeline (entries 0 .. n_events - 1) before
         # it reads it: a handed-back one needs no zeros.

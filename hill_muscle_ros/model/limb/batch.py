@@ -17,7 +17,7 @@ rad and 1e-9 N), on the build :func:`~hill_muscle_ros.model.engine.kernels`
 chooses.
 
 Cost: one limb step per limb, plus the arrays' bookkeeping. Unlike
-:class:`~hill_muscle_ros.model.batch.MuscleBatch`, there is no vectorised
+:class:`~hill_muscle_ros.model.muscle.batch.MuscleBatch`, there is no vectorised
 path: every limb has its own instants within a step (each muscle's delayed
 command switches and units recruited at their own instants, the number of RK4
 sub-steps its tendon's stiffness asks for), and integrating all limbs over

@@ -16,12 +16,12 @@ free CE that follows its MTU (f_SE = 0). A CE that relaxes faster than
 :data:`~hill_muscle_ros.model.equations.QUASI_STATIC_RATE_PER_S` (few units
 left with ``fv_scaling: relative``) is quasi-static over the interval: it
 moves with its MTU, its SE carries the force Eq. 3 gives that velocity
-(:func:`~hill_muscle_ros.model.fes_kernels.quasi_force`), and it leaves the
+(:func:`~hill_muscle_ros.model.muscle.kernels.quasi_force`), and it leaves the
 RK4 state (doc/model.md section 7.6). The muscles are those of
-:mod:`~hill_muscle_ros.model.fes_kernels` (every variant and FES feature);
+:mod:`~hill_muscle_ros.model.muscle.kernels` (every variant and FES feature);
 the equations, the joint's included, are :mod:`~hill_muscle_ros.model.equations`.
 
-State: the muscles' :class:`~hill_muscle_ros.model.fes_kernels.FesBundle`
+State: the muscles' :class:`~hill_muscle_ros.model.muscle.state.FesBundle`
 (``F``, ``I``), the joint array ``L`` (``L_*`` entries), the stage scratch
 ``W`` (``W_*`` rows) and a step's timeline ``TT``/``TI``, held together by
 :class:`~.arrays.LimbArrays`.
@@ -32,16 +32,19 @@ import math  # the joint's equations, compiled over this scope, call it
 import sys
 import types
 
-from .. import equations, fes_kernels, memory, stimulus, units
+from .. import equations, memory, stimulus, units
+from ..muscle import kernels as muscle_kernels
+from ..muscle import pool as muscle_pool
+from ..muscle import state as muscle_state
 from ..equations import (QUASI_STATIC_RATE_PER_S, SINE_SERIES_MAX_RAD, activation_at,
                          joint_acceleration_sin, mtu_length_change, parallel_force, rk4_update,
                          series_force, sine_near, substep_count)
-from ..fes_kernels import (DELAY_FULL, H_DQT, H_EVT, H_FP, H_FS, H_IP, H_JS, I_INITIAL,
-                           I_MULTI, I_N, J_DCOUNT, J_DHEAD, J_NEV, J_NREC, OK, P_K_PE, P_K_SE,
-                           P_L_REST, S_CMD, S_DL, S_L, S_R, S_T, S_UD, TIME_TOL_S, apply,
-                           begin_interval, eff_f_iso, eff_f_iso_inline, end_interval,
-                           give_command, hdr, peak_rate, plan, quasi_force, rate_at, set_piece,
-                           settle_now, tau_for, velocity)
+from ..muscle.state import (DELAY_FULL, H_DQT, H_EVT, H_FP, H_FS, H_IP, H_JS, I_INITIAL,
+                            I_MULTI, I_N, J_DCOUNT, J_DHEAD, J_NEV, J_NREC, OK, P_K_PE, P_K_SE,
+                            P_L_REST, S_CMD, S_DL, S_L, S_R, S_T, S_UD, TIME_TOL_S, hdr)
+from ..muscle.kernels import (apply, begin_interval, eff_f_iso, eff_f_iso_inline, end_interval,
+                              give_command, peak_rate, plan, quasi_force, rate_at, set_piece,
+                              settle_now, tau_for, velocity)
 from ..memory import recruited_units
 
 # Entries of the limb's float array ``L``: the joint, its state, an RK4 step's
@@ -63,7 +66,7 @@ L_PER_MUSCLE = 3
 (W_L1, W_L2, W_L3, W_L4, W_V1, W_V2, W_V3, W_V4, W_FREE, W_QUASI, W_F0A, W_F0M,
  W_F0B, W_STEADY, W_A_END) = range(15)
 N_W = 15
-#: Status of a limb step beyond fes_kernels' OK and DELAY_FULL: muscle i is
+#: Status of a limb step beyond the muscle's OK and DELAY_FULL: muscle i is
 #: stretched out of range at the step's end (status DL_OUT_OF_RANGE + i).
 DL_OUT_OF_RANGE = 2
 #: A failed run returns -(k STATUS_BASE + status), k the failed step: more than
@@ -94,7 +97,7 @@ def plan_steady(F, I, W, i, t0, t1):
 
     Steady: no delayed command switches before ``t1``, and the activation (a
     monotone piece) rounds to the units recruited now at ``t1`` too (the test
-    :func:`~.fes_kernels.plan_events` makes). :func:`~.fes_kernels.plan`
+    :func:`~hill_muscle_ros.model.muscle.kernels.plan_events` makes). :func:`~hill_muscle_ros.model.muscle.kernels.plan`
     would then give only the activation's piece from ``t0`` and its value at
     ``t1``: the piece is set here, the value kept in ``W`` for the step's end
     (:func:`limb_step`). With no unit recruited the muscle rests (:func:`resting`)
@@ -476,7 +479,7 @@ _KERNELS = ('muscle_slot', 'dl_mt', 'length_free', 'plan_steady', 'resting', 'se
 #: 9 s more of compiling.
 #:
 #: A multi/initial muscle's F0 is compiled into the step too
-#: (:func:`~.fes_kernels.eff_f_iso_inline`, in :func:`stage_f0s` and
+#: (:func:`~hill_muscle_ros.model.muscle.kernels.eff_f_iso_inline`, in :func:`stage_f0s` and
 #: :func:`settle_ce`), and the stages and F0's three instants became loops so
 #: that each is compiled in once. By hand (the knee extension, the two
 #: alternating in separate processes, 20 runs a sample, median of 31 pair
@@ -489,7 +492,7 @@ _INTO_STEP = ('forces', 'limb_rk4')
 #: holding the muscle's code again.
 _INTO_ENTRY = ('limb_give', 'limb_record', 'limb_hold', 'limb_run')
 #: The modules whose code the kernels inline: their digest names the cache entries.
-_DIGEST_OF = (equations, stimulus, memory, units, fes_kernels)
+_DIGEST_OF = (equations, stimulus, memory, units, muscle_state, muscle_pool, muscle_kernels)
 _compiled = None
 
 
@@ -499,7 +502,7 @@ def loaded() -> bool:
 
 
 def compiled() -> types.SimpleNamespace:
-    """The numba-compiled limb kernels, calling :func:`.fes_kernels.compiled`'s muscle.
+    """The numba-compiled limb kernels, calling :func:`hill_muscle_ros.model.muscle.kernels.compiled`'s muscle.
 
     :raises ImportError: if numba cannot be imported
     """
@@ -507,7 +510,7 @@ def compiled() -> types.SimpleNamespace:
     if _compiled is not None:
         return _compiled
     from .. import engine
-    scope = fes_kernels.scope_calling(
+    scope = muscle_kernels.scope_calling(
         globals(), ('apply', 'begin_interval', 'eff_f_iso', 'eff_f_iso_inline', 'end_interval',
                     'give_command',
                     'set_piece', 'tau_for', 'recruited_units', 'activation_at',

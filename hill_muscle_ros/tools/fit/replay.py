@@ -55,10 +55,11 @@ class MuscleReplay:
 
         :param fes: kept for callers; every muscle runs the same engine
         """
-        from ...model import engine, fes_kernels
+        from ...model import engine
+        from ...model.muscle import kernels as muscle_kernels
         if engine.choice() != engine.COMPILED:
             return False
-        fes_kernels.compiled()
+        muscle_kernels.compiled()
         return True
 
     def commands(self, params: MuscleParams) -> np.ndarray:

@@ -3,7 +3,7 @@
 A sweep spec (YAML) names a protocol, optional base parameters (or a limb
 plant), the parameters to vary and the instants to sample. The parameter sets
 are cut into chunks; each chunk is simulated at once by a batch engine
-(:class:`~hill_muscle_ros.model.batch.MuscleBatch` for the muscle,
+(:class:`~hill_muscle_ros.model.muscle.batch.MuscleBatch` for the muscle,
 :class:`~hill_muscle_ros.model.limb.LimbBatch` for a limb) on a Dask
 worker, either of a local cluster started for the sweep or of an existing one
 given by its scheduler address. The result is a tidy Parquet table: one row

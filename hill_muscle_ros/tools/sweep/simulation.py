@@ -1,7 +1,7 @@
 """What a sweep's task computes: a chunk of parameter sets simulated at once.
 
 :func:`run_chunk` runs a chunk of muscles on
-:class:`~hill_muscle_ros.model.batch.MuscleBatch` (:func:`simulate_forces`),
+:class:`~hill_muscle_ros.model.muscle.batch.MuscleBatch` (:func:`simulate_forces`),
 :func:`run_limb_chunk` a chunk of limb plants on the limb batch; both run on a
 Dask worker or in this process. :func:`chunk_ranges` cuts the sets into chunks.
 """

@@ -1,7 +1,7 @@
 """The FES muscles of a :class:`~hill_muscle_ros.model.batch.MuscleBatch`, stepped compiled.
 
 A batch on the compiled engine keeps its muscles with FES features on in one
-:class:`~hill_muscle_ros.model.fes_kernels.FesBundle` (muscle j of the bundle
+:class:`~hill_muscle_ros.model.muscle.state.FesBundle` (muscle j of the bundle
 is batch muscle ``index[j]``) and steps them all in one call of
 :func:`step_all`, each exactly as the NumPy engine's
 :class:`~hill_muscle_ros.model.muscle.Muscle` does it: the command
@@ -13,7 +13,7 @@ same instant: no change) and the outputs. :func:`give_all` is
 A muscle whose delay line is full is left unchanged and marked not done;
 the caller grows the delay lines and calls again for those muscles
 (:meth:`FesBundle.ensure_delay
-<hill_muscle_ros.model.fes_kernels.FesBundle.ensure_delay>`).
+<hill_muscle_ros.model.muscle.state.FesBundle.ensure_delay>`).
 """
 from __future__ import annotations
 
@@ -22,13 +22,14 @@ import types
 
 import numpy as np
 
-from . import equations, fes_kernels, memory, stimulus, units
-from .fes_kernels import (H_FS, H_IP, H_JS, I_MULTI, J_NREC, OK, S_CMD, S_DL, S_L,
-                          S_MU, S_R, S_T, give_command, hdr, muscle_advance, muscle_outputs,
-                          pool_mean_fitness)
+from .. import equations, memory, stimulus, units
+from . import kernels, pool, state
+from .kernels import give_command, muscle_advance, muscle_outputs
+from .pool import pool_mean_fitness
+from .state import H_FS, H_IP, H_JS, I_MULTI, J_NREC, OK, S_CMD, S_DL, S_L, S_MU, S_R, S_T, hdr
 
-#: Columns of a muscle's row of :data:`.fes_kernels.N_OUT` entries in
-#: MuscleOutputs' order (as fes_kernels' outputs): those ``MuscleBatch``
+#: Columns of a muscle's row of :data:`.state.N_OUT` entries in
+#: MuscleOutputs' order (as the kernels' outputs): those ``MuscleBatch``
 #: copies from the state, which :func:`give_all` fills.
 (ROW_RECRUITMENT, ROW_N_RECRUITED, ROW_DL_MT, ROW_L_CE, ROW_V_CE, ROW_EFF_F_ISO,
  ROW_COMMAND, ROW_MEAN_FITNESS) = 1, 2, 3, 4, 5, 9, 10, 11
@@ -105,14 +106,14 @@ def batch_entry(F, I, mode, r, dl1, dt, index, done, out):
 
 _KERNELS = ('read_state', 'give_all', 'step_all', 'outputs_all', 'batch_entry')
 #: The modules whose code the kernels inline: their digest names the cache entries.
-_DIGEST_OF = (equations, stimulus, memory, units, fes_kernels)
-#: The functions of :mod:`.fes_kernels` called here, bound to their compiled versions.
+_DIGEST_OF = (equations, stimulus, memory, units, state, pool, kernels)
+#: The functions of :mod:`.kernels` called here, bound to their compiled versions.
 _CALLED = ('give_command', 'hdr', 'muscle_advance', 'muscle_outputs', 'pool_mean_fitness')
 _compiled = None
 
 
 def compiled() -> types.SimpleNamespace:
-    """The numba-compiled :func:`batch_entry`, calling :func:`.fes_kernels.compiled`'s
+    """The numba-compiled :func:`batch_entry`, calling :func:`.kernels.compiled`'s
     muscle, and ``give_all``, ``step_all`` and ``outputs_all`` with their own
     arguments, each one call of it.
 
@@ -121,8 +122,8 @@ def compiled() -> types.SimpleNamespace:
     global _compiled
     if _compiled is not None:
         return _compiled
-    from . import engine
-    scope = fes_kernels.scope_calling(globals(), _CALLED)
+    from .. import engine
+    scope = kernels.scope_calling(globals(), _CALLED)
     # Everything but the entry is compiled into it by numba's own inlining: no
     # compiled function of its own holding the muscle's code again.
     leaf = {'error_model': 'numpy', 'inline': 'always'}
@@ -134,10 +135,10 @@ def compiled() -> types.SimpleNamespace:
         c1, i1 = f8[::1], i8[::1]
         return numba.void(c1, i1, i8, c1, c1, f8, i1, b1[::1], f8[:, ::1])
 
-    kernels = engine.compile_functions(
+    built = engine.compile_functions(
         scope, _KERNELS, digest_of=_DIGEST_OF + (sys.modules[__name__],),
         signatures={'batch_entry': signature}, options=options)
-    entry = kernels.batch_entry
+    entry = built.batch_entry
     # outputs_all's stand-ins for the arguments it does not take.
     no_r, no_index, no_done = np.zeros(0), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=bool)
 
@@ -151,7 +152,7 @@ def compiled() -> types.SimpleNamespace:
     def outputs_all_(F, I, out):
         entry(F, I, MODE_OUTPUTS, no_r, no_r, 0.0, no_index, no_done, out)
 
-    _compiled = types.SimpleNamespace(numba=kernels.numba, batch_entry=entry,
+    _compiled = types.SimpleNamespace(numba=built.numba, batch_entry=entry,
                                       give_all=give_all_, step_all=step_all_,
                                       outputs_all=outputs_all_)
     return _compiled

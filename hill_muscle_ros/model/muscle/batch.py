@@ -4,9 +4,9 @@ For parameter sweeps, vectorised environments and controller tuning: K
 muscles, each with its own :class:`~hill_muscle_ros.model.params.MuscleParams`
 (any variant, any FES feature, mixed) and its own inputs, advance together by
 one step of the same length. :class:`MuscleBatch` is a thin facade: its state
-is one :class:`~hill_muscle_ros.model.fes_kernels.FesBundle` holding every
-muscle, and a step is one call of :mod:`.fes_batch_kernels`, a loop over the
-muscles of the very functions a single :class:`~hill_muscle_ros.model.muscle.Muscle`
+is one :class:`~hill_muscle_ros.model.muscle.state.FesBundle` holding every
+muscle, and a step is one call of :mod:`.batch_kernels`, a loop over the
+muscles of the very functions a single :class:`~hill_muscle_ros.model.muscle.facade.Muscle`
 runs. Muscle i therefore does exactly what ``Muscle(params[i]).step(...)``
 does (tests: to 1e-9 N). The build (numba-compiled, or the same functions as
 plain Python) is chosen by :func:`.engine.kernels`, as for the single muscle.
@@ -21,11 +21,12 @@ from typing import NamedTuple, Sequence
 
 import numpy as np
 
-from . import engine, fes_batch_kernels, fes_kernels
-from .fes_kernels import J_RTOP, N_OUT
-from .muscle import DL_MT_LIMIT_M
-from .params import MuscleParams, check_instances
-from .substeps import substeps_for
+from .. import engine
+from ..params import MuscleParams, check_instances
+from ..substeps import substeps_for
+from . import batch_kernels
+from .facade import DL_MT_LIMIT_M
+from .state import J_RTOP, N_OUT, FesBundle
 
 #: [s] the step the delay lines are first sized for (FesBundle's default); a
 #: shorter step, or a delay line found full, grows them.
@@ -70,11 +71,11 @@ class MuscleBatch:
         params = check_instances(MuscleParams, params, 'params')
         self.params = params
         self.size = len(params)
-        self._kernels = engine.kernels(fes_batch_kernels, build)
+        self._kernels = engine.kernels(batch_kernels, build)
         #: :data:`.engine.COMPILED` or :data:`.engine.PYTHON`: the build in use.
-        self.build = engine.PYTHON if self._kernels is fes_batch_kernels else engine.COMPILED
+        self.build = engine.PYTHON if self._kernels is batch_kernels else engine.COMPILED
         self._dt_s = _DELAY_DT_S
-        self._bundle = fes_kernels.FesBundle(params, dt_s=self._dt_s)
+        self._bundle = FesBundle(params, dt_s=self._dt_s)
         self._index = np.arange(self.size, dtype=np.int64)
         self.reset()
 
@@ -174,7 +175,7 @@ class MuscleBatch:
         return dt
 
     def _call(self, kernel, args: tuple, rows: np.ndarray) -> None:
-        """``kernel(F, I, *args, index, done, rows)`` of :mod:`.fes_batch_kernels`
+        """``kernel(F, I, *args, index, done, rows)`` of :mod:`.batch_kernels`
         until every muscle is done, growing the delay lines of those whose
         line was full (they were left unchanged)."""
         done = np.zeros(self.size, dtype=bool)

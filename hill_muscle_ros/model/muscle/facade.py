@@ -1,8 +1,8 @@
 """The muscle: one class over the one engine's state.
 
 :class:`Muscle` is a thin facade. Its state is a one-muscle
-:class:`~.fes_kernels.FesBundle` (flat arrays), and every step, recruitment
-and output is a function of :mod:`.fes_kernels` over those arrays, built from
+:class:`~.state.FesBundle` (flat arrays), and every step, recruitment
+and output is a function of :mod:`.kernels` over those arrays, built from
 the equations of :mod:`.equations`. Which build runs (numba-compiled, or the
 very same functions as plain Python) is chosen once, by
 :func:`.engine.kernels`. The paper's model is this muscle with every FES
@@ -23,11 +23,13 @@ from typing import NamedTuple, Sequence
 
 import numpy as np
 
-from . import engine, fes_kernels
-from .fes_kernels import I_MULTI, J_NREC, J_RTOP, N_OUT, S_CMD, S_DL, S_L, S_R, S_T, FesBundle
-from .params import MuscleParams
-from .stimulus import command_from_pulse_width
-from .substeps import length_ramp, substeps_for
+from .. import engine
+from ..params import MuscleParams
+from ..stimulus import command_from_pulse_width
+from ..substeps import length_ramp, substeps_for
+from . import kernels
+from .state import (I_MULTI, J_NREC, J_RTOP, N_OUT, S_CMD, S_DL, S_L, S_R, S_T, FesBundle,
+                    delay_capacity, fitness_profile)
 
 #: Largest |dl_mt| accepted as an input: far beyond the range where FL is
 #: non-zero (l_ce / l_opt outside about 0.4..1.6), so anything larger is
@@ -140,7 +142,7 @@ class Muscle:
 
     def __init__(self, params: MuscleParams | None = None, build: str | None = None) -> None:
         self.params = params if params is not None else MuscleParams()
-        self._kernels = engine.kernels(fes_kernels, build)
+        self._kernels = engine.kernels(kernels, build)
         self._bundle = FesBundle([self.params])
         self._r = np.zeros(1)
         self._dl = np.zeros(1)
@@ -164,7 +166,7 @@ class Muscle:
     @property
     def build(self) -> str:
         """:data:`.engine.COMPILED` or :data:`.engine.PYTHON`: the build this muscle runs."""
-        return engine.PYTHON if self._kernels is fes_kernels else engine.COMPILED
+        return engine.PYTHON if self._kernels is kernels else engine.COMPILED
 
     @property
     def t_s(self) -> float:
@@ -212,7 +214,7 @@ class Muscle:
 
         :raises ValueError: for a ``single`` muscle
         """
-        return fes_kernels.fitness_profile(self._bundle, 0)
+        return fitness_profile(self._bundle, 0)
 
     def set_recruitment(self, recruitment: float) -> None:
         """Give the recruitment command u now (R directly, bypassing the curve).
@@ -269,7 +271,7 @@ class Muscle:
 
     def _ready(self, dt_s: float) -> None:
         """Size the delay line for steps of ``dt_s`` (keeps the state)."""
-        if fes_kernels.delay_capacity(self.params.emd_s, dt_s) > self._bundle.cap:
+        if delay_capacity(self.params.emd_s, dt_s) > self._bundle.cap:
             self._bundle.ensure_delay(dt_s)
             self._views()
 
