@@ -133,19 +133,19 @@ def run_python(code: str, **env) -> subprocess.CompletedProcess:
                           check=True, env={**os.environ, **env}, timeout=120)
 
 
-#: Simulates a short protocol, then builds a batch with engine='auto'; prints
-#: the engine chosen, whether numba was imported, and the batch's engine.
+#: Simulates a short protocol, then builds a batch on the default build; prints
+#: the engine chosen, whether numba was imported, and the batch's build.
 ENGINE_PROBE = '''
 import sys
 from hill_muscle_ros.model import MuscleBatch, MuscleParams, Protocol, engine, simulate
 simulate(Protocol.from_mapping({"name": "probe", "duration_s": 0.05,
                                 "recruitment": [[0.0, 0.5]], "dl_mt_m": [[0.0, 0.0]]}))
-print(engine.choice(), "numba" in sys.modules, MuscleBatch([MuscleParams()]).engine)
+print(engine.choice(), "numba" in sys.modules, MuscleBatch([MuscleParams()]).build)
 '''
 
 
 @pytest.mark.parametrize('value, expected', [
-    ('python', ['python', 'False', 'numpy']),
+    ('python', ['python', 'False', 'python']),
     ('auto', ['compiled', 'True', 'compiled']),
     ('compiled', ['compiled', 'True', 'compiled']),
 ])
