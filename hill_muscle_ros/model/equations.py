@@ -416,3 +416,64 @@ def sine_near(sin_a: float, cos_a: float, d_rad: float) -> float:
                                                                  + d2 * (1.0 / 40320.0))))
     sin_d = d_rad * (1.0 + d2 * (-1.0 / 6.0 + d2 * (1.0 / 120.0 + d2 * (-1.0 / 5040.0))))
     return sin_a * cos_d + cos_a * sin_d
+
+
+# -- the strength-duration law of a pulse (doc/model.md 10) -------------------------------
+
+#: [s] Chronaxie c of the stimulated motor axons: 459 us, the strength-duration
+#: time constant of human motor axons (compound muscle action potentials at 30 %
+#: of maximum, 20 volunteers; 459 +/- 126 us), Mogyoros, Kiernan & Burke 1996,
+#: *Brain* 119:439-447, whose data Weiss's charge law Q = r (PW + c) fits, the
+#: law of :func:`threshold_current`, so that the time constant is c. Measured
+#: at the median nerve: no quadriceps-specific value was found (doc/model.md
+#: section 10); surface FES of the quadriceps excites the same kind of axon.
+DEFAULT_CHRONAXIE_S = 459e-6
+#: [A] Reference current I_ref, at which the recruitment curve in pulse width
+#: holds: 40 mA, the constant amplitude at which vastus lateralis and medialis
+#: were stimulated with their pulse width modulated in a knee-extension study
+#: (IFESS 2016, "Comparison of proximally versus distally placed spatially
+#: distributed sequential stimulation electrodes in a dynamic knee extension
+#: task"; doc/model.md section 10).
+DEFAULT_CURRENT_REF_A = 0.040
+
+
+def threshold_current(pulse_width_s: float, rheobase_a: float, chronaxie_s: float) -> float:
+    """[A] Current that just excites a unit of rheobase r with a pulse of width PW:
+    the hyperbolic strength-duration law I_th = r (1 + c / PW) (Weiss, Lapicque;
+    Geddes 2004 writes it I = b (1 + c / d)). It is r at an infinite width and
+    2 r at PW = c (the chronaxie's definition); +inf at PW = 0.
+
+    :param pulse_width_s: [s] pulse width (PW), >= 0
+    :param rheobase_a: [A] the unit's rheobase (r), >= 0
+    :param chronaxie_s: [s] chronaxie (c), > 0
+    """
+    if pulse_width_s <= 0.0:
+        return math.inf
+    return rheobase_a * (pulse_width_s + chronaxie_s) / pulse_width_s
+
+
+def equivalent_pulse_width(pulse_width_s: float, current_a: float, current_ref_a: float,
+                           chronaxie_s: float) -> float:
+    """[s] The width PW_eq that recruits, at the reference current, the units a
+    pulse (I, PW) recruits.
+
+    A unit of rheobase r is excited by (I, PW) if I PW / (PW + c) >= r
+    (:func:`threshold_current` solved for r), so (I, PW) excites every unit
+    with r <= k = I PW / (PW + c). At I_ref the width that reaches the same k
+    is PW_eq = c k / (I_ref - k) for k < I_ref; for k >= I_ref no width at
+    I_ref does, and PW_eq = +inf (every unit the curve knows is recruited).
+    Written c I PW / (c I_ref + (I_ref - I) PW), the same fraction over PW + c,
+    so that I = I_ref gives PW exactly. I = 0 or PW = 0 gives 0 (no pulse).
+
+    :param pulse_width_s: [s] pulse width (PW), >= 0
+    :param current_a: [A] pulse current (I), >= 0
+    :param current_ref_a: [A] reference current (I_ref), > 0
+    :param chronaxie_s: [s] chronaxie (c), > 0
+    :return: [s] PW_eq, in [0, +inf]
+    """
+    if pulse_width_s <= 0.0 or current_a <= 0.0:
+        return 0.0
+    denominator = chronaxie_s * current_ref_a + (current_ref_a - current_a) * pulse_width_s
+    if denominator <= 0.0:
+        return math.inf
+    return pulse_width_s * ((chronaxie_s * current_a) / denominator)
