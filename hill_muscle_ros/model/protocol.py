@@ -5,6 +5,11 @@ change as lists of knots ``[time_s, value]``. Between knots the value is
 linear; a repeated time is a step, and the value there is that of the *last*
 knot with that time (right-continuous). Before the first knot and after the
 last one the nearest knot's value holds. See ``config/protocols/*.yaml``.
+
+A protocol with ``channels`` (:class:`PulseProtocol`) gives pulse trains
+instead of a level: per channel, knots of ``frequency_hz`` and
+``pulse_width_s``, optionally ``current_a``, and a constant ``mode``
+(doc/model.md section 10). :func:`read_protocol` loads either kind.
 """
 from __future__ import annotations
 
@@ -18,12 +23,18 @@ import yaml
 
 from .muscle import DL_MT_LIMIT_M
 from .params import finite_float
+from .trains import (DEFAULT_BURST_INTERVAL_S, MODES, PULSES_PER_BURST, ChannelTrain, Pulse,
+                     TrainState, advance)
 
 #: Keys a protocol file may have; exactly one stimulation key is required.
 STIMULATION_KEYS = ('recruitment', 'pulse_width_s')
 ALLOWED_KEYS = ('name', 'duration_s', *STIMULATION_KEYS, 'dl_mt_m')
 #: Topics a protocol can drive a stimulator on (the player's ``output``).
 STIMULATION_OUTPUTS = ('pulse_width', 'recruitment')
+#: Keys of a protocol that gives pulse trains per channel (:class:`PulseProtocol`).
+PULSE_ALLOWED_KEYS = ('name', 'duration_s', 'channels', 'dl_mt_m')
+#: Keys of one entry of ``channels``; ``frequency_hz`` and ``pulse_width_s`` are required.
+CHANNEL_KEYS = ('frequency_hz', 'pulse_width_s', 'current_a', 'mode', 'burst_interval_s')
 
 
 #: libyaml's parser when PyYAML was built with it (about 10x faster to load a
@@ -191,6 +202,11 @@ class Protocol:
         :param source: the file name, for error messages
         :raises ProtocolError: naming the file, key and entry on any defect
         """
+        if isinstance(data, dict) and 'channels' in data:
+            _reject_level_with_channels(data, source)
+            raise ProtocolError(f'{source}: `channels` gives pulse trains per channel: load it '
+                                'with PulseProtocol (or read_protocol); the muscle\'s engine '
+                                'does not consume pulses yet (doc/model.md section 10)')
         duration_s = check_protocol_keys(data, source, ALLOWED_KEYS,
                                          ('name', 'duration_s', 'dl_mt_m'))
         given = [k for k in STIMULATION_KEYS if k in data]
@@ -216,15 +232,22 @@ class Protocol:
         :raises ProtocolError: if the file cannot be read or is malformed
         """
         path = Path(path)
-        try:
-            text = path.read_text(encoding='utf-8')
-        except (OSError, UnicodeDecodeError) as err:
-            raise ProtocolError(f'{path}: cannot read protocol file: {err}') from None
-        try:
-            data = safe_load_yaml(text)
-        except yaml.YAMLError as err:
-            raise ProtocolError(f'{path}: not valid YAML: {err}') from None
-        return cls.from_mapping(data, source=str(path))
+        return cls.from_mapping(_read_yaml(path), source=str(path))
+
+
+def _read_yaml(path: Path) -> Any:
+    """The parsed document of a protocol file.
+
+    :raises ProtocolError: if the file cannot be read or is not YAML
+    """
+    try:
+        text = path.read_text(encoding='utf-8')
+    except (OSError, UnicodeDecodeError) as err:
+        raise ProtocolError(f'{path}: cannot read protocol file: {err}') from None
+    try:
+        return safe_load_yaml(text)
+    except yaml.YAMLError as err:
+        raise ProtocolError(f'{path}: not valid YAML: {err}') from None
 
 
 def check_protocol_keys(data: Any, source: str, allowed: tuple[str, ...],
@@ -286,3 +309,128 @@ def _parse_knots(raw: Any, source: str, key: str, low: float, high: float,
         values.append(v)
     return Knots(np.array(times), np.array(values))
 
+
+
+def _reject_level_with_channels(data: dict, source: str) -> None:
+    """A protocol with ``channels`` has no top-level level stimulation."""
+    level = [k for k in STIMULATION_KEYS if k in data]
+    if 'channels' in data and level:
+        raise ProtocolError(f'{source}: a protocol with `channels` gives its stimulation per '
+                            f'channel and must not also have `{level[0]}` at the top (give '
+                            '`pulse_width_s` in each channel)')
+
+
+def _parse_channel(raw: Any, source: str, channel: int) -> ChannelTrain:
+    """Validate one entry of ``channels`` (channel ``channel``, 1-based)."""
+    where = f'{source}: channel {channel}'
+    if not isinstance(raw, dict):
+        raise ProtocolError(f'{where}: expected a mapping with keys {", ".join(CHANNEL_KEYS)}, '
+                            f'got {type(raw).__name__}')
+    unknown = [k for k in raw if k not in CHANNEL_KEYS]
+    if unknown:
+        raise ProtocolError(f'{where}: unknown key `{unknown[0]}` '
+                            f'(allowed: {", ".join(CHANNEL_KEYS)})')
+    for key in ('frequency_hz', 'pulse_width_s'):
+        if key not in raw:
+            raise ProtocolError(f'{where}: missing key `{key}`')
+    mode = raw.get('mode', 'single')
+    if not isinstance(mode, str) or mode not in MODES:
+        raise ProtocolError(f'{where}: `mode` must be one of {", ".join(MODES)}, got {mode!r}')
+    burst = raw.get('burst_interval_s', DEFAULT_BURST_INTERVAL_S)
+    burst_s = (None if isinstance(burst, bool) or not isinstance(burst, (int, float))
+               else finite_float(burst))
+    if burst_s is None or burst_s <= 0.0:
+        raise ProtocolError(f'{where}: `burst_interval_s` must be a positive finite number, '
+                            f'got {burst!r}')
+    frequency = _parse_knots(raw['frequency_hz'], where, 'frequency_hz', math.ulp(0.0),
+                             math.inf, 'positive')
+    pulse_width = _parse_knots(raw['pulse_width_s'], where, 'pulse_width_s', 0.0, math.inf,
+                               'non-negative')
+    current = (_parse_knots(raw['current_a'], where, 'current_a', 0.0, math.inf,
+                            'non-negative') if 'current_a' in raw else None)
+    n = PULSES_PER_BURST[mode]
+    if n > 1:
+        # f is linear between knots: its largest value is at a knot.
+        i = int(np.argmax(frequency.values))
+        f = float(frequency.values[i])
+        if (n - 1) * burst_s * f >= 1.0:
+            raise ProtocolError(
+                f'{where}: `frequency_hz` entry {i} must stay below '
+                f'{1.0 / ((n - 1) * burst_s):g} Hz for a {mode} with pulses {burst_s:g} s '
+                f'apart (its bursts would overlap), got {f!r}')
+    return ChannelTrain(frequency, pulse_width, current, mode, burst_s, channel)
+
+
+@dataclass(frozen=True, eq=False)
+class PulseProtocol:
+    """A protocol of pulse trains: per channel, what its stimulator is told
+    (:class:`~hill_muscle_ros.model.trains.ChannelTrain`), and the MTU length.
+
+    The muscle's engine does not consume pulses yet (doc/model.md section 10):
+    this is the format and its pulses, for the engine and the ROS side to come.
+
+    :param name: human-readable name
+    :param duration_s: [s] length of the protocol
+    :param channels: channel 1, 2, ... in order
+    :param dl_mt_m: [m] MTU length change knots
+    """
+
+    name: str
+    duration_s: float
+    channels: tuple[ChannelTrain, ...]
+    dl_mt_m: Knots
+
+    def dl_mt(self, t_s: np.ndarray | float) -> np.ndarray | float:
+        """MTU length change dl_MT(t) [m]."""
+        return self.dl_mt_m(t_s)
+
+    def pulses(self) -> tuple[tuple[Pulse, ...], ...]:
+        """Each channel's pulses in [0, ``duration_s``), channel 1 first
+        (:func:`~hill_muscle_ros.model.trains.advance` from the start)."""
+        return tuple(advance(train, TrainState(0.0), self.duration_s)[0]
+                     for train in self.channels)
+
+    @classmethod
+    def from_mapping(cls, data: Any, source: str = '<protocol>') -> 'PulseProtocol':
+        """Validate a mapping (a parsed YAML document) and build a pulse protocol.
+
+        :param data: the parsed document, with ``channels``
+        :param source: the file name, for error messages
+        :raises ProtocolError: naming the file, the channel, the key and the entry
+        """
+        if isinstance(data, dict):
+            _reject_level_with_channels(data, source)
+        duration_s = check_protocol_keys(data, source, PULSE_ALLOWED_KEYS,
+                                         ('name', 'duration_s', 'channels', 'dl_mt_m'))
+        raw = data['channels']
+        if not isinstance(raw, list) or not raw:
+            raise ProtocolError(f'{source}: `channels` must be a non-empty list of channels '
+                                f'(mappings with keys {", ".join(CHANNEL_KEYS)}), got {raw!r}')
+        channels = tuple(_parse_channel(entry, source, c) for c, entry in enumerate(raw, 1))
+        dl = _parse_knots(data['dl_mt_m'], source, 'dl_mt_m', -DL_MT_LIMIT_M,
+                          DL_MT_LIMIT_M, f'within ±{DL_MT_LIMIT_M} m')
+        return cls(name=data['name'], duration_s=duration_s, channels=channels, dl_mt_m=dl)
+
+    @classmethod
+    def from_yaml(cls, path: str | Path) -> 'PulseProtocol':
+        """Load and validate a pulse protocol file.
+
+        :param path: path to the YAML file
+        :raises ProtocolError: if the file cannot be read or is malformed
+        """
+        path = Path(path)
+        return cls.from_mapping(_read_yaml(path), source=str(path))
+
+
+def read_protocol(path: str | Path) -> Protocol | PulseProtocol:
+    """Load a protocol file of either kind: a :class:`PulseProtocol` if it has
+    ``channels``, else a :class:`Protocol`.
+
+    :param path: path to the YAML file
+    :raises ProtocolError: if the file cannot be read or is malformed
+    """
+    path = Path(path)
+    data = _read_yaml(path)
+    if isinstance(data, dict) and 'channels' in data:
+        return PulseProtocol.from_mapping(data, source=str(path))
+    return Protocol.from_mapping(data, source=str(path))
