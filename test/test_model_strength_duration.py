@@ -86,3 +86,12 @@ def test_going_to_the_reference_current_and_back_gives_the_width_again(pw, share
     pw_eq = equivalent_pulse_width(pw, i, I_REF, c)
     assert equivalent_pulse_width(pw_eq, I_REF, i, c) == pytest.approx(pw, rel=1e-12)
 
+
+
+def test_the_documented_defaults_are_the_codes():
+    """doc/model.md section 10 gives the chronaxie and reference current the code uses."""
+    from pathlib import Path
+    doc = (Path(__file__).resolve().parents[1] / 'doc' / 'model.md').read_text(encoding='utf-8')
+    section = doc.split('## 10. ')[1].split('\n## ')[0]
+    assert C == 459e-6 and '459 µs' in section
+    assert I_REF == 0.040 and '40 mA' in section
