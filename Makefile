@@ -6,9 +6,9 @@ VENV   ?= .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: test test-serial check-realtime editable demo figures clean venv bytecode kernels
+.PHONY: test test-serial check-realtime editable demo figures clean venv bytecode kernels interfaces
 
-venv: $(STAMP)
+venv: $(STAMP) interfaces
 
 # The venv's pip is brought to the pinned PIP_VERSION first: a Python 3.11's
 # own pip may be old (Debian's is 23.0.1), and an old pip makes a legacy
@@ -28,9 +28,11 @@ $(PIP_STAMP):
 editable: $(PIP_STAMP)
 	$(BIN)/python -m pip install --disable-pip-version-check -q --no-deps -e .
 
-$(STAMP): $(PIP_STAMP) setup.py setup.cfg package.xml requirements-dev.txt requirements-ros.txt
+$(STAMP): $(PIP_STAMP) setup.py setup.cfg package.xml requirements-dev.txt requirements-ros.txt \
+          hill_muscle_interfaces/requirements-build.txt
 	$(BIN)/python -m pip install --disable-pip-version-check -q \
-	    -r requirements-dev.txt -r requirements-ros.txt
+	    -r requirements-dev.txt -r requirements-ros.txt \
+	    -r hill_muscle_interfaces/requirements-build.txt
 	$(MAKE) editable
 	touch $(STAMP)
 
@@ -43,9 +45,17 @@ $(STAMP): $(PIP_STAMP) setup.py setup.cfg package.xml requirements-dev.txt requi
 bytecode: $(STAMP)
 	$(BIN)/python -m compileall -q hill_muscle_ros
 
+# The message package hill_muscle_interfaces (ament_cmake, rosidl), built from
+# the ROS 2 wheels and installed into the venv itself, so that it imports with
+# no environment variable: about 25 s the first time, nothing once up to date
+# (build.sh keeps a stamp of its sources and the wheels' versions). `colcon
+# build` builds it too (hill_muscle_interfaces/README.md).
+interfaces: $(STAMP)
+	bash hill_muscle_interfaces/build.sh $(BIN) $(VENV)
+
 # The model's numba kernels, compiled into numba's disk cache as the bytecode
-# is (`hill-muscle compile`): about 25 s in a clean clone, two processes at
-# once; under a second once cached. No node or test compiles after it.
+# is (`hill-muscle compile`): about 45 s in a clean clone; under a second
+# once cached. No node or test compiles after it.
 kernels: $(STAMP) bytecode
 	$(BIN)/hill-muscle compile
 
@@ -69,7 +79,7 @@ ROS_WORKERS  ?= 1
 PYTEST       := env -u PYTHONDONTWRITEBYTECODE $(BIN)/python -m pytest
 PYTEST_TEST  := $(PYTEST) -q --dist loadscope --durations=10
 
-test: $(STAMP) bytecode kernels
+test: $(STAMP) interfaces bytecode kernels
 	@offline_log=$$(mktemp); \
 	nice -n 19 $(PYTEST_TEST) -n $(TEST_WORKERS) -m 'not ros' > $$offline_log 2>&1 & offline=$$!; \
 	echo "== the ROS tests (-m ros); the offline ones (-m 'not ros') run meanwhile, reported below"; \
@@ -78,10 +88,10 @@ test: $(STAMP) bytecode kernels
 	echo "== the offline tests (-m 'not ros')"; cat $$offline_log; rm -f $$offline_log; \
 	test $$ros_status -eq 0 && test $$offline_status -eq 0
 
-test-serial: $(STAMP) bytecode kernels
+test-serial: $(STAMP) interfaces bytecode kernels
 	$(PYTEST) -q -p no:xdist --durations=15
 
-check-realtime: $(STAMP) bytecode kernels
+check-realtime: $(STAMP) interfaces bytecode kernels
 	$(PYTEST) -q -p no:xdist -m realtime -rA
 
 # The live demo: simulator, protocol player and recorder as three ROS 2
