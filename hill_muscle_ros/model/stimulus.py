@@ -6,7 +6,8 @@ the batch, the limb, the protocol player and the CLI.
 
 - The recruitment curve maps a pulse width PW [s] to the recruitment command
   u in [0, 1].
-- The delay shifts the command by ``emd_s``: u_d(t) = u(t - emd_s), 0 before.
+- The delay shifts the command by ``emd_s``: u_d(t) = u(t - emd_s), 0 before
+  (the engine's ring buffer, :mod:`.muscle.kernels`).
 - The activation a follows da/dt = (u_d - a) / tau, tau = ``tau_act_s`` while
   u_d > a and ``tau_deact_s`` otherwise; a is the recruitment R.
 
@@ -17,7 +18,6 @@ it crosses a level: the instants at which units are recruited.
 from __future__ import annotations
 
 import math
-from collections import deque
 
 from .params import MuscleParams
 
@@ -84,69 +84,3 @@ def pulse_width_for_command(command: float, params: MuscleParams,
 def time_constant(params: MuscleParams, a: float, u_d: float) -> float:
     """[s] tau in force: ``tau_act_s`` while u_d > a, else ``tau_deact_s``."""
     return params.tau_act_s if u_d > a else params.tau_deact_s
-
-
-class DelayLine:
-    """The electromechanical delay: commands take effect ``emd_s`` after they are given.
-
-    A command given at t holds from t + emd_s until the next command takes
-    effect. Exact in time: with an ``emd_s`` that is not a multiple of the step,
-    the delayed command switches inside a step, and :meth:`pieces` says where.
-
-    :param emd_s: [s] electromechanical delay, >= 0
-    """
-
-    #: [s] Two instants closer than this are one. A switch lands at t + emd_s
-    #: while the step ends are sums of steps: over the emd_s / dt steps between
-    #: them the sums round by at most a few ulp of t each (about 1e-11 s at t
-    #: = 1 h), so a switch meant to fall on a step end is within 1e-9 s of it,
-    #: and no physiological time is that short.
-    TIME_TOLERANCE_S = 1e-9
-
-    def __init__(self, emd_s: float) -> None:
-        self.emd_s = emd_s
-        self.reset()
-
-    def reset(self) -> None:
-        """No command given: u_d = 0."""
-        self._pending: deque[tuple[float, float]] = deque()
-        #: [-] delayed command u_d at the end of the time consumed so far
-        self.u_d = 0.0
-
-    def push(self, t_s: float, u: float) -> None:
-        """Give command ``u`` at ``t_s``; it takes effect at ``t_s + emd_s``."""
-        pending = self._pending
-        last = pending[-1][1] if pending else self.u_d
-        if u != last:
-            pending.append((t_s + self.emd_s, u))
-
-    def pieces(self, t0_s: float, t1_s: float) -> list[tuple[float, float, float]]:
-        """Split [t0, t1] where the delayed command is constant, and consume it.
-
-        A switch within :data:`TIME_TOLERANCE_S` of ``t1`` belongs to the next
-        step, which starts with it.
-
-        :return: ``(start, end, u_d)`` pieces covering [t0, t1] in order
-        """
-        pending, tol = self._pending, self.TIME_TOLERANCE_S
-        out = []
-        start, u_d = t0_s, self.u_d
-        while pending and pending[0][0] < t1_s - tol:
-            t_switch, u_next = pending.popleft()
-            if t_switch > start + tol:
-                out.append((start, t_switch, u_d))
-                start = t_switch
-            u_d = u_next
-        out.append((start, t1_s, u_d))
-        self.u_d = u_d
-        return out
-
-    def settle(self, t_s: float) -> float:
-        """Take every switch due at or before ``t_s``: the delayed command now.
-
-        :return: [-] u_d at ``t_s``
-        """
-        pending, tol = self._pending, self.TIME_TOLERANCE_S
-        while pending and pending[0][0] <= t_s + tol:
-            self.u_d = pending.popleft()[1]
-        return self.u_d

@@ -52,7 +52,7 @@ from .state import (A_END, A_JUMP, A_PIECE, A_RECRUIT, A_RELEASE, A_RISE, DELAY_
 
 
 def delay_push(F, I, i, t, u):
-    """Give command ``u`` at ``t`` (DelayLine.push); False if the ring is full."""
+    """Give command ``u`` at ``t``; False if the ring is full."""
     fs, fp, js = hdr(I, i, H_FS), hdr(I, i, H_FP), hdr(I, i, H_JS)
     cap = hdr(I, i, H_CAPDQ)
     n = I[js + J_DCOUNT]
@@ -69,7 +69,7 @@ def delay_push(F, I, i, t, u):
 
 
 def delay_settle(F, I, i, t):
-    """Take every switch due at or before ``t`` (DelayLine.settle): u_d now."""
+    """Take every switch due at or before ``t``: u_d now."""
     fs, js = hdr(I, i, H_FS), hdr(I, i, H_JS)
     cap = hdr(I, i, H_CAPDQ)
     while I[js + J_DCOUNT] > 0 and F[hdr(I, i, H_DQT) + I[js + J_DHEAD]] <= t + TIME_TOL_S:
@@ -294,7 +294,7 @@ def plan(F, I, i, t0, t1):
     start, u_d = t0, F[fs + S_UD]
     done = False
     while not done:
-        # The next piece of constant delayed command (DelayLine.pieces).
+        # The next piece of constant delayed command.
         s0, piece_u = start, u_d
         s1 = t1
         done = True

@@ -22,7 +22,6 @@ import numpy as np
 
 from ..equations import MAX_EVENTS_PER_PIECE
 from ..params import MuscleParams
-from ..stimulus import DelayLine
 from ..units import UnitLayout, length_scale
 
 
@@ -32,8 +31,12 @@ from ..units import UnitLayout, length_scale
 _RENORMALISE_AFTER_TAUS = 500.0
 
 
-#: [s] two instants closer than this are one (the delay line's tolerance).
-TIME_TOL_S = DelayLine.TIME_TOLERANCE_S
+#: [s] Two instants closer than this are one (the delay line's tolerance). A
+#: switch lands at t + emd_s while the step ends are sums of steps: over the
+#: emd_s / dt steps between them the sums round by at most a few ulp of t each
+#: (about 1e-11 s at t = 1 h), so a switch meant to fall on a step end is
+#: within 1e-9 s of it, and no physiological time is that short.
+TIME_TOL_S = 1e-9
 
 
 # Columns of the float parameters ``fp``.
