@@ -3,7 +3,11 @@
 One array slot per unit holding its stored isometric force, updated on
 recruitment and summed on every step (Eq. 2 taken literally), with the same
 RK4 integrator and the same scalar curves as the package. Only the memory
-differs from ``multi``/``initial``; its cost grows with N.
+differs from ``multi``/``initial``; its cost grows with N. The memory
+(:class:`NaiveUnitMemory`) is the benchmark's own, written plainly here: the
+package keeps its memory as segment stacks in its one engine
+(``hill_muscle_ros/model/muscle/pool.py``), and the test oracle has its own
+copy (``test/reference.py``).
 
 :class:`NaiveFesMuscle` does the same for the FES extensions (delay,
 activation, per-unit fatigue, fibre types, recruitment order, unit lengths,
@@ -17,9 +21,37 @@ from collections import deque
 
 import numpy as np
 
-from hill_muscle_ros.model import MuscleParams, NaiveUnitMemory, recruited_units
-from hill_muscle_ros.model.equations import (FL_A, FL_B, FL_C, force_velocity_inverse,
-                                             parallel_force, series_force)
+from hill_muscle_ros.model import MuscleParams, recruited_units
+from hill_muscle_ros.model.equations import (FL_A, FL_B, FL_C, force_length,
+                                             force_velocity_inverse, parallel_force,
+                                             series_force)
+
+
+class NaiveUnitMemory:
+    """The paper's memory taken literally (Eq. 2): one array slot per unit
+    holding its stored isometric force, summed on every read (O(N)).
+
+    :param n_units: [-] number of virtual motor units (N)
+    :param f_iso_max_n: [N] maximal isometric force (f_iso_max)
+    :param l_opt_m: [m] CE optimal length (l_opt)
+    """
+
+    def __init__(self, n_units: int, f_iso_max_n: float, l_opt_m: float) -> None:
+        self._f_unit_max = f_iso_max_n / n_units
+        self._l_opt = l_opt_m
+        self.f_iso_j = np.zeros(n_units)
+        self.n_recruited = 0
+
+    def update(self, m: int, l_ce_m: float) -> float:
+        """Recruit or release so that units [0, m) are recruited, new ones at
+        CE length ``l_ce_m`` [m]; return [N] Eff.f_iso, the sum over all N slots."""
+        top = self.n_recruited
+        if m > top:
+            self.f_iso_j[top:m] = self._f_unit_max * force_length(l_ce_m / self._l_opt)
+        elif m < top:
+            self.f_iso_j[m:top] = 0.0
+        self.n_recruited = m
+        return float(self.f_iso_j.sum())
 
 
 class NaiveMuscle:
