@@ -83,18 +83,19 @@ def cpu_model() -> str:
     return platform.processor() or 'unknown'
 
 
-#: Consecutive runs of one side timed as one sample where two engines'
-#: runs alternate (bench_compiled, bench_limb_compiled): a compiled run lasts
-#: 0.3 ms (Protocol II) to 3 ms (the knee), and timed one by one after the
-#: other engine's run (which leaves the caches cold) its cost scattered from
-#: 0.037 to 0.061 us a step within one bench (2026-12-04); ten runs a sample
-#: average that out, on both sides alike.
+#: Consecutive runs of one side timed as one sample where two builds' or
+#: models' runs alternate (bench_compiled, bench_limb_compiled): a compiled run
+#: lasts a few ms (Protocol II, the knee), and timed one by one after the other
+#: side's run (which leaves the caches cold) its cost scattered by a factor of
+#: 1.6 within one bench (the paper's compiled run, 2026-12-04); ten runs a
+#: sample average that out, on both sides alike.
 RUNS_PER_SAMPLE = 10
 
 
 #: CPU flags that set how wide numba's vector loops are (LLVM compiles for the
-#: host): the batch of four mixed variants ran 4.6e7 muscle-steps/s on an
-#: Intel Xeon and 7.4e7 on an AMD EPYC with AVX-512, the same code.
+#: host): the vectorised batch engine of before the one engine ran four mixed
+#: variants at 4.6e7 muscle-steps/s on an Intel Xeon and 7.4e7 on an AMD EPYC
+#: with AVX-512, the same code.
 VECTOR_FLAGS = ('avx2', 'fma', 'avx512f')
 
 
