@@ -6,14 +6,14 @@ measures each set's share: every run is a new Python process on a new, empty
 numba cache directory (``NUMBA_CACHE_DIR``), which builds the kernel sets in the order given, and
 reports for each the seconds numba spent compiling it
 (:func:`hill_muscle_ros.model.engine.compile_seconds` before and after) and
-its wall time. A set built on another (the limb's and the FES batch's
-kernels call the compiled FES muscle) is charged only what it adds; with
+its wall time. A set built on another (the limb's and the batch's kernels
+call the compiled muscle) is charged only what it adds; with
 ``--alone`` each set runs in a process of its own instead, so each pays for
 everything it needs.
 
 Usage::
 
-    .venv/bin/python benchmarks/compile_cost.py [--runs 3] [--alone] [--sets fes limb]
+    .venv/bin/python benchmarks/compile_cost.py [--runs 3] [--alone] [--sets muscle limb]
 
 Prints one line per set (median, min and max over the runs) and the total.
 """
@@ -29,30 +29,26 @@ import tempfile
 import time
 from pathlib import Path
 
+from hill_muscle_ros.model import precompile
+
 #: The repository whose kernels are measured (the child imports from there).
 REPO = Path(__file__).resolve().parent.parent
 
-#: Kernel set -> the call that builds it, in the order of a test run (the FES
-#: muscle first: conftest loads it and the limb before any test).
-SETS = {
-    'fes': 'fes_kernels.compiled()',
-    'limb': 'limb_kernels.compiled()',   # hill_muscle_ros.model.limb.kernels
-    'fes_batch': 'fes_batch_kernels.compiled()',
-    'paper_run': 'kernels.compiled_run()',
-    'paper_batch': 'kernels.compiled()',
-}
+#: The kernel sets, in the order of a test run and of ``hill-muscle compile``
+#: (the muscle first: the limb's and the batch's kernels call it): the
+#: package's own list, :data:`hill_muscle_ros.model.precompile.KERNEL_SETS`.
+SETS = tuple(precompile.KERNEL_SETS)
 
-#: What the measuring process runs: builds the sets named in argv, prints JSON.
+#: What the measuring process runs: builds the sets named in argv with the
+#: package's own builder (precompile.compile_kernel_set), prints JSON.
 _CHILD = """
 import json, sys, time
-from hill_muscle_ros.model import engine, fes_batch_kernels, fes_kernels, kernels
-from hill_muscle_ros.model.limb import kernels as limb_kernels
+from hill_muscle_ros.model import engine, precompile
 engine.import_numba()
-calls = json.loads(sys.argv[1])
 result = {}
-for name, call in calls:
+for name in json.loads(sys.argv[1]):
     c0, w0 = engine.compile_seconds(), time.perf_counter()
-    eval(call)
+    precompile.compile_kernel_set(name)
     result[name] = (engine.compile_seconds() - c0, time.perf_counter() - w0)
 print(json.dumps(result))
 """
@@ -65,8 +61,7 @@ def measure(names: list[str]) -> dict[str, tuple[float, float]]:
     """
     with tempfile.TemporaryDirectory(prefix='numba-cold-') as cache:
         env = dict(os.environ, NUMBA_CACHE_DIR=cache, HILL_MUSCLE_ENGINE='compiled')
-        out = subprocess.run([sys.executable, '-c', _CHILD,
-                              json.dumps([(n, SETS[n]) for n in names])],
+        out = subprocess.run([sys.executable, '-c', _CHILD, json.dumps(names)],
                              env=env, cwd=REPO, check=True, capture_output=True, text=True).stdout
     return {k: tuple(v) for k, v in json.loads(out.splitlines()[-1]).items()}
 
@@ -75,11 +70,10 @@ def measure(names: list[str]) -> dict[str, tuple[float, float]]:
 TARGET_COMPILE_S = 60.0
 #: What each set is, for the report.
 SET_LABELS = {
-    'fes': 'the FES muscle (`fes_kernels`: its whole-run entry and its parts)',
-    'limb': 'the limb (`limb.kernels`), on the FES muscle',
-    'fes_batch': 'the batch of FES muscles (`fes_batch_kernels`), on the FES muscle',
-    'paper_run': "the paper's model, one muscle's run (`kernels.compiled_run`)",
-    'paper_batch': "the paper's model, the batch (`kernels.compiled`)",
+    'muscle': 'the muscle (`model/muscle/kernels.py`: `Muscle`, the paper\'s model and every '
+              'FES feature, on both its run and its parts)',
+    'limb': 'the limb (`model/limb/kernels.py`), on the muscle',
+    'batch': 'the batch of muscles (`model/muscle/batch_kernels.py`), on the muscle',
 }
 
 
@@ -139,11 +133,12 @@ def write_section(add, m: dict) -> None:
         '`__pycache__` (or `NUMBA_CACHE_DIR`), so this is paid once per clone or edited '
         'model. What keeps it short: numba inlines only the small leaf equations (its own '
         'inlining types and lowers a function again at every call site, which had made the '
-        'cold compile about 60 s); the limb and the batch of FES muscles have one compiled '
-        'entry point each, since every entry point optimises the FES muscle it calls again; '
+        'cold compile about 60 s); the limb and the batch of muscles have one compiled '
+        'entry point each, since every entry point optimises the muscle it calls again; '
         'and a function called with constant arguments gets an explicit signature (the '
-        'limb\'s `forces`, the FES muscle\'s `add_event`), which numba otherwise compiles '
-        'once per constant.')
+        'limb\'s `limb_step`, the muscle\'s `add_event`), which numba otherwise compiles '
+        'once per constant. With the muscle written once there are three sets, no longer '
+        'five: the paper\'s own run and batch kernels (`model/kernels.py`) are gone.')
     add('')
 
 
@@ -152,7 +147,7 @@ def main(argv=None) -> None:
     parser.add_argument('--runs', type=int, default=3, help='fresh processes per measurement')
     parser.add_argument('--alone', action='store_true',
                         help='each set in a process of its own (pays for what it calls)')
-    parser.add_argument('--sets', nargs='+', choices=tuple(SETS), default=list(SETS))
+    parser.add_argument('--sets', nargs='+', choices=SETS, default=list(SETS))
     args = parser.parse_args(argv)
     samples = collect(args.sets, args.runs, args.alone)
     print(f'cold compile, {"each set alone" if args.alone else "in order"}, '
