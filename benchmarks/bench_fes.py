@@ -2,7 +2,8 @@
 
 What it measures, all in this process:
 
-- the cost of ``Muscle.step`` (one call per 1 ms step, the node's path) with
+- the cost of ``Muscle.step`` (one call per 1 ms step, the node's path, on
+  the build ``Muscle`` takes by default: compiled where numba imports) with
   each FES feature on alone and all together, at N = 1e3 and N = 1e6, on a
   10 s protocol whose pulse width alternates every second (so the recruitment
   changes every second) while the muscle is slowly stretched;
@@ -84,7 +85,7 @@ ALL_FEATURES = {**ACTIVATION, **RELATIVE_FV, **FATIGUE, **TWO_TYPES, **SPREAD}
 
 #: Rows of the step-cost table: (key, label, parameter changes).
 CONFIGS = (
-    ('curve', 'recruitment curve only (exponential); the paper\'s loop', {}),
+    ('curve', 'recruitment curve only (exponential); otherwise the paper\'s model', {}),
     ('activation', 'delay 25 ms + activation 60 / 110 ms', ACTIVATION),
     ('relative', '`fv_scaling: relative`', RELATIVE_FV),
     ('fatigue', '`fatigue: riener`', FATIGUE),
@@ -174,8 +175,8 @@ def bench_steps(runs: int, u, dl) -> dict:
             muscle = Muscle(params_for(changes, n))
             s = per_step(repeat(lambda: step_loop(muscle, u, dl), runs,
                                 setup=muscle.reset), n_steps)
-            rows[(key, n)] = (s, type(muscle).__name__)
-            print(f'  {key} N={n}: {s.fmt()} us/step ({type(muscle).__name__})', flush=True)
+            rows[(key, n)] = (s, muscle.build)
+            print(f'  {key} N={n}: {s.fmt()} us/step ({muscle.build})', flush=True)
             del muscle
             gc.collect()
     return rows
@@ -321,7 +322,7 @@ def bench_pre_fes(runs: int) -> dict:
     stats = alternate({'old': timed(old), 'new': timed(new)}, runs)
     n_steps = len(dl) - 1
     out = {'old': per_step(stats['old'], n_steps), 'new': per_step(stats['new'], n_steps),
-           'diff': diff, 'error': None, 'engine': type(new).__name__}
+           'diff': diff, 'error': None, 'engine': new.build}
     print(f'  pre-FES {out["old"].fmt()} us/step, today {out["new"].fmt()} us/step', flush=True)
     return out
 
@@ -359,6 +360,8 @@ def write_section(add, results: dict) -> None:
     add('## 7. FES features')
     add('')
     add('`benchmarks/bench_fes.py`. `Muscle.step`, one call per 1 ms step (the node\'s path), '
+        'on the build `Muscle` takes by default (the build column; every row runs the same '
+        'kernels, `model/muscle/kernels.py`, the features switched by the parameters), '
         f'multi/initial unless said, on a {PROTOCOL_S:g} s protocol: the pulse width '
         f'alternates every {PW_PERIOD_S / 2:g} s between {PW_LOW_S * 1e6:g} and '
         f'{PW_HIGH_S * 1e6:g} us (u = {command_from_pulse_width(PW_LOW_S, params_for({}, 1)):.2f} '
@@ -369,12 +372,12 @@ def write_section(add, results: dict) -> None:
         f'{round(PROTOCOL_S * RATE_HZ)} steps. Fatigue is Riener\'s law at its defaults; '
         'two types: half the units each, force weights 1 and 2, random order (seed 0).')
     add('')
-    add(f'| features on | engine | N = {n_lo:,} wall [us/step] | N = {n_hi:,} wall [us/step] '
+    add(f'| features on | build | N = {n_lo:,} wall [us/step] | N = {n_hi:,} wall [us/step] '
         '| ratio (wall) | ratio (CPU) |')
     add('| --- | --- | ---: | ---: | ---: | ---: |')
     for key, label, _ in CONFIGS:
         (a, engine), (b, _) = steps[(key, n_lo)], steps[(key, n_hi)]
-        add(f'| {label} | `{engine}` | {a.fmt()} | {b.fmt()} | {b.median / a.median:.2f} | '
+        add(f'| {label} | {engine} | {a.fmt()} | {b.fmt()} | {b.median / a.median:.2f} | '
             f'{b.cpu.median / a.cpu.median:.2f} |')
     add('')
     (a, _), (b, _) = steps[('target', n_lo)], steps[('target', n_hi)]
@@ -406,7 +409,7 @@ def write_section(add, results: dict) -> None:
         f'recruitment instant). A change of u by {du:.2f} moves {n_lo * du:,.0f} units at '
         f'N = {n_lo:,} and {n_hi * du:,.0f} at N = {n_hi:,}, {first_step:,.0f} of them in the '
         f'first step of a rise; a decay has {left[0]:.2g} and {left[1]:.2g} units still to '
-        'release when u rises again. At most `MAX_EVENTS_PER_PIECE` (64, `fes_muscle.py`) '
+        'release when u rises again. At most `MAX_EVENTS_PER_PIECE` (64, `equations.py`) '
         'events are '
         'resolved per piece of a step, larger changes in 64 groups. One run per row, every '
         f'step timed on its own; u rises at t = {rises} s and acts '
@@ -462,9 +465,10 @@ def write_section(add, results: dict) -> None:
 
     add('### Construction')
     add('')
-    add('`Muscle(params)`: the fibre-type layout, and with a random order or a length '
-        'spread the permutation and the per-type prefix sums of 1, c and c^2 over the '
-        'positions (3 K (N + 1) floats). Not part of a step.')
+    add('`Muscle(params)`: its one-muscle bundle of flat arrays (`FesBundle`, laid out and '
+        'filled), the fibre-type layout, and with a random order or a length spread the '
+        'permutation and the per-type prefix sums of 1, c and c^2 over the positions '
+        '(3 K (N + 1) floats). Not part of a step.')
     add('')
     add('| features on | N | wall [ms] | CPU [ms] |')
     add('| --- | ---: | ---: | ---: |')
@@ -484,7 +488,8 @@ def write_section(add, results: dict) -> None:
         f'default parameters. The pre-FES `Muscle` is `hill_muscle_ros/model/muscle.py` of '
         f'commit `{PRE_FES_COMMIT}` with the `curves`, `memory` and `params` modules of that '
         'commit, read with `git show` and imported from a temporary package; the two take '
-        f'turns run by run. Today\'s engine with these parameters: `{pre["engine"]}`. '
+        f'turns run by run. Today\'s `Muscle` runs the one engine\'s kernels, here on its '
+        f'{pre["engine"]} build. '
         + ('Their forces are identical over the protocol.' if pre['diff'] == 0.0 else
            f'Their forces differ by at most {pre["diff"]:.2g} N over the protocol.'))
     add('')
@@ -493,7 +498,15 @@ def write_section(add, results: dict) -> None:
     add(f'| before the FES extensions (`{PRE_FES_COMMIT}`) | {old.fmt()} | {_cpu(old)} |')
     add(f'| today, every FES feature off | {new.fmt()} | {_cpu(new)} |')
     add('')
-    add(f'- Target: the scalar step with every FES feature off at most '
-        f'{TARGET_PRE_FES_RATIO:g}x the pre-FES step: **{ratio:.2f}x** (wall medians; '
-        f'{new.cpu.median / old.cpu.median:.2f}x in CPU time) — '
-        f'{_met(ratio <= TARGET_PRE_FES_RATIO)}.')
+    line = (f'- Target: the scalar step with every FES feature off at most '
+            f'{TARGET_PRE_FES_RATIO:g}x the pre-FES step: **{ratio:.2f}x** (wall medians; '
+            f'{new.cpu.median / old.cpu.median:.2f}x in CPU time) — '
+            f'{_met(ratio <= TARGET_PRE_FES_RATIO)}.')
+    if ratio > TARGET_PRE_FES_RATIO:
+        line += (' Missed since the muscle is written once: one `Muscle.step` is now a call '
+                 'into the compiled kernels through the facade, a fixed cost of a few us a '
+                 'call (the checks, numba\'s dispatch, the bundle\'s arrays, the '
+                 '`MuscleOutputs`; "One muscle\'s offline run" splits it), about what the '
+                 'pre-FES muscle\'s whole Python step cost. A whole run pays the call once '
+                 '(`simulate()`, `Muscle.run_array`: the same section).')
+    add(line)

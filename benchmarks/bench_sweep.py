@@ -226,5 +226,7 @@ def write_section(add, results: dict) -> None:
     add('')
     add('- The batch steps each limb with its own `Limb` (every limb has its own '
         'recruitment instants within a step), so it costs what K separate limbs cost plus '
-        'gathering the arrays; a knee sweep is bound by the scalar FES muscle engine.')
+        'gathering the arrays; a knee sweep is bound by the limb\'s step, the limb\'s and '
+        'the muscle\'s kernels on the build `HILL_MUSCLE_ENGINE` chooses (compiled where '
+        'numba imports).')
     add('')

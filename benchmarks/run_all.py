@@ -11,11 +11,13 @@ Usage::
 
 ``--only fit`` runs only section 8, ``hill-muscle fit`` (``bench_fit.py``).
 ``--only gym`` runs only the Gymnasium vector environments (``bench_gym.py``).
-``--only batch`` runs only section 3, the batch engines (``bench_batch.py``).
+``--only batch`` runs only section 3, the batch of muscles (``bench_batch.py``).
 ``--only sweep`` runs only section 9, ``hill-muscle sweep``'s throughput (``bench_sweep.py``).
-``--only single`` runs only one muscle's compiled offline run (``bench_compiled.py``).
-``--only limb`` runs only the compiled limb and FES muscle (``bench_limb_compiled.py``).
+``--only single`` runs only one muscle's offline run, compiled and plain (``bench_compiled.py``).
+``--only limb`` runs only the compiled limb and muscle (``bench_limb_compiled.py``).
 ``--only compile`` runs only the cold compile of every kernel set (``compile_cost.py``).
+``--only step`` runs only sections 1 and 2, the cost per model step and
+``hill-muscle simulate``'s real-time factor (this file).
 ``--only fes`` runs only section 7, the FES features (``bench_fes.py``, a few
 minutes), and prints its Markdown instead of writing BENCHMARKS.md (or writes
 it to ``--out`` if given)::
@@ -33,6 +35,7 @@ import shlex
 import subprocess
 import sys
 import time
+import types
 from pathlib import Path
 
 import numpy as np
@@ -77,6 +80,11 @@ TARGET_NAIVE_RATIO_1E6 = 50.0
 TARGET_NAIVE_FRACTION_1E3 = 0.5
 TARGET_N_SCALING = 1.5
 TARGET_RTF = 500.0
+#: The last bench before the muscle was written once (its Python step, gone
+#: now), quoted where a target is missed because of it, never judged.
+PREVIOUS_DATE = '2026-12-04 09:55 UTC'
+PREVIOUS_STEP_US = 1.61
+PREVIOUS_FRACTION_1E3 = 0.44
 
 
 def protocol_inputs(protocol: Protocol, rate_hz: float = RATE_HZ,
@@ -97,7 +105,8 @@ def per_step(stats: Stats, n_steps: int) -> Stats:
 
 
 def bench_variants(runs, r, dl, protocol):
-    """Cost per step of the four variants at N = 1, 1e3, 1e6: step() and simulate()."""
+    """Cost per step of the four variants at N = 1, 1e3, 1e6: step() and simulate(),
+    on the build ``Muscle`` takes by default (``HILL_MUSCLE_ENGINE``)."""
     n_steps = len(dl) - 1
     rows = {}
     for (units, length), n in itertools.product(VARIANTS, UNIT_COUNTS):
@@ -106,8 +115,9 @@ def bench_variants(runs, r, dl, protocol):
         s_step = repeat(lambda: step_loop(muscle, r, dl), runs, setup=muscle.reset)
         s_sim = repeat(lambda: simulate(protocol, params, RATE_HZ), runs)
         rows[(units, length, n)] = (per_step(s_step, n_steps), per_step(s_sim, n_steps))
-        print(f'  {units}/{length} N={n}: step {rows[(units, length, n)][0].fmt()} us',
-              flush=True)
+        rows['build'] = muscle.build
+        print(f'  {units}/{length} N={n} ({muscle.build}): step '
+              f'{rows[(units, length, n)][0].fmt()} us', flush=True)
     return rows
 
 
@@ -217,7 +227,7 @@ def bench_rtf(runs):
 
 
 def bench_batch(runs, protocol):
-    """Section 3: both batch engines (``bench_batch.py``, which reads Protocol II itself)."""
+    """Section 3: the batch of muscles (``bench_batch.py``, which reads Protocol II itself)."""
     return bench_batch_module.run(runs)
 
 
@@ -388,57 +398,36 @@ def write_node_sections(add, node_runs: dict, seconds: float) -> None:
             'ahead of the clock.')
 
 
-def write_report(path: Path, runs: int, started: dict, results: dict) -> None:
+def write_step_sections(add, results: dict) -> None:
+    """Sections 1 and 2 from :func:`run_step_sections`' results."""
     v, naive, changing = results['variants'], results['naive'], results['changing']
-    peers, (rtf, startup), batch = results['peers'], results['rtf'], results['batch']
-    lines = []
-    add = lines.append
-    add('# Benchmarks')
-    add('')
-    add('Written by `make bench` (`.venv/bin/python benchmarks/run_all.py --out BENCHMARKS.md '
-        f'--runs {runs}`) on {started["date"]}. Do not edit by hand: rerun it.')
-    add('')
-    add(f'Every number is the **median (min to max) over {runs} runs**, after one '
-        'unrecorded warm-up run. Wall-clock time (`time.perf_counter`).')
-    add('')
-    add('## Machine')
-    add('')
-    add('| | |')
-    add('| --- | --- |')
-    for key, value in started['machine'].items():
-        add(f'| {key} | {value} |')
-    add(f'| load average (1, 5, 15 min) at start | {started["load"]} |')
-    add(f'| load average at end | {load_average()} |')
-    add(f'| wall time of the whole benchmark | {results["elapsed"]:.0f} s |')
-    add('')
-    add('The load averages above say how busy the 2-core machine was (the benchmark '
-        'itself keeps one core busy, and its node and live runs use both). Single runs '
-        'are noisy on a shared VM: the medians are the numbers to read, and the max '
-        'shows the interference. numba compiles for the CPU it runs on, and the vector '
-        'loops of the batch gain most from wider vector registers (the vector instructions '
-        'row): compare compiled numbers only between machines with the same instructions, '
-        'and rerun `make bench` on your machine before quoting a number.')
-    add('')
-
+    peers, (rtf, startup) = results['peers'], results['rtf']
     add('## 1. Cost per model step (Protocol II, 1 kHz, 6000 steps)')
     add('')
     add('`Muscle.step` is the ROS node\'s path (one validated call per step, returns a '
-        '`MuscleOutputs`); `simulate()` is the CLI\'s path (the same hot loop, '
-        '`Muscle.run`, over the whole protocol, incl. sampling the protocol and building '
-        'the arrays). Both replay Protocol II from rest.')
+        '`MuscleOutputs`); `simulate()` is the CLI\'s path (one `Muscle.run_array` call '
+        'over the whole protocol, incl. sampling the protocol and building the arrays). '
+        'Both replay Protocol II from rest, on the build `Muscle` takes by default: '
+        f'**{v["build"]}** here (`HILL_MUSCLE_ENGINE` unset; compiled by numba wherever it '
+        'imports). The muscle is written once: every variant runs the same kernels '
+        '(`model/muscle/kernels.py`), the paper\'s model being the muscle with every FES '
+        'feature off; "One muscle\'s offline run" below compares the two builds. '
+        '`simulate()` also builds its `Muscle` on every run, whose flat arrays grow with N '
+        '(section 7 times the construction), which the N = 1,000,000 rows show.')
     add('')
     add('| variant | N units | `Muscle.step` wall [us/step] | CPU | `simulate()` wall [us/step] | CPU |')
     add('| --- | ---: | ---: | ---: | ---: | ---: |')
-    for (units, length, n), (s_step, s_sim) in v.items():
+    for (units, length, n), (s_step, s_sim) in ((key, row) for key, row in v.items()
+                                                  if key != 'build'):
         add(f'| {units}/{length} | {n:,} | {s_step.fmt()} | {cpu(s_step)} | {s_sim.fmt()} | '
             f'{cpu(s_sim)} |')
     add('')
     add('### Against a naive per-unit implementation and the peers')
     add('')
-    add('Naive: `benchmarks/naive.py`, the paper\'s method written plainly: a NumPy array '
-        'with one stored isometric force per unit (`NaiveUnitMemory`), updated on '
-        'recruitment and summed every step, the same RK4 and the same scalar curves. '
-        'Same protocol, one call per step, like the `Muscle.step` column.')
+    add('Naive: `benchmarks/naive.py`, the paper\'s method written plainly in Python and '
+        'NumPy: an array with one stored isometric force per unit (its `NaiveUnitMemory`), '
+        'updated on recruitment and summed every step, the same RK4 and the same scalar '
+        'curves. Same protocol, one call per step, like the `Muscle.step` column.')
     add('')
     add('| model | N units | wall [us/step] | CPU [us/step] |')
     add('| --- | ---: | ---: | ---: |')
@@ -446,7 +435,8 @@ def write_report(path: Path, runs: int, started: dict, results: dict) -> None:
         add(f'| naive per-unit NumPy (multi/initial) | {n:,} | {s.fmt()} | {cpu(s)} |')
     for n in UNIT_COUNTS:
         s = v[("multi", "initial", n)][0]
-        add(f'| this package, `Muscle.step` multi/initial | {n:,} | {s.fmt()} | {cpu(s)} |')
+        add(f'| this package, `Muscle.step` multi/initial ({v["build"]}) | {n:,} | '
+            f'{s.fmt()} | {cpu(s)} |')
     for name, (s, note) in peers.items():
         add(f'| {note} | {"1,000" if name == "pymuscle" else "-"} | '
             f'{s.fmt() if s else "not measured"} | {cpu(s)} |')
@@ -460,9 +450,19 @@ def write_report(path: Path, runs: int, started: dict, results: dict) -> None:
     add(f'- Target: multi/initial at N = 1e6 at least {TARGET_NAIVE_RATIO_1E6:g}x cheaper '
         f'than naive at 1e6: **{ratio_1e6:.0f}x** (wall medians; {cpu_ratio_1e6:.0f}x in CPU '
         f'time) — {met(ratio_1e6 >= TARGET_NAIVE_RATIO_1E6)}.')
-    add(f'- Target: at N = 1e3 at most {TARGET_NAIVE_FRACTION_1E3:g} of the naive cost: '
-        f'**{frac_1e3:.2f}** (wall medians; {cpu_frac_1e3:.2f} in CPU time) — '
-        f'{met(frac_1e3 <= TARGET_NAIVE_FRACTION_1E3)}.')
+    line = (f'- Target: at N = 1e3 at most {TARGET_NAIVE_FRACTION_1E3:g} of the naive cost: '
+            f'**{frac_1e3:.2f}** (wall medians; {cpu_frac_1e3:.2f} in CPU time) — '
+            f'{met(frac_1e3 <= TARGET_NAIVE_FRACTION_1E3)}.')
+    if frac_1e3 > TARGET_NAIVE_FRACTION_1E3:
+        line += (' Missed since the muscle is written once: one `Muscle.step` is now a call '
+                 'into the compiled kernels through the facade (the checks, numba\'s '
+                 'dispatch, the bundle\'s arrays, the `MuscleOutputs`; "One muscle\'s '
+                 'offline run" below splits it), a fixed cost about that of the naive '
+                 'NumPy step at N = 1e3, where `Muscle`\'s own Python step, which it '
+                 f'replaced, took {PREVIOUS_STEP_US} us, {PREVIOUS_FRACTION_1E3} of the '
+                 f'naive cost, in the last bench before ({PREVIOUS_DATE}). The step\'s cost '
+                 'still does not grow with N (the first target, and the next table).')
+    add(line)
     add('')
     add('### Cost independent of N, with recruitment changing every step')
     add('')
@@ -489,8 +489,9 @@ def write_report(path: Path, runs: int, started: dict, results: dict) -> None:
     s_start, start_cmd, s_fixed = startup
     add('The last two RTF columns also leave out the command\'s fixed cost in-process '
         f'({s_fixed.median * 1e3:.1f} ms wall median, {s_fixed.cpu.median * 1e3:.1f} ms CPU: '
-        'mostly PyYAML parsing `config/muscle.yaml` and the protocol, measured with the 1 ms '
-        'protocol below): simulated duration / (in-process time - fixed cost), medians.')
+        'parsing `config/muscle.yaml` and the protocol, building the muscle, one step and '
+        'the table, measured with the 1 ms protocol below): simulated duration / '
+        '(in-process time - fixed cost), medians.')
     add('')
     add('| command | simulated | in-process wall [s] | RTF excl. start-up | by CPU time | RTF excl. start-up and input files | by CPU time | process wall [s] | RTF incl. start-up |')
     add('| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |')
@@ -504,8 +505,10 @@ def write_report(path: Path, runs: int, started: dict, results: dict) -> None:
         add(f'| `{cmd}` | {duration:g} s | {s_in.fmt()} | {r_in.fmt()}x | {cpu(r_in)}x | '
             f'{loop_wall:.3g}x | {loop_cpu:.3g}x | {s_proc.fmt()} | {r_proc.fmt()}x |')
     add('')
-    add(f'Process start-up (interpreter, imports, argument and YAML parsing; a 1 ms '
-        f'protocol): `{start_cmd}`: **{s_start.fmt()} s** wall, {cpu(s_start)} s CPU.')
+    add(f'Process start-up (interpreter, imports, numba and the compiled muscle loaded '
+        f'from the package\'s cache, argument and YAML parsing; a 1 ms protocol): '
+        f'`{start_cmd}`: **{s_start.fmt()} s** wall, {cpu(s_start)} s CPU ("One muscle\'s '
+        'offline run" below splits it by build).')
     add('')
     mj = peers.get('mujoco', (None, ''))[0]
     if mj is not None:
@@ -518,11 +521,62 @@ def write_report(path: Path, runs: int, started: dict, results: dict) -> None:
             f'**{rtf_ii.median:.0f}x** wall median ({rtf_ii.cpu.median:.0f}x by CPU time) — '
             f'{met(rtf_ii.median >= TARGET_RTF)}; the simulation without reading the input '
             f'files: **{loop_ii[0]:.0f}x** wall ({loop_ii[1]:.0f}x by CPU time) — '
-            f'{met(loop_ii[0] >= TARGET_RTF)}. Accuracy is unchanged: RK4 at 1 ms, '
-            '`test/test_model_muscle.py::test_one_millisecond_step_is_within_10_mN_of_the_reference` '
-            'passes.')
+            f'{met(loop_ii[0] >= TARGET_RTF)}. The accuracy of RK4 at 1 ms is checked by '
+            '`test/test_model_muscle.py::'
+            'test_one_millisecond_step_is_within_10_mN_of_the_reference`, not here.')
     add('')
 
+
+def run_step_sections(runs: int) -> dict:
+    """Sections 1 and 2: the cost per model step (with the naive baseline, the
+    recruitment changing every step and the peers) and ``hill-muscle simulate``."""
+    protocol = Protocol.from_yaml(protocol_path('II'))
+    _, r, dl = protocol_inputs(protocol)
+    results = {}
+    print('cost per step, four variants', flush=True)
+    results['variants'] = bench_variants(runs, r, dl, protocol)
+    print('naive', flush=True)
+    results['naive'] = bench_naive(runs, r, dl)
+    print('recruitment changing every step', flush=True)
+    results['changing'] = bench_changing_recruitment(runs, dl)
+    print('peers', flush=True)
+    results['peers'] = bench_peers(runs, r, dl)
+    print('hill-muscle simulate', flush=True)
+    results['rtf'] = bench_rtf(runs)
+    return results
+
+
+def write_report(path: Path, runs: int, started: dict, results: dict) -> None:
+    batch = results['batch']
+    lines = []
+    add = lines.append
+    add('# Benchmarks')
+    add('')
+    add('Written by `make bench` (`.venv/bin/python benchmarks/run_all.py --out BENCHMARKS.md '
+        f'--runs {runs}`) on {started["date"]}. Do not edit by hand: rerun it.')
+    add('')
+    add(f'Every number is the **median (min to max) over {runs} runs**, after one '
+        'unrecorded warm-up run. Wall-clock time (`time.perf_counter`).')
+    add('')
+    add('## Machine')
+    add('')
+    add('| | |')
+    add('| --- | --- |')
+    for key, value in started['machine'].items():
+        add(f'| {key} | {value} |')
+    add(f'| load average (1, 5, 15 min) at start | {started["load"]} |')
+    add(f'| load average at end | {load_average()} |')
+    add(f'| wall time of the whole benchmark | {results["elapsed"]:.0f} s |')
+    add('')
+    add('The load averages above say how busy the 2-core machine was (the benchmark '
+        'itself keeps one core busy, and its node and live runs use both). Single runs '
+        'are noisy on a shared VM: the medians are the numbers to read, and the max '
+        'shows the interference. numba compiles for the CPU it runs on (the vector '
+        'instructions row): compare compiled numbers only between machines with the same '
+        'instructions, and rerun `make bench` on your machine before quoting a number.')
+    add('')
+
+    write_step_sections(add, results)
     if 'single' in results:
         bench_compiled.write_section(add, results['single'])
         add('')
@@ -545,9 +599,12 @@ def write_report(path: Path, runs: int, started: dict, results: dict) -> None:
     compile_cost.write_section(add, results['compile'])
     add('## Profiles')
     add('')
-    add('`benchmarks/profile_simulate.py` writes cProfile and pyinstrument output of '
-        '`simulate()` on Protocol II to `benchmarks/profiles/`; the files from before the '
-        'fast path are kept there as `before_*.txt`.')
+    add('`benchmarks/profile_simulate.py` (`make bench` runs it first) writes cProfile and '
+        'pyinstrument output of `simulate()` on Protocol II to `benchmarks/profiles/`: '
+        '`after_*.txt` on the compiled build (as shipped: the Python around one compiled '
+        '`run_array`), `after_python_*.txt` on the plain-Python build of the same kernels '
+        '(`HILL_MUSCLE_ENGINE=python`); the files from before the fast path are kept there '
+        'as `before_*.txt`.')
     add('')
     path.write_text('\n'.join(lines), encoding='utf-8')
 
@@ -558,14 +615,16 @@ def main(argv: list[str] | None = None) -> int:
                         help='Markdown file to write (default: BENCHMARKS.md; with --only, '
                              'print the section instead)')
     parser.add_argument('--only', choices=('batch', 'compile', 'fes', 'fit', 'gym', 'limb',
-                                           'single', 'sweep'),
+                                           'single', 'step', 'sweep'),
                         default=None,
                         help='run one section only: batch = section 3, the batch '
-                             'engines; fes = section 7, the FES features; '
+                             'of muscles; fes = section 7, the FES features; '
                              'fit = section 8, hill-muscle fit; gym = the Gymnasium '
-                             'vector environments; limb = the limb and the FES muscle '
+                             'vector environments; limb = the limb and the muscle '
                              'compiled; single = one muscle\'s offline run '
-                             'compiled; sweep = section 9, hill-muscle sweep; '
+                             'compiled and plain; step = sections 1 and 2, the cost per '
+                             'model step and hill-muscle simulate; sweep = section 9, '
+                             'hill-muscle sweep; '
                              'compile = the kernels\' cold compile')
     parser.add_argument('--runs', type=int, default=7,
                         help=f'runs per measurement, at least {MIN_RUNS} (default: 7)')
@@ -583,6 +642,8 @@ def main(argv: list[str] | None = None) -> int:
         section = {'batch': bench_batch_module, 'compile': compile_cost, 'fes': bench_fes,
                    'fit': bench_fit,
                    'gym': bench_gym, 'limb': bench_limb_compiled, 'single': bench_compiled,
+                   'step': types.SimpleNamespace(run=run_step_sections,
+                                                 write_section=write_step_sections),
                    'sweep': bench_sweep}[args.only]
         measured = section.run(args.runs)
         lines.append(f'<!-- run_all.py --only {args.only} --runs {args.runs}, {started["date"]}, '
@@ -598,24 +659,10 @@ def main(argv: list[str] | None = None) -> int:
             print(f'wrote {args.out}')
         return 0
     out = REPO / 'BENCHMARKS.md' if args.out is None else args.out
-    protocol = Protocol.from_yaml(protocol_path('II'))
-    _, r, dl = protocol_inputs(protocol)
-    results = {}
-    print('cost per step, four variants', flush=True)
-    results['variants'] = bench_variants(args.runs, r, dl, protocol)
-    print('naive', flush=True)
-    results['naive'] = bench_naive(args.runs, r, dl)
-    print('recruitment changing every step', flush=True)
-    results['changing'] = bench_changing_recruitment(args.runs, dl)
-    print('peers', flush=True)
-    results['peers'] = bench_peers(args.runs, r, dl)
-    print('hill-muscle simulate', flush=True)
-    results['rtf'] = bench_rtf(args.runs)
+    results = run_step_sections(args.runs)
     print('batch', flush=True)
-    results['batch'] = bench_batch(args.runs, protocol)
-    # After section 2, which times simulate() as shipped: this loads the
-    # compiled run, which every later simulate() in this process then takes.
-    print('one muscle\'s offline run, compiled', flush=True)
+    results['batch'] = bench_batch(args.runs, None)
+    print('one muscle\'s offline run, compiled and plain', flush=True)
     results['single'] = bench_compiled.run(args.runs)
     print('FES features', flush=True)
     results['fes'] = bench_fes.run(args.runs)
@@ -625,7 +672,7 @@ def main(argv: list[str] | None = None) -> int:
     results['gym'] = bench_gym.run(args.runs)
     print('hill-muscle sweep', flush=True)
     results['sweep'] = bench_sweep.run(args.runs)
-    print('the limb and the FES muscle, compiled', flush=True)
+    print('the limb and the muscle, compiled', flush=True)
     results['limb'] = bench_limb_compiled.run(args.runs)
     print('the kernels\' cold compile', flush=True)
     results['compile'] = compile_cost.run(min(args.runs, COMPILE_RUNS))
