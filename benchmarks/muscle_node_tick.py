@@ -1,15 +1,16 @@
-"""The simulator node's work per step: one FES ``Muscle.step`` against one compiled step.
+"""The simulator node's work per step: ``Muscle.step`` on the plain and the compiled build.
 
 The simulator node (``hill_muscle_ros/nodes/simulator.py``) steps its muscle
 once per model step inside its timer callback. This times that call, one step
 at a time as the node makes it, on the knee quadriceps preset
-(``config/fes_quadriceps.yaml``, 1 kHz) for the Python
-:class:`~hill_muscle_ros.model.fes_muscle.FesMuscle` and
-:class:`~hill_muscle_ros.model.compiled_muscle.CompiledFesMuscle`: pulse
-widths stepping up through the recruitment curve for :data:`STEPS_EACH`
-steps, then 0 (the release) for as many; and the compiled muscle's loading in
-this process. Not part of ``make bench``; its printed numbers are quoted in
-the node's docstring.
+(``config/fes_quadriceps.yaml``, 1 kHz) for the one
+:class:`~hill_muscle_ros.model.muscle.Muscle` on each build of its kernels:
+the very same functions as plain Python (``build='python'``, where numba is
+missing) and compiled by numba (``build='compiled'``, what the node loads):
+pulse widths stepping up through the recruitment curve for
+:data:`STEPS_EACH` steps, then 0 (the release) for as many; and the compiled
+muscle's loading in this process. Not part of ``make bench``; its printed
+numbers are quoted in the node's docstring.
 
 Run: ``.venv/bin/python benchmarks/muscle_node_tick.py``
 """
@@ -19,8 +20,7 @@ import time
 
 import numpy as np
 
-from hill_muscle_ros.model import Muscle
-from hill_muscle_ros.model.compiled_muscle import CompiledFesMuscle
+from hill_muscle_ros.model import Muscle, engine
 from hill_muscle_ros.model.stimulus import command_from_pulse_width
 from hill_muscle_ros.params_file import load_muscle_params
 from hill_muscle_ros.resources import config_dir
@@ -58,14 +58,14 @@ def main() -> None:
     params = load_muscle_params(config_dir() / 'fes_quadriceps.yaml')[0]
     u = commands(params)
     t0 = time.perf_counter()
-    compiled = CompiledFesMuscle(params)
+    compiled = Muscle(params, build=engine.COMPILED)
     load_s = time.perf_counter() - t0
-    for name, muscle in (('python', Muscle(params)), ('compiled', compiled)):
+    for muscle in (Muscle(params, build=engine.PYTHON), compiled):
         a = time_steps(muscle, u)
-        print(f'{name} ({type(muscle).__name__}): per step median {np.median(a):.1f} us, '
-              f'mean {a.mean():.1f} us, p99 {np.percentile(a, 99):.1f} us, max {a.max():.0f} '
-              f'us; mean stimulated {a[:STEPS_EACH].mean():.1f} us, released '
-              f'{a[STEPS_EACH:].mean():.1f} us')
+        print(f'{muscle.build} (Muscle, build={muscle.build!r}): per step median '
+              f'{np.median(a):.1f} us, mean {a.mean():.1f} us, p99 '
+              f'{np.percentile(a, 99):.1f} us, max {a.max():.0f} us; mean stimulated '
+              f'{a[:STEPS_EACH].mean():.1f} us, released {a[STEPS_EACH:].mean():.1f} us')
     print(f'loading the compiled muscle in this process: {load_s:.2f} s')
 
 
