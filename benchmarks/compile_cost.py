@@ -105,11 +105,12 @@ def write_section(add, m: dict) -> None:
     totals = [sum(samples[n][r][0] for n in samples) for r in range(runs)]
     add('## Compiling the kernels (a fresh clone, `benchmarks/compile_cost.py`)')
     add('')
-    add(f'Each run is a new Python process on an empty `NUMBA_CACHE_DIR` that builds every '
-        f'kernel set in the order of a test run (`.venv/bin/python benchmarks/run_all.py '
-        f'--only compile --runs {runs}`); a set that calls another (the limb and the FES '
-        'batch call the compiled FES muscle) is charged what it adds. Seconds numba spent '
-        'compiling (`engine.compile_seconds()`), median (min to max) over the runs.')
+    add(f'Each of {runs} runs is a new Python process on an empty `NUMBA_CACHE_DIR` that '
+        'builds every kernel set in the order of a test run and of `hill-muscle compile` '
+        '(`.venv/bin/python benchmarks/run_all.py --only compile`); a set that calls another '
+        '(the limb and the batch call the compiled muscle) is charged what it adds. Seconds '
+        'numba spent compiling (`engine.compile_seconds()`), median (min to max) over the '
+        'runs.')
     add('')
     add('| kernel set | compiling [s] | wall [s] |')
     add('| --- | ---: | ---: |')
