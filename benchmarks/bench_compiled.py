@@ -429,8 +429,7 @@ def write_section(add, m: dict) -> None:
                  f'{st["run_load"].median:.2g} s to load from the cache in a new interpreter, '
                  f'where the paper\'s compiled run took {b["load_s"]} s (the compiled '
                  f'start-up was {b["warm_startup_s"]} s), and as shipped the command now loads '
-                 'them for any run (next line). Load on the shared machine adds to all of it: '
-                 'compare the CPU column.')
+                 'them for any run (next line).')
     add(line)
     load = st['run_import'].median + st['run_load'].median
     gain_us = ii['python'].median - ii['compiled'].median
