@@ -15,6 +15,7 @@ from std_msgs.msg import Float64
 from hill_muscle_ros.model import MuscleParams, Protocol, ProtocolError, simulate
 from hill_muscle_ros.resources import protocol_path
 from rclpy.qos import QoSProfile
+from stall_watch import repeat_only_on_external_stall
 from ros_helpers import Probe, ProcessGroup, node_command
 
 pytestmark = pytest.mark.ros
@@ -181,16 +182,47 @@ def test_the_protocol_starts_only_once_every_subscriber_has_the_rest_state(
     assert stim.messages[-1].data == 0.0
 
 
-def test_protocol_ii_through_dds_matches_offline_simulation(tmp_path):
+def test_protocol_ii_through_dds_matches_offline_simulation(tmp_path, stall_watcher):
     """Simulator and player as separate processes, multi/initial, 1 kHz.
 
     Time zero is the player's first message as the simulator saw it: the
     first step with a non-zero force (at rest and R = 0 the force is exactly
     0). Times are the wrench stamps, i.e. the simulator's own step times, so
-    the probe's receive latency plays no part.
+    the probe's receive latency plays no part. The player replays in real
+    time: a run is repeated only when the stall watcher measured the machine
+    holding a process of the test up (a player held 0.8 s lets the simulator
+    hold the old pulse width as long), and named.
     """
     params = MuscleParams(units='multi', length='initial')
     offline = simulate(Protocol.from_yaml(protocol_path('II')), params, rate_hz=1000.0)
+    attempt = iter(range(1, 100))
+
+    def one_run():
+        return _live_protocol_ii(tmp_path / f'run{next(attempt)}', offline)
+
+    def check(live):
+        t_s, f_ros = live
+        for t in E2E_TIMES_S:
+            nearest = int(np.argmin(np.abs(t_s - t)))
+            # The probe may lose messages when the machine is busy (keep-last 10
+            # on the simulator's side); in a hold phase a sample 0.1 s off still
+            # agrees to 0.01 N, but further off it would not be evidence.
+            if abs(t_s[nearest] - t) > SAMPLE_WINDOW_S:
+                return f'the probe received no force within {SAMPLE_WINDOW_S} s of t = {t} s'
+            want = offline.force_n[offline.at(t)]
+            if not abs(f_ros[nearest] - want) <= E2E_TOL_N:
+                return (f'live force {f_ros[nearest]:.3f} N against offline {want:.3f} N '
+                        f'(tolerance {E2E_TOL_N} N) at t = {t} s (sample at '
+                        f'{t_s[nearest]:.4f} s)')
+        return None
+
+    repeat_only_on_external_stall(one_run, check, stall_watcher)
+
+
+def _live_protocol_ii(tmp_path, offline):
+    """One live run of Protocol II through DDS: (protocol times [s], forces [N])
+    of the simulator's wrench stamps, time zero at its first non-zero force."""
+    tmp_path.mkdir(parents=True, exist_ok=True)
     ns = '/e2e'
     with ProcessGroup(tmp_path) as procs, Probe() as probe:
         wrench = probe.record(f'{ns}/wrench', WrenchStamped, qos=DEEP_QOS)
@@ -214,17 +246,7 @@ def test_protocol_ii_through_dds_matches_offline_simulation(tmp_path):
     f_ros = np.array([w.wrench.force.x for w in wrench.messages])
     first = int(np.argmax(f_ros > 0.0))
     # The step that produced the first force started when the message arrived.
-    t_s = stamps_s - (stamps_s[first] - offline.t_s[1])
-    for t in E2E_TIMES_S:
-        nearest = int(np.argmin(np.abs(t_s - t)))
-        # The probe may lose messages when the machine is busy (keep-last 10 on
-        # the simulator's side); in a hold phase a sample 0.1 s off still
-        # agrees to 0.01 N, but further off it would not be evidence.
-        assert abs(t_s[nearest] - t) <= SAMPLE_WINDOW_S, \
-            f'the probe received no force within {SAMPLE_WINDOW_S} s of t = {t} s'
-        want = offline.force_n[offline.at(t)]
-        assert f_ros[nearest] == pytest.approx(want, abs=E2E_TOL_N), \
-            f't = {t} s (sample at {t_s[nearest]:.4f} s)'
+    return stamps_s - (stamps_s[first] - offline.t_s[1]), f_ros
 
 
 def test_player_on_sim_time_follows_published_clock(tmp_path):
