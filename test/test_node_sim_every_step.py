@@ -25,6 +25,7 @@ from geometry_msgs.msg import PointStamped, WrenchStamped
 from rclpy.qos import QoSProfile
 
 from hill_muscle_ros.model import MuscleParams
+from stall_watch import repeat_only_on_external_stall
 from ros_helpers import Probe, ProcessGroup, node_command
 
 pytestmark = pytest.mark.ros
@@ -143,20 +144,37 @@ def test_stalled_simulator_publishes_every_step_once_with_its_own_stamp(tmp_path
     assert np.max(np.abs(forces[on_ramp] - expected)) < FORCE_TOL_N
 
 
-def test_every_step_at_real_time_factor_5_when_asked(tmp_path):
-    with ProcessGroup(tmp_path) as procs, \
-            Probe('every_step_rtf_probe', executor='single') as probe:
-        proc, wrenches, _, _ = _start(procs, probe, real_time_factor=5.0,
-                                      publish_every_n_steps=1)
-        first_ns = wrenches.latest_ns()
-        # 1 s of simulated time: 200 ticks of 5 steps each.
-        _wait_stamp(probe, wrenches, first_ns + 1_000_000_000, proc)
-    stamps = np.array(wrenches.stamps_ns, dtype=np.int64)
-    publish_gaps = np.diff(np.array(wrenches.sources_ns, dtype=np.int64))
-    # Several steps went out per tick (the tick period is 1 ms of wall time) ...
-    assert np.median(publish_gaps) < STEP_NS / 2
-    # ... and every one of them, once.
-    assert set(np.diff(stamps).tolist()) == {STEP_NS}, _holes(stamps, STEP_NS)
+def test_every_step_at_real_time_factor_5_when_asked(tmp_path, stall_watcher):
+    """Five steps a 1 ms tick, each published. A run is repeated only when the
+    stall watcher measured the machine holding a process of the test up (the
+    probe fell 852 ms of stamps behind once, on a machine loaded by a benchmark
+    run), and named."""
+    attempt = iter(range(1, 100))
+
+    def one_run():
+        run_dir = tmp_path / f'run{next(attempt)}'
+        run_dir.mkdir()
+        with ProcessGroup(run_dir) as procs, \
+                Probe('every_step_rtf_probe', executor='single') as probe:
+            proc, wrenches, _, _ = _start(procs, probe, real_time_factor=5.0,
+                                          publish_every_n_steps=1)
+            first_ns = wrenches.latest_ns()
+            # 1 s of simulated time: 200 ticks of 5 steps each.
+            _wait_stamp(probe, wrenches, first_ns + 1_000_000_000, proc)
+        return (np.array(wrenches.stamps_ns, dtype=np.int64),
+                np.diff(np.array(wrenches.sources_ns, dtype=np.int64)))
+
+    def check(run):
+        stamps, publish_gaps = run
+        # Several steps went out per tick (the tick period is 1 ms of wall time) ...
+        if not np.median(publish_gaps) < STEP_NS / 2:
+            return f'median publish gap {np.median(publish_gaps) / 1e6:.3f} ms, not several a tick'
+        # ... and every one of them, once.
+        if set(np.diff(stamps).tolist()) != {STEP_NS}:
+            return _holes(stamps, STEP_NS)
+        return None
+
+    repeat_only_on_external_stall(one_run, check, stall_watcher)
 
 
 def test_default_at_real_time_factor_10_is_every_10th_step_on_a_fixed_grid(tmp_path):
