@@ -165,7 +165,7 @@ def write_section(add, m: dict) -> None:
     rtf = {side: duration / limb[side].median for side in ('compiled', 'python')}
     rtf_cpu = {side: duration / limb[side].cpu.median for side in ('compiled', 'python')}
     add('## The limb and the FES muscle, compiled (`model/limb/kernels.py`, '
-        '`model/fes_kernels.py`)')
+        '`model/muscle/kernels.py`)')
     add('')
     add('`benchmarks/bench_limb_compiled.py` (alone: `.venv/bin/python benchmarks/run_all.py '
         f'--only limb --runs {m["runs"]}`). The compiled build agrees with the same functions '
@@ -201,13 +201,13 @@ def write_section(add, m: dict) -> None:
         'is compiled into one function (limb.kernels._INTO_STEP): the forces of the RK4 '
         'stages (one loop over the stages, so that they are compiled in once), a '
         'multi/initial muscle\'s F0 at the step\'s three instants '
-        '(fes_kernels.eff_f_iso_inline) and the fatigue\'s interval bounds. The stages\' '
+        '(muscle/kernels.py, eff_f_iso_inline) and the fatigue\'s interval bounds. The stages\' '
         'gravity sines come from the step\'s first sine and cosine (equations.sine_near: '
         'libm\'s '
         'sin had been 9 % of a run, by perf). Together, by hand, the code before and after in '
         'two processes alternating on one core: 0.863x and 0.854x the time a run (medians of '
         '31 pair ratios, either core). A run\'s large arrays come from a per-thread pool '
-        '(fes_kernels.ScratchPool): fresh ones faulted on every page, a tenth of the run. '
+        '(muscle/state.py, ScratchPool): fresh ones faulted on every page, a tenth of the run. '
         'A muscle in whose step no unit joins or leaves is not planned '
         '(limb.kernels.plan_steady; doc/model.md section 4). The quarter second after the '
         'stimulation stops costs more per step: as the last units of the quadriceps leave, '
