@@ -1,19 +1,16 @@
-"""Which engine runs the model's loops, and the numba machinery of the compiled ones.
+"""Which build of the model's kernels runs, and the numba machinery that compiles them.
 
-The model's loops exist twice over the same equations: as plain Python (the
-readable reference, and the path taken without numba) and compiled by numba
-from the *same* plain functions (:mod:`.kernels`). This module decides which
-one runs and builds the compiled versions; it is the only place that imports
-numba, lazily, so importing the package never loads it.
+The kernels (:mod:`.muscle.kernels`, :mod:`.muscle.batch_kernels`,
+:mod:`.limb.kernels`) are plain functions, run as they are or compiled by numba
+from the *same* code. :func:`kernels` is the one place that chooses between the
+two builds; this module also builds the compiled one, and is the only place
+that imports numba, lazily, so importing the package never loads it.
 
 Choice: the environment variable :data:`ENV_VAR` (``HILL_MUSCLE_ENGINE``)
 takes ``auto`` (the default: compiled if numba can be imported), ``compiled``
-(numba required) or ``python`` (the plain Python loops everywhere, and the
-NumPy engine for a :class:`~hill_muscle_ros.model.muscle.batch.MuscleBatch` built with
-``engine='auto'``: for debugging, or to rule the compiled code out).
-:func:`choice` reads it on every call, so a process may change it. Since
-loading compiled code has a fixed cost, ``auto`` takes a compiled loop only
-where it pays (:func:`use_compiled`).
+(numba required) or ``python`` (the plain functions everywhere: for debugging,
+or to rule the compiled code out). :func:`choice` reads it on every call, so a
+process may change it; a facade's ``build=`` argument overrides it.
 
 Compiling: :func:`compile_functions` compiles a module's plain functions,
 each from its own code object with the names it calls rebound to their
@@ -134,27 +131,6 @@ def kernels(module: types.ModuleType, build: str | None = None) -> object:
     elif build not in (COMPILED, PYTHON):
         raise ValueError(f'`build` must be {COMPILED!r}, {PYTHON!r} or None, got {build!r}')
     return module.compiled() if build == COMPILED else module
-
-
-def use_compiled(work: int, min_work: int, loaded: bool) -> bool:
-    """Whether a loop of ``work`` iterations should take its compiled version now.
-
-    Loading compiled code costs a fixed time (importing numba, and numba's
-    own set-up on its first compiled call: about 0.85 s with a warm cache,
-    BENCHMARKS.md), which a short loop never wins back. So ``auto`` takes the
-    compiled version only if it is already loaded in this process or the loop
-    is long enough to repay the loading (``work >= min_work``); ``compiled``
-    always takes it, ``python`` never.
-
-    :param work: [-] iterations of the loop about to run (e.g. steps)
-    :param min_work: [-] iterations from which loading pays off
-    :param loaded: True if the compiled version is already built in this process
-    :raises ValueError: if :data:`ENV_VAR` holds an unknown value
-    :raises ImportError: if it asks for ``compiled`` and numba cannot be imported
-    """
-    if choice() != COMPILED:
-        return False
-    return requested() == COMPILED or loaded or work >= min_work
 
 
 def import_numba() -> types.ModuleType:
