@@ -219,8 +219,7 @@ class Protocol:
             stim = _parse_knots(data[key], source, key, 0.0, 1.0, 'in [0, 1]')
         else:
             stim = _parse_knots(data[key], source, key, 0.0, math.inf, 'non-negative')
-        dl = _parse_knots(data['dl_mt_m'], source, 'dl_mt_m', -DL_MT_LIMIT_M,
-                          DL_MT_LIMIT_M, f'within ±{DL_MT_LIMIT_M} m')
+        dl = _parse_dl_mt(data['dl_mt_m'], source)
         return cls(name=name, duration_s=duration_s, stimulation=stim,
                    stimulation_key=key, dl_mt_m=dl)
 
@@ -279,6 +278,15 @@ def check_protocol_keys(data: Any, source: str, allowed: tuple[str, ...],
         raise ProtocolError(f'{source}: `duration_s` must be a positive finite '
                             f'number, got {duration!r}')
     return duration_s
+
+
+def _parse_dl_mt(raw: Any, source: str) -> Knots:
+    """The ``dl_mt_m`` knots of a protocol, each within ±:data:`DL_MT_LIMIT_M` of rest.
+
+    :raises ProtocolError: naming the file and the entry on any defect
+    """
+    return _parse_knots(raw, source, 'dl_mt_m', -DL_MT_LIMIT_M, DL_MT_LIMIT_M,
+                        f'within ±{DL_MT_LIMIT_M} m')
 
 
 def _parse_knots(raw: Any, source: str, key: str, low: float, high: float,
@@ -407,8 +415,7 @@ class PulseProtocol:
             raise ProtocolError(f'{source}: `channels` must be a non-empty list of channels '
                                 f'(mappings with keys {", ".join(CHANNEL_KEYS)}), got {raw!r}')
         channels = tuple(_parse_channel(entry, source, c) for c, entry in enumerate(raw, 1))
-        dl = _parse_knots(data['dl_mt_m'], source, 'dl_mt_m', -DL_MT_LIMIT_M,
-                          DL_MT_LIMIT_M, f'within ±{DL_MT_LIMIT_M} m')
+        dl = _parse_dl_mt(data['dl_mt_m'], source)
         return cls(name=data['name'], duration_s=duration_s, channels=channels, dl_mt_m=dl)
 
     @classmethod
