@@ -303,12 +303,7 @@ class Muscle:
         :param r_end: [-] command given after each step, before the outputs
         :return: (steps, 12) outputs
         """
-        # Contiguous and writable, as the compiled signature takes them (a
-        # read-only view, e.g. of a recording, is copied).
-        r_start = np.require(r_start, dtype=float, requirements=('C', 'W'))
-        dl_end = np.require(dl_mt_end_m, dtype=float, requirements=('C', 'W'))
-        have_end = r_end is not None
-        r_end = np.require(r_end, dtype=float, requirements=('C', 'W')) if have_end else r_start
+        r_start, dl_end, r_end, have_end = kernels.run_inputs(r_start, dl_mt_end_m, r_end)
         out = np.empty((len(dl_end), N_OUT))
         self._call_run(r_start, dl_end, float(dt_s), r_end, have_end, out)
         return out

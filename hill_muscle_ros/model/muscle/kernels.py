@@ -624,6 +624,21 @@ def scope_calling(scope: dict, names: Sequence[str]) -> dict:
     return bound
 
 
+def run_inputs(r_start, dl_end_m, r_end=None) -> tuple:
+    """The inputs of :func:`muscle_run` as its compiled signature takes them:
+    float arrays, contiguous and writable (a read-only view, e.g. of a
+    recording, is copied).
+
+    :return: ``(r_start, dl_end, r_end, have_r_end)``, ``r_end`` being ``r_start``
+        when none is given
+    """
+    def array(values):
+        return np.require(values, dtype=float, requirements=('C', 'W'))
+    r_start = array(r_start)
+    have_end = r_end is not None
+    return r_start, array(dl_end_m), array(r_end) if have_end else r_start, have_end
+
+
 def run_muscle(bundle: FesBundle, i: int, r_start, dl_end_m, dt_s: float, r_end=None,
                kernels=None) -> np.ndarray:
     """Run muscle ``i`` of ``bundle`` for ``len(dl_end_m)`` steps.
@@ -636,10 +651,7 @@ def run_muscle(bundle: FesBundle, i: int, r_start, dl_end_m, dt_s: float, r_end=
     :return: (steps, N_OUT) outputs at the end of each step, MuscleOutputs' order
     """
     bundle.ensure_delay(dt_s)
-    r_start = np.ascontiguousarray(r_start, dtype=float)
-    dl_end = np.ascontiguousarray(dl_end_m, dtype=float)
-    have_end = r_end is not None
-    r_end = np.ascontiguousarray(r_end if have_end else r_start, dtype=float)
+    r_start, dl_end, r_end, have_end = run_inputs(r_start, dl_end_m, r_end)
     out = np.zeros((len(dl_end), N_OUT))
     done = (kernels or _plain()).muscle_run(bundle.F, bundle.I, i, r_start, dl_end,
                                             float(dt_s), r_end, have_end, out)
