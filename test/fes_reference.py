@@ -118,8 +118,24 @@ def fv_inverse(f: float, f0: float, a: float, b: float, a_ecc: float, b_ecc: flo
     return f0 * b_ecc / a_ecc
 
 
+#: Fields of the pulse model and the stimulator that a first_order muscle does not read.
+PULSE_FIELDS = ('activation_model', 'channel_fractions', 'channel_seed', 'chronaxie_s',
+                'current_ref_a', 'ding_tau_c_s', 'ding_tau1_s', 'ding_tau2_s', 'ding_km',
+                'ding_r0_offset', 'release_activation', 'frequency_hz', 'stimulator',
+                'burst_interval_s')
+
+
 def _params(given: dict) -> dict:
     """The given parameters over :data:`PARAM_DEFAULTS`, checked."""
+    # The pulse model (activation_model ding2003, channels, the stimulator) has
+    # its own reference (ding_reference.py); this one takes the level model,
+    # whose stimulator-side fields it never reads.
+    if given.get('activation_model', 'first_order') != 'first_order':
+        raise ValueError('this reference models `activation_model: first_order` only, got '
+                         f'{given["activation_model"]!r}')
+    given = {k: v for k, v in given.items() if k not in PULSE_FIELDS or k in PARAM_DEFAULTS}
+    if tuple(given.pop('channel_fractions', (1.0,))) != (1.0,):
+        raise ValueError('this reference models one channel')
     unknown = sorted(set(given) - set(PARAM_DEFAULTS))
     if unknown:
         raise ValueError(f'unknown parameter `{unknown[0]}` (known: {", ".join(PARAM_DEFAULTS)})')

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from hill_muscle_ros.model import MuscleParams, force_length
+from hill_muscle_ros.model.params import _FLOAT_MAX as MAX_FLOAT
 from hill_muscle_ros.model.params import MIN_FL_AT_REST, rest_ratio_range
 
 FLOAT_FIELDS = [f.name for f in dataclasses.fields(MuscleParams)
@@ -13,8 +14,10 @@ FLOAT_FIELDS = [f.name for f in dataclasses.fields(MuscleParams)
 #: Floats that must be positive; the others (delays, time constants that may
 #: be 0 for "instantaneous", the length spread) accept zero.
 POSITIVE_FIELDS = [f.name for f in dataclasses.fields(MuscleParams)
-                   if f.type == 'float' and not f.metadata['low_inclusive']]
-NON_NEGATIVE_FIELDS = [n for n in FLOAT_FIELDS if n not in POSITIVE_FIELDS]
+                   if f.type == 'float' and not f.metadata['low_inclusive']
+                   and f.metadata['high'] == MAX_FLOAT]
+NON_NEGATIVE_FIELDS = [f.name for f in dataclasses.fields(MuscleParams)
+                       if f.type == 'float' and f.metadata['low_inclusive']]
 
 
 def test_defaults_are_the_papers_values_in_si():
@@ -35,7 +38,12 @@ def test_field_names_are_the_documented_keys():
         'recruitment_curve', 'pw_threshold_s', 'pw_scale_s', 'emd_s', 'tau_act_s',
         'tau_deact_s', 'fv_scaling', 'fatigue', 'fatigue_min', 'tau_fatigue_s',
         'tau_recovery_s', 'fibre_fractions', 'fibre_force_weights', 'recruitment_order',
-        'recruitment_seed', 'unit_length_spread')
+        'recruitment_seed', 'unit_length_spread',
+        # Pulses, channels and the stimulator.
+        'activation_model', 'channel_fractions', 'channel_seed', 'chronaxie_s',
+        'current_ref_a', 'ding_tau_c_s', 'ding_tau1_s', 'ding_tau2_s', 'ding_km',
+        'ding_r0_offset', 'release_activation', 'frequency_hz', 'stimulator',
+        'burst_interval_s')
 
 
 def test_fes_defaults_switch_every_extension_off():
@@ -45,6 +53,12 @@ def test_fes_defaults_switch_every_extension_off():
     assert (p.fv_scaling, p.fatigue, p.recruitment_order) == ('absolute', 'none', 'size')
     assert (p.fibre_fractions, p.unit_length_spread) == ((1.0,), 0.0)
     assert not p.replace(tau_act_s=0.01).fes_defaults
+
+
+@pytest.mark.parametrize('bad', [0.0, 1.0, -0.1, math.nan, math.inf])
+def test_release_activation_is_a_fraction_strictly_between_0_and_1(bad):
+    with pytest.raises(ValueError, match=f'`release_activation` must be in \\(0, 1\\), got {bad!r}'):
+        MuscleParams(release_activation=bad)
 
 
 def test_parameters_are_frozen():

@@ -12,7 +12,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Iterable, Mapping
 
-from .equations import FL_A, FL_B, FL_C
+from .equations import DEFAULT_CHRONAXIE_S, DEFAULT_CURRENT_REF_A, FL_A, FL_B, FL_C
 
 UNITS_CHOICES = ('multi', 'single')
 LENGTH_CHOICES = ('initial', 'instantaneous')
@@ -20,6 +20,9 @@ RECRUITMENT_CURVE_CHOICES = ('linear', 'threshold_linear', 'exponential')
 FV_SCALING_CHOICES = ('absolute', 'relative')
 FATIGUE_CHOICES = ('none', 'riener')
 RECRUITMENT_ORDER_CHOICES = ('size', 'reverse', 'random')
+ACTIVATION_MODEL_CHOICES = ('first_order', 'ding2003')
+#: Stimulator profiles (model/stimulator.py, from pyScienceMode 1.1.5's devices).
+STIMULATOR_CHOICES = ('generic', 'rehastim2', 'p24')
 
 #: Upper bound of every float parameter: far beyond any muscle, it only turns a
 #: typo or an overflow-prone value (1e300 N/m) into an error. The model and
@@ -52,6 +55,14 @@ SEED_MAX = 2**63 - 1
 #: The fields of the recruitment curve, which maps pulse width to command
 #: (with ``pw_max_s``): the stimulator side, not the muscle's dynamics.
 CURVE_FIELDS = ('pw_max_s', 'recruitment_curve', 'pw_threshold_s', 'pw_scale_s')
+#: The fields of the stimulator: the device's limits and how its pulses are
+#: sent (trains, current). Like the curve, they act before the muscle, not on
+#: its dynamics.
+STIMULATOR_FIELDS = ('chronaxie_s', 'current_ref_a', 'frequency_hz', 'stimulator',
+                     'burst_interval_s')
+#: Most stimulation channels: more than any stimulator has (8 on the
+#: RehaStim 2 and the P24); it only bounds the per-channel bookkeeping.
+N_CHANNELS_MAX = 16
 
 
 def finite_float(value: Any) -> float | None:
@@ -277,6 +288,63 @@ class MuscleParams:
         '-', 'half-width s of the per-unit CE length scale 1 - s .. 1 + s', low=0.0,
         high=UNIT_LENGTH_SPREAD_MAX, low_inclusive=True, high_inclusive=False))
 
+    # -- Pulses as a stimulator delivers them (doc/model.md section 10).
+    activation_model: str = field(default='first_order', metadata=_spec(
+        '-', 'activation: first_order (a level command through the delay and a first-order '
+        'law) or ding2003 (pulses through Ding et al. 2003\'s CN and force dynamics, per '
+        'channel)', choices=ACTIVATION_MODEL_CHOICES))
+    channel_fractions: tuple[float, ...] = field(default=(1.0,), metadata=_spec(
+        '-', 'share of the units of each stimulation channel (normalised by their sum)',
+        low=0.0, high=_FLOAT_MAX, low_inclusive=True))
+    channel_seed: int = field(default=1, metadata=_spec(
+        '-', 'seed of the permutation that gives each channel its territory of units',
+        low=0, high=SEED_MAX))
+    # 459 us: the mean strength-duration time constant of human motor axons,
+    # Mogyoros, Kiernan & Burke 1996 (Brain 119: 439-447); doc/model.md section 10.
+    chronaxie_s: float = field(default=DEFAULT_CHRONAXIE_S, metadata=_spec(
+        's', 'chronaxie c of the strength-duration law I PW / (PW + c) >= rheobase',
+        low=0.0, high=_FLOAT_MAX, source='Mogyoros, Kiernan & Burke 1996'))
+    # 40 mA: the constant current of pulse-width-modulated quadriceps FES
+    # (IFESS 2016 spatially distributed sequential stimulation study); doc/model.md section 10.
+    current_ref_a: float = field(default=DEFAULT_CURRENT_REF_A, metadata=_spec(
+        'A', 'current I_ref at which the recruitment curve in pulse width holds', low=0.0,
+        high=_FLOAT_MAX, source='IFESS 2016 quadriceps SDSS study'))
+    # Ding et al. 2003 (J Biomech 36: 1345-1356; Muscle Nerve 2003) as written in
+    # cocofest's ding2003.py: tau_c 20 ms, tau1 50.957 ms, tau2 60 ms, Km 0.103,
+    # R0 = Km + 1.04.
+    ding_tau_c_s: float = field(default=0.020, metadata=_spec(
+        's', 'time constant of the Ca2+-troponin complex formation tau_c (Ding 2003)',
+        low=0.0, high=_FLOAT_MAX, source='Ding et al. 2003 as in cocofest'))
+    ding_tau1_s: float = field(default=0.050957, metadata=_spec(
+        's', 'force decline time constant without cross-bridges tau1 (Ding 2003)', low=0.0,
+        high=_FLOAT_MAX, source='Ding et al. 2003 as in cocofest'))
+    ding_tau2_s: float = field(default=0.060, metadata=_spec(
+        's', 'force decline time constant due to cross-bridge friction tau2 (Ding 2003)',
+        low=0.0, high=_FLOAT_MAX, low_inclusive=True, source='Ding et al. 2003 as in cocofest'))
+    ding_km: float = field(default=0.103, metadata=_spec(
+        '-', 'sensitivity of strongly bound cross-bridges to CN, Km (Ding 2003)', low=0.0,
+        high=_FLOAT_MAX, source='Ding et al. 2003 as in cocofest'))
+    ding_r0_offset: float = field(default=1.04, metadata=_spec(
+        '-', 'R0 - Km: the enhancement of CN by a closely following pulse (Ding 2003)',
+        low=0.0, high=_FLOAT_MAX, low_inclusive=True, source='Ding et al. 2003 as in cocofest'))
+    # 1e-4 of the force at infinite frequency: far below any force a sensor
+    # reads (0.03 N of 334 N), so releasing the units there changes no output.
+    release_activation: float = field(default=1e-4, metadata=_spec(
+        '-', 'activation below which a channel with no pulse for 1 s releases its units',
+        low=0.0, high=1.0, high_inclusive=False))
+    # 30 Hz: a common FES frequency for the quadriceps (Kesar & Binder-Macleod
+    # 2006's 30 Hz protocol; 20-50 Hz in most FES cycling and standing systems).
+    frequency_hz: float = field(default=30.0, metadata=_spec(
+        'Hz', 'frequency of the pulses the plain pulse_width input sends on channel 1 '
+        '(ding2003)', low=0.0, high=_FLOAT_MAX, source='Kesar & Binder-Macleod 2006'))
+    stimulator: str = field(default='generic', metadata=_spec(
+        '-', 'stimulator whose limits commands are checked against: generic, rehastim2 or '
+        'p24 (pyScienceMode 1.1.5)', choices=STIMULATOR_CHOICES))
+    # 5 ms: the catch-like doublet of Binder-Macleod's trains (Bickel et al. 2004).
+    burst_interval_s: float = field(default=0.005, metadata=_spec(
+        's', 'interval between the pulses of a doublet or triplet', low=0.0, high=_FLOAT_MAX,
+        source='Bickel et al. 2004'))
+
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
@@ -299,6 +367,7 @@ class MuscleParams:
                 object.__setattr__(self, f.name, _float(f.name, value, spec))
         self._check_rest_length_makes_force()
         self._check_fes_combinations()
+        self._check_pulse_combinations()
 
     @property
     def n_fibre_types(self) -> int:
@@ -325,7 +394,7 @@ class MuscleParams:
         command behaves the same whatever the curve.
         """
         return all(getattr(self, n) == f.default for n, f in _FES_FIELDS.items()
-                   if n not in CURVE_FIELDS)
+                   if n not in CURVE_FIELDS and n not in STIMULATOR_FIELDS)
 
     def _check_fes_combinations(self) -> None:
         """Checks across fields of the FES extensions (doc/model.md section 7).
@@ -366,6 +435,42 @@ class MuscleParams:
                 if len(getattr(self, name)) != 1:
                     raise ValueError(f'`{name}` must have a single entry with `units: '
                                      f'single`, got {list(getattr(self, name))!r}')
+
+    def _check_pulse_combinations(self) -> None:
+        """Checks across the fields of pulses and channels (doc/model.md section 10).
+
+        :raises ValueError: naming the fields and their values
+        """
+        c = self.n_channels
+        if c > N_CHANNELS_MAX:
+            raise ValueError(f'`channel_fractions` must have at most {N_CHANNELS_MAX} '
+                             f'entries, got {c}')
+        if not sum(self.channel_fractions) > 0.0:
+            raise ValueError('`channel_fractions` must have a positive sum, got '
+                             f'{list(self.channel_fractions)!r}')
+        if self.activation_model == 'first_order':
+            if c != 1:
+                raise ValueError(
+                    '`channel_fractions` must have a single entry with `activation_model: '
+                    'first_order` (a level command drives the whole muscle; channels need '
+                    f'ding2003), got {list(self.channel_fractions)!r}')
+            return
+        if self.units != 'multi':
+            raise ValueError('`units` must be multi with `activation_model: ding2003` (each '
+                             f'channel recruits units of its own territory), got {self.units!r}')
+        for name in ('tau_act_s', 'tau_deact_s'):
+            if getattr(self, name) != 0.0:
+                raise ValueError(
+                    f'`{name}` must be 0 with `activation_model: ding2003` (Ding\'s CN and '
+                    f'force dynamics are the activation), got {getattr(self, name)!r}')
+        if self.n_units < c:
+            raise ValueError(f'`n_units` must be at least the number of channels ({c}), '
+                             f'got {self.n_units!r}')
+
+    @property
+    def n_channels(self) -> int:
+        """[-] number of stimulation channels C (entries of ``channel_fractions``)."""
+        return len(self.channel_fractions)
 
     def _check_rest_length_makes_force(self) -> None:
         """Reject l_rest / l_opt where FL is below :data:`MIN_FL_AT_REST`.
