@@ -1,14 +1,17 @@
 """Loading the model a node steps: compiled or Python (ROS side only, no model logic).
 
 :func:`load_engine` loads and logs it at start-up (the limb node, the
-simulator node).
+simulator node); :func:`load_muscle` and :func:`rebuild_muscle` are the
+simulator's muscle at start-up and after a live parameter change.
 """
 from __future__ import annotations
 
 import time
 from typing import Any, Callable
 
+from ..model import Muscle, MuscleParams
 from ..model import engine as engines
+from ..model.muscle import kernels as muscle_kernels
 
 
 #: [s] about how long the compiled kernels take to compile when numba's cache
@@ -62,3 +65,37 @@ def load_engine(what: str, make_compiled: Callable[[], Any], make_python: Callab
            else 'from numba\'s cache')
     logger.info(f'{what} engine: compiled, loaded in {took_s:.2f} s, {how}')
     return model
+
+
+def load_muscle(params: MuscleParams, logger) -> Muscle:
+    """The muscle the node steps, made at start-up; logs which build runs it
+    (compiled or plain Python, as :func:`~hill_muscle_ros.model.engine.choice`
+    says; :func:`._engine.load_engine`).
+
+    :param params: the muscle's parameters
+    :param logger: the node's logger
+    """
+    return load_engine('muscle', lambda: Muscle(params, build=engines.COMPILED),
+                       lambda: Muscle(params, build=engines.PYTHON), muscle_kernels.loaded,
+                       logger)
+
+
+def rebuild_muscle(params: MuscleParams, compiled: bool, logger) -> Muscle:
+    """The muscle remade after a live parameter change, inside a callback.
+
+    On the compiled build only if the node's muscle was compiled until now
+    (``compiled``: the kernels are loaded, so this compiles nothing); else on
+    the plain Python functions. A compiled muscle that fails to build falls
+    back to Python, with a warning.
+
+    :param params: the new parameters
+    :param compiled: whether the node's muscle was compiled until now
+    :param logger: the node's logger
+    """
+    if compiled and muscle_kernels.loaded():
+        try:
+            return Muscle(params, build=engines.COMPILED)
+        except Exception as err:   # noqa: BLE001 -- the Python build computes the same steps
+            logger.warning(f'the compiled muscle failed to build ({type(err).__name__}: '
+                           f'{err}): the muscle runs on the Python engine')
+    return Muscle(params, build=engines.PYTHON)

@@ -24,7 +24,7 @@ from rcl_interfaces.srv import ListParameters
 from rclpy.parameter import Parameter
 
 from ..model import MuscleParams
-from ..model.params import CURVE_FIELDS, range_constraint
+from ..model.params import CURVE_FIELDS, STIMULATOR_FIELDS, range_constraint
 from ._process import StartupError
 
 
@@ -154,29 +154,51 @@ def declare_checked(node: Node, name: str, default: Any,
 
 
 #: What a live change of a muscle parameter does (doc/nodes.md, "Simulator parameters").
-#: The recruitment curve (``pw_max_s`` and the curve's fields) only maps pulse
-#: widths to the command in the node, so it can change with the state kept.
-LIVE_KEEPS_STATE = CURVE_FIELDS
+#: With ``activation_model: first_order`` the recruitment curve (``pw_max_s``
+#: and the curve's fields) and the stimulator's fields only act in the node
+#: (a pulse width to the level command, a command checked against the
+#: device), so they can change with the state kept.
+LIVE_KEEPS_STATE = CURVE_FIELDS + STIMULATOR_FIELDS
 #: The model core builds its step from the other parameters once, when the
 #: muscle is made, so a live change rebuilds the muscle at rest.
 LIVE_RESETS = tuple(n for n in MuscleParams.field_names() if n not in LIVE_KEEPS_STATE)
+#: With ``activation_model: ding2003`` the muscle maps each pulse through the
+#: curve and the strength-duration law and times its trains itself: only the
+#: stimulator whose limits the node checks keeps the state.
+PULSED_LIVE_KEEPS_STATE = ('stimulator',)
+
+
+def keeps_state(name: str, params: MuscleParams) -> bool:
+    """Whether a live change of the field ``name`` keeps the state of a muscle
+    with ``params`` (see :data:`LIVE_KEEPS_STATE`, :data:`PULSED_LIVE_KEEPS_STATE`)."""
+    if params.activation_model == 'first_order':
+        return name in LIVE_KEEPS_STATE
+    return name in PULSED_LIVE_KEEPS_STATE
+
+
+def _live_note(name: str) -> str:
+    """What a live change of ``name`` does, for its descriptor."""
+    if name in PULSED_LIVE_KEEPS_STATE:
+        return 'live, state kept'
+    if name in LIVE_KEEPS_STATE:
+        return ('live; state kept with activation_model first_order, a change resets the '
+                'muscle to rest with ding2003')
+    return 'live, a change resets the muscle to rest'
 
 
 def declare_muscle_parameters(node: Node) -> MuscleParams:
     """Declare one ROS parameter per :class:`MuscleParams` field and build it.
 
     Defaults are the paper's values; overrides come from ``--params-file`` or
-    ``-p``. All are live: see :data:`LIVE_KEEPS_STATE` and :data:`LIVE_RESETS`.
+    ``-p``. All are live: see :func:`keeps_state`.
 
     :raises StartupError: naming the parameter and value if any is invalid
     """
     defaults = MuscleParams()
     values = {}
     for f in dataclasses.fields(MuscleParams):
-        note = ('live, state kept' if f.name in LIVE_KEEPS_STATE
-                else 'live, a change resets the muscle to rest')
         values[f.name] = declare_checked(node, f.name, getattr(defaults, f.name),
-                                         field_descriptor(f, note=note))
+                                         field_descriptor(f, note=_live_note(f.name)))
     try:
         return MuscleParams(**values)
     except ValueError as err:

@@ -49,9 +49,10 @@ QOS_POLICY_VALUES = {
 #: Topics of the package's nodes, as they name them (relative names resolve in
 #: a node's namespace and through its remappings): a QoS override of any of
 #: them is valid in a shared ``/**`` section, as other nodes' parameters are.
-PACKAGE_TOPICS = ('pulse_width', 'recruitment', 'length_command', 'length_command_stamped',
-                  'force', 'ce_length', 'wrench', 'recruitment_state', 'fitness',
-                  'force_target', '/clock', DIAGNOSTICS_TOPIC)
+PACKAGE_TOPICS = ('pulse_width', 'recruitment', 'stimulation', 'length_command',
+                  'length_command_stamped', 'force', 'ce_length', 'wrench',
+                  'recruitment_state', 'fitness', 'activation', 'force_target', '/clock',
+                  DIAGNOSTICS_TOPIC)
 
 
 def _qos_override_parts(name: str) -> tuple[str, str, str] | None:

@@ -1,12 +1,14 @@
 """The muscle simulator node: the model core behind ROS 2 topics.
 
-Subscribes ``pulse_width`` [s], ``recruitment`` [-] and ``length_command``
-[m] (std_msgs/Float64, zero-order hold), steps :class:`Muscle` at a fixed
-dt = 1 / ``rate_hz`` against the steady clock, and publishes ``force`` [N],
+Subscribes ``pulse_width`` [s], ``recruitment`` [-], ``length_command`` [m]
+(std_msgs/Float64, zero-order hold) and ``stimulation`` (a stimulator's
+command per channel, ._stimulation), steps :class:`Muscle` at a fixed dt = 1 /
+``rate_hz`` against the steady clock (``activation_model: ding2003``: its
+channels' pulse trains, ``step_trains``), and publishes ``force`` [N],
 ``ce_length`` [m], ``wrench`` (geometry_msgs/WrenchStamped, force along +x),
-``recruitment_state`` [-] (R, the activation) and ``fitness`` [-] (the mean
-fitness of the units; these two at most at 1 kHz of the steady clock) for every
-step, stamped with the step's simulated time; optionally ``/clock``.
+``recruitment_state`` [-] (R), ``fitness`` [-] (the units' mean) and
+``activation`` (each channel's a; these three at most at 1 kHz of the steady
+clock) for every step, stamped with the step's simulated time; optionally ``/clock``.
 A late tick catching up publishes every step it runs, in order, as a burst, so
 a recording has no holes. When the steps run faster than 1 kHz of the steady
 clock (``real_time_factor`` > 1, ``rate_hz`` > 1 kHz) the outputs of every
@@ -35,14 +37,14 @@ says so (numba installed, ``HILL_MUSCLE_ENGINE`` not ``python``), else the very
 same functions as plain Python; both give the same steps to 1e-9. One step as
 a tick makes it (``benchmarks/muscle_node_tick.py``) costs a few
 microseconds compiled and 0.1-0.2 ms as plain Python. The compiled build is
-loaded in ``__init__`` (:func:`load_muscle`, through
+loaded in ``__init__`` (:func:`._engine.load_muscle`, through
 :func:`._engine.load_engine`, as the limb node's), before any publisher,
 subscription, service or timer exists, never in a tick: about a second from
 numba's disk cache, about 30 s when it compiles (a clean clone, or after an
 edit of the model's code). The node logs which build runs and how long
 loading took; a compiled build that fails to load falls back to Python with a
 warning. A live parameter change rebuilds the muscle on the build already
-loaded (:func:`rebuild_muscle`: nothing compiles in the callback); a node
+loaded (:func:`._engine.rebuild_muscle`: nothing compiles in the callback); a node
 that started on Python stays on Python.
 
 Run: ``ros2 run hill_muscle_ros simulator --ros-args --params-file muscle.yaml``
@@ -61,25 +63,28 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMsg
-from std_msgs.msg import Float64
+from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension
 from std_srvs.srv import Trigger
 
-from ..model import CommandTrack, Muscle, MuscleParams
+from ..model import CommandTrack, MuscleParams
 from ..model import engine as engines
-from ..model.muscle import kernels as muscle_kernels
 from ..model.muscle import check_dl_mt, check_recruitment
+from ..model.stimulator import ChannelCommand
 from ..qos import OUTPUT_HISTORY_DEPTH, OUTPUT_QOS, RELIABLE_QOS
 from ..timebase import NS_PER_S
 from ..watchdog import DEFAULT_INPUT_TIMEOUT_S, INPUT_TIMEOUT_RANGE_S, watchdog_trips
 from ._diagnostics import DiagnosticReport, NodeDiagnostics
-from ._engine import load_engine
+from ._engine import load_muscle, rebuild_muscle  # noqa: F401 -- the node's API
 from ._inputs import BadInputWarner, pulse_width_command
 from ._overrides import reject_unknown_overrides
-from ._parameters import LIVE_RESETS, declare_checked, declare_muscle_parameters, number_descriptor
+from ._parameters import (declare_checked, declare_muscle_parameters, keeps_state,
+                          number_descriptor)
 from ._process import StartupError, process_entry, run_node
 from ._stepping import (DEFAULT_RATE_HZ, DEFAULT_REAL_TIME_FACTOR, ERROR_BEHIND_S,
                         MAX_CATCH_UP_S, MIN_TICK_PERIOD_S, RATE_HZ_RANGE, RATE_WARN_FRACTION,
                         REAL_TIME_FACTOR_RANGE, STEPS_PER_TICK_ROUNDING, StepSchedule)
+from ._stimulation import (Stimulation, check_message, commands_text, level_command,
+                           message_text, off_commands, pulse_width_channel, pulsed, stimulating)
 from ._topics import overridable_publisher, overridable_subscription
 
 NODE_NAME = 'simulator'
@@ -145,42 +150,8 @@ def check_frame_id(frame_id: str) -> str:
     return frame_id
 
 
-def load_muscle(params: MuscleParams, logger) -> Muscle:
-    """The muscle the node steps, made at start-up; logs which build runs it
-    (compiled or plain Python, as :func:`~hill_muscle_ros.model.engine.choice`
-    says; :func:`._engine.load_engine`).
-
-    :param params: the muscle's parameters
-    :param logger: the node's logger
-    """
-    return load_engine('muscle', lambda: Muscle(params, build=engines.COMPILED),
-                       lambda: Muscle(params, build=engines.PYTHON), muscle_kernels.loaded,
-                       logger)
-
-
-def rebuild_muscle(params: MuscleParams, compiled: bool, logger) -> Muscle:
-    """The muscle remade after a live parameter change, inside a callback.
-
-    On the compiled build only if the node's muscle was compiled until now
-    (``compiled``: the kernels are loaded, so this compiles nothing); else on
-    the plain Python functions. A compiled muscle that fails to build falls
-    back to Python, with a warning.
-
-    :param params: the new parameters
-    :param compiled: whether the node's muscle was compiled until now
-    :param logger: the node's logger
-    """
-    if compiled and muscle_kernels.loaded():
-        try:
-            return Muscle(params, build=engines.COMPILED)
-        except Exception as err:   # noqa: BLE001 -- the Python build computes the same steps
-            logger.warning(f'the compiled muscle failed to build ({type(err).__name__}: '
-                           f'{err}): the muscle runs on the Python engine')
-    return Muscle(params, build=engines.PYTHON)
-
-
 class Simulator(Node):
-    """ROS 2 shell around :class:`~hill_muscle_ros.model.Muscle` (:func:`load_muscle`).
+    """ROS 2 shell around :class:`~hill_muscle_ros.model.Muscle` (:func:`._engine.load_muscle`).
 
     :raises StartupError: on an invalid parameter at start-up
     """
@@ -197,8 +168,9 @@ class Simulator(Node):
                                                 *REAL_TIME_FACTOR_RANGE, read_only=True))
         self._input_timeout_s = declare_checked(
             self, 'input_timeout_s', DEFAULT_INPUT_TIMEOUT_S, number_descriptor(
-                'stimulation watchdog: R drops to 0 after this long without a '
-                'pulse_width or recruitment message; 0 disables', 's', *INPUT_TIMEOUT_RANGE_S))
+                'stimulation watchdog: R (every channel\'s pulse width) drops to 0 after this '
+                'long without a pulse_width, recruitment or stimulation message; 0 disables',
+                's', *INPUT_TIMEOUT_RANGE_S))
         self._frame_id = declare_checked(self, 'frame_id', DEFAULT_FRAME_ID, ParameterDescriptor(
             description='frame_id of the wrench output',
             additional_constraints="non-empty, without a leading '/'"))
@@ -241,6 +213,9 @@ class Simulator(Node):
         # message as it is, a `pulse_width` through the recruitment curve. In
         # the paper's model u is R; with delay and activation R follows it.
         self._recruitment = 0.0
+        # ding2003: each channel's last good command (the muscle's trains hold it).
+        self._pulsed = pulsed(params)
+        self._held: dict[int, ChannelCommand] = {}
         self._dl_mt_m = 0.0          # [m] held dl_MT
         self._last_stim_t_s = 0.0    # [s] sim time of the last stimulation message
         self._watchdog_tripped = False
@@ -258,8 +233,12 @@ class Simulator(Node):
         self._pub_r_state = overridable_publisher(self, Float64, 'recruitment_state',
                                                   OUTPUT_QOS)
         self._pub_fitness = overridable_publisher(self, Float64, 'fitness', OUTPUT_QOS)
+        self._pub_activation = overridable_publisher(self, Float64MultiArray, 'activation',
+                                                     OUTPUT_QOS)
         self._r_state_msg = Float64()
         self._fitness_msg = Float64()
+        self._activation_msg = Float64MultiArray()
+        self._set_activation_layout()
         # One message per output, refilled every tick: building them anew
         # each tick cost more CPU than the model step (profiled for the benchmarks).
         self._force_msg = Float64()
@@ -280,6 +259,14 @@ class Simulator(Node):
             self, PointStamped, 'length_command_stamped', self._on_length_command_stamped,
             STAMPED_QOS)
         self._track = CommandTrack(name=self._sub_dl_stamped.topic_name)
+        if Stimulation is not None:
+            self._sub_stim = overridable_subscription(self, Stimulation, 'stimulation',
+                                                      self._on_stimulation, RELIABLE_QOS)
+        else:   # pragma: no cover - the test venv has the interface package
+            self._sub_stim = None
+            self.get_logger().warning(
+                'hill_muscle_interfaces is not installed: no `stimulation` input (build it '
+                'with `make interfaces` or colcon; pulse_width and recruitment work)')
         self.create_service(Trigger, 'reset', self._on_reset)
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
@@ -297,11 +284,13 @@ class Simulator(Node):
                                                 - STEPS_PER_TICK_ROUNDING))
         self._late_ticks = 0        # ticks that ran more steps than _steps_per_tick
         self._catch_up_steps = 0    # the steps they ran beyond it
-        self._stim_messages = 0     # pulse_width and recruitment messages taken
+        self._stim_messages = 0     # pulse_width, recruitment and stimulation messages taken
         self._error_behind_steps = max(1, math.ceil(ERROR_BEHIND_S * rtf * rate_hz))
         self._diagnostics = NodeDiagnostics(self, 'muscle simulation', self._diagnose)
         self.get_logger().info(
-            f'{params.units}/{params.length} muscle, {rate_hz:g} Hz, real_time_factor '
+            f'{params.units}/{params.length} muscle, {rate_hz:g} Hz, activation '
+            f'{params.activation_model} ({params.n_channels} channel(s), stimulator '
+            f'{params.stimulator}), real_time_factor '
             f'{rtf:g}, publish_clock {self._publish_clock}, watchdog '
             f'{self._input_timeout_s:g} s, outputs of every '
             f'{"step" if self._publish_every == 1 else f"{self._publish_every}th step"}')
@@ -363,6 +352,8 @@ class Simulator(Node):
             reset and the remaining values dropped)
         """
         step = self._muscle.step
+        # ding2003: the channels' trains drive the muscle, pulses exact in time.
+        step_trains = self._muscle.step_trains if self._pulsed else None
         schedule = self._schedule
         publish = self._publish
         watchdog = self._watchdog
@@ -372,7 +363,8 @@ class Simulator(Node):
         state_every = self._state_every
         for dl in dls:
             watchdog()
-            out = step(self._recruitment, dl, dt_s)
+            out = (step_trains(dl, dt_s) if step_trains is not None
+                   else step(self._recruitment, dl, dt_s))
             schedule.steps_done += 1
             force_n, l_ce_m = out.force_n, out.l_ce_m
             if not (isfinite(force_n) and isfinite(l_ce_m)):
@@ -410,59 +402,123 @@ class Simulator(Node):
         self._pub_wrench.publish(wrench)
 
     def _publish_state(self, recruitment: float, fitness: float) -> None:
-        """Publish R (the activation) and the mean fitness of the step just run."""
+        """Publish R, the mean fitness and each channel's activation of the step
+        just run (first_order: one channel, whose activation is R)."""
         self._r_state_msg.data = recruitment
         self._pub_r_state.publish(self._r_state_msg)
         self._fitness_msg.data = fitness
         self._pub_fitness.publish(self._fitness_msg)
+        self._activation_msg.data = (self._muscle.activation.tolist() if self._pulsed
+                                     else [recruitment])
+        self._pub_activation.publish(self._activation_msg)
+
+    def _set_activation_layout(self) -> None:
+        """``activation``'s layout: one dimension, ``channel``, of the muscle's channels."""
+        c = self._params.n_channels
+        self._activation_msg.layout.dim = [MultiArrayDimension(label='channel', size=c,
+                                                               stride=c)]
 
     def _watchdog(self) -> None:
-        """Stimulation watchdog: R -> 0 when the controller has gone quiet."""
-        if watchdog_trips(self.sim_time_s, self._last_stim_t_s, self._input_timeout_s,
-                          self._recruitment > 0.0):
+        """Stimulation watchdog: R (ding2003: every channel's pulse width) -> 0
+        when the controller has gone quiet."""
+        on = stimulating(self._held) if self._pulsed else self._recruitment > 0.0
+        if watchdog_trips(self.sim_time_s, self._last_stim_t_s, self._input_timeout_s, on):
+            if self._pulsed:
+                what = f'{commands_text(self._held)} -> every channel\'s pulse width 0'
+                off = off_commands(self._held, self._params.n_channels, self._params)
+                self._muscle.stimulate(off)
+                self._held = {c.channel: c for c in off}
+            else:
+                what = f'recruitment {self._recruitment:g} -> 0'
+                self._recruitment = 0.0
             self.get_logger().warning(
-                f'no pulse_width or recruitment message for {self._input_timeout_s:g} s '
-                f'(input_timeout_s): recruitment {self._recruitment:g} -> 0 until the next one')
-            self._recruitment = 0.0
+                f'no pulse_width or recruitment message, nor stimulation, for '
+                f'{self._input_timeout_s:g} s (input_timeout_s): {what} until the next one')
             self._watchdog_tripped = True
 
     # -- inputs -----------------------------------------------------------------
 
-    def _set_stimulation(self, recruitment: float) -> None:
-        self._recruitment = recruitment
+    def _stimulation_taken(self, what: str) -> None:
+        """Count a good stimulation message (any input topic) for the watchdog."""
         self._stim_messages += 1
         self._last_stim_t_s = self.sim_time_s
         if self._watchdog_tripped:
             self._watchdog_tripped = False
-            self.get_logger().info(f'stimulation back: recruitment {recruitment:g}')
+            self.get_logger().info(f'stimulation back: {what}')
 
-    def _reject(self, topic: str, value: float, err: Exception) -> None:
+    def _set_stimulation(self, recruitment: float) -> None:
+        self._recruitment = recruitment
+        self._stimulation_taken(f'recruitment {recruitment:g}')
+
+    def _stimulate(self, commands: tuple[ChannelCommand, ...]) -> None:
+        """ding2003: the channels' new commands to the muscle's trains."""
+        self._muscle.stimulate(commands)
+        self._held.update((c.channel, c) for c in commands)
+        self._stimulation_taken(commands_text(self._held))
+
+    def _kept(self) -> str:
+        """The inputs a rejected message leaves as they are, for its warning."""
+        stim = (commands_text(self._held) if self._pulsed
+                else f'recruitment {self._recruitment:g}')
+        return f'{stim}, length_command {self._dl_mt_m:g} m'
+
+    def _reject(self, topic: str, value, err: Exception) -> None:
         """Warn (throttled per topic) that ``value`` on ``topic`` was ignored.
 
         :param topic: the subscription's fully qualified topic name
-        :param err: the reason, which names the topic and the value too
+        :param value: the value as the line quotes it (a ``str`` as it is)
+        :param err: the reason, which names the topic (or field) and the value too
         """
-        self._bad_input.warn(topic, f'ignoring {topic} = {value!r}: {err}; keeping '
-                                    f'recruitment {self._recruitment:g}, length_command '
-                                    f'{self._dl_mt_m:g} m')
+        shown = value if isinstance(value, str) else repr(value)
+        self._bad_input.warn(topic, f'ignoring {topic} = {shown}: {err}; keeping {self._kept()}')
 
     def _on_pulse_width(self, msg: Float64) -> None:
         topic = self._sub_pw.topic_name
         try:
             r = pulse_width_command(msg.data, self._params, topic)
+            command = pulse_width_channel(msg.data, self._params) if self._pulsed else None
         except ValueError as err:
             self._reject(topic, msg.data, err)
             return
-        self._set_stimulation(r)
+        if command is None:
+            self._set_stimulation(r)
+            return
+        # Channel 1, single pulses at frequency_hz (the muscle's own parameter).
+        self._muscle.set_pulse_width(command.pulse_width_s)
+        self._held[1] = command
+        self._stimulation_taken(commands_text(self._held))
 
     def _on_recruitment(self, msg: Float64) -> None:
         topic = self._sub_r.topic_name
         try:
             r = check_recruitment(msg.data, topic)
+            if self._pulsed:
+                raise ValueError(f'`{topic}` is a level command, which a muscle with '
+                                 '`activation_model: ding2003` does not take: send '
+                                 'pulse_width (channel 1 at frequency_hz) or stimulation')
         except ValueError as err:
             self._reject(topic, msg.data, err)
             return
         self._set_stimulation(r)
+
+    def _on_stimulation(self, msg) -> None:
+        """A stimulator's command for some channels (hill_muscle_interfaces/msg/Stimulation).
+
+        Checked as a whole (._stimulation.check_message): a rejected message
+        changes no channel. ding2003: each named channel's train is replaced;
+        first_order: channel 1's pulse width acts as a pulse_width message.
+        """
+        topic = self._sub_stim.topic_name
+        try:
+            commands = check_message(msg, self._params, self._params.n_channels, self._held)
+        except ValueError as err:
+            self._reject(topic, message_text(msg), err)
+            return
+        if self._pulsed:
+            self._stimulate(commands)
+            return
+        u = level_command(commands, self._params)
+        self._set_stimulation(self._recruitment if u is None else u)
 
     def _on_length_command(self, msg: Float64) -> None:
         topic = self._sub_dl.topic_name
@@ -555,6 +611,7 @@ class Simulator(Node):
         """
         self._muscle.reset()
         self._recruitment = 0.0
+        self._held = {}
         self._dl_mt_m = 0.0
         self._track_active = False   # knots sent ahead are dropped too
         self._watchdog_tripped = False
@@ -603,11 +660,13 @@ class Simulator(Node):
             return
         self._params = new
         changed = [n for n in MuscleParams.field_names() if getattr(new, n) != getattr(old, n)]
-        if any(n in LIVE_RESETS for n in changed):
+        if not all(keeps_state(n, old) and keeps_state(n, new) for n in changed):
             # Never compiles here (rebuild_muscle): at most the arrays of the
             # loaded compiled muscle are built anew.
             self._muscle = rebuild_muscle(new, self._compiled, self.get_logger())
             self._compiled = self._muscle.build == engines.COMPILED
+            self._pulsed = pulsed(new)
+            self._set_activation_layout()
             self._reset_to_rest()
             self.get_logger().info(f'{", ".join(changed)} changed: muscle rebuilt at rest '
                                    f'(engine: {"compiled" if self._compiled else "python"})')
@@ -645,6 +704,11 @@ class Simulator(Node):
         report.add('watchdog_tripped', self._watchdog_tripped)
         report.add('input_timeout_s', self._input_timeout_s)
         report.add('recruitment', self._recruitment)
+        report.add('activation_model', self._params.activation_model)
+        if self._pulsed:
+            report.add('channels', commands_text(self._held))
+            for c, a in enumerate(self._muscle.activation.tolist(), 1):
+                report.add(f'activation[{c}]', a)
         out = self._muscle.outputs()
         report.add('recruitment_state', out.recruitment)
         report.add('mean_fitness', out.mean_fitness)
@@ -667,12 +731,14 @@ class Simulator(Node):
             report.warn(f'{catch_up} steps caught up in {late} late tick(s) in the last '
                         f'{report.period_s:.2f} s')
         if self._watchdog_tripped:
-            report.warn(f'stimulation watchdog tripped: no pulse_width or recruitment for '
-                        f'{self._input_timeout_s:g} s (input_timeout_s), recruitment 0')
+            report.warn(f'stimulation watchdog tripped: no pulse_width or recruitment, nor '
+                        f'stimulation, for {self._input_timeout_s:g} s (input_timeout_s), '
+                        + ('every channel off' if self._pulsed else 'recruitment 0'))
         if bad:
             report.warn(f'{bad} input message(s) rejected in the last {report.period_s:.2f} s')
         report.ok(f'stepping at {achieved_hz:.1f} steps/s of {target_hz:g}'
-                  + ('' if stimulated else '; no pulse_width or recruitment received yet'))
+                  + ('' if stimulated else '; no pulse_width or recruitment received yet, '
+                                           'nor stimulation'))
 
     def on_exit(self) -> None:
         """Log the run's timing statistics (achieved rate, drift, late ticks, longest tick gap)."""
