@@ -477,3 +477,34 @@ def equivalent_pulse_width(pulse_width_s: float, current_a: float, current_ref_a
     if denominator <= 0.0:
         return math.inf
     return pulse_width_s * ((chronaxie_s * current_a) / denominator)
+
+
+# -- Ding et al. 2003's pulse-resolved activation, normalised (doc/model.md section 10) --
+
+
+def ding_pulse_weight(since_last_s: float, r0: float, tau_c_s: float) -> float:
+    """[-] R_i of a pulse ``since_last_s`` after the channel's previous one:
+    1 + (R0 - 1) exp(-(t_i - t_(i-1)) / tau_c); R_1 = 1 for the first (``since_last_s``
+    = +inf). Ding et al. 2003's enhancement of CN by a closely following pulse.
+
+    :param r0: [-] R0 = Km + r0_offset
+    :param tau_c_s: [s] tau_c
+    """
+    return 1.0 + (r0 - 1.0) * math.exp(-since_last_s / tau_c_s)
+
+
+def ding_cn_at(cn0: float, sum0: float, tau_c_s: float, elapsed_s: float) -> float:
+    """[-] CN ``elapsed_s`` after it was ``cn0`` with the pulse sum ``sum0``, no pulse
+    between: CN' = (S - CN) / tau_c with S = sum0 exp(-t / tau_c), whose exact
+    solution is (cn0 + sum0 t / tau_c) exp(-t / tau_c) (Ding et al. 2003's CN law).
+    """
+    return (cn0 + sum0 * elapsed_s / tau_c_s) * math.exp(-elapsed_s / tau_c_s)
+
+
+def ding_rate(cn: float, a: float, km: float, tau1_s: float, tau2_s: float) -> float:
+    """[1/s] a' = x / (tau1 + tau2) - a / (tau1 + tau2 x), x = CN / (Km + CN):
+    Ding et al. 2003's force law F' = A x - F / (tau1 + tau2 x) divided by
+    A (tau1 + tau2), the force at infinite frequency, so 0 <= a < 1 and A drops out.
+    """
+    x = cn / (km + cn)
+    return x / (tau1_s + tau2_s) - a / (tau1_s + tau2_s * x)

@@ -205,8 +205,8 @@ class Protocol:
         if isinstance(data, dict) and 'channels' in data:
             _reject_level_with_channels(data, source)
             raise ProtocolError(f'{source}: `channels` gives pulse trains per channel: load it '
-                                'with PulseProtocol (or read_protocol); the muscle\'s engine '
-                                'does not consume pulses yet (doc/model.md section 10)')
+                                'with PulseProtocol (or read_protocol), for a muscle with '
+                                '`activation_model: ding2003` (doc/model.md section 10)')
         duration_s = check_protocol_keys(data, source, ALLOWED_KEYS,
                                          ('name', 'duration_s', 'dl_mt_m'))
         given = [k for k in STIMULATION_KEYS if k in data]
@@ -374,8 +374,8 @@ class PulseProtocol:
     """A protocol of pulse trains: per channel, what its stimulator is told
     (:class:`~hill_muscle_ros.model.trains.ChannelTrain`), and the MTU length.
 
-    The muscle's engine does not consume pulses yet (doc/model.md section 10):
-    this is the format and its pulses, for the engine and the ROS side to come.
+    :func:`~hill_muscle_ros.model.simulate.simulate` runs it on a muscle with
+    ``activation_model: ding2003`` (doc/model.md section 10).
 
     :param name: human-readable name
     :param duration_s: [s] length of the protocol

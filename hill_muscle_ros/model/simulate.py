@@ -9,7 +9,9 @@ import numpy as np
 from .muscle import Muscle
 from .substeps import output_rows, substep_inputs, substeps_for
 from .params import MuscleParams
-from .protocol import Protocol
+from .protocol import Protocol, PulseProtocol
+from .stimulator import check_channel_command, stimulator_profile
+from .stimulus import pulse_command
 
 #: Columns of a simulation result, in CSV order, with their CSV headers.
 COLUMNS = (
@@ -46,6 +48,9 @@ class SimulationResult:
     eff_f_iso_n: np.ndarray
     command: np.ndarray
     mean_fitness: np.ndarray
+    #: [-] each channel's activation a_c (samples x C) of a pulse protocol; None
+    #: for a level protocol.
+    activation: np.ndarray | None = None
 
     def at(self, t_s: float) -> int:
         """Index of the sample nearest to time ``t_s`` (the earlier of two as near).
@@ -82,7 +87,7 @@ def sample_times(duration_s: float, rate_hz: float) -> np.ndarray:
     return np.arange(step_count(duration_s, rate_hz) + 1) / rate_hz
 
 
-def simulate(protocol: Protocol, params: MuscleParams | None = None,
+def simulate(protocol: Protocol | PulseProtocol, params: MuscleParams | None = None,
              rate_hz: float = 1000.0) -> SimulationResult:
     """Run a protocol from the resting state, sampled every 1 / ``rate_hz``.
 
@@ -102,11 +107,17 @@ def simulate(protocol: Protocol, params: MuscleParams | None = None,
     across them, so any rate gives the same force at the same instants; at
     1 kHz and above n = 1.
 
+    A :class:`~.protocol.PulseProtocol` (``channels:``) runs on a muscle with
+    ``activation_model: ding2003``: every pulse is checked against the
+    ``stimulator`` and acts at its own instant (:func:`simulate_pulses`).
+
     :param protocol: the protocol to replay
     :param params: muscle parameters (paper defaults if omitted)
     :param rate_hz: [Hz] sample rate, 1 / dt
     :return: the time series, ``round(duration * rate) + 1`` samples
     """
+    if isinstance(protocol, PulseProtocol):
+        return simulate_pulses(protocol, params, rate_hz)
     muscle = Muscle(params)
     t = sample_times(protocol.duration_s, rate_hz)
     r = np.asarray(protocol.command(t, muscle.params), dtype=float)
@@ -131,4 +142,72 @@ def simulate(protocol: Protocol, params: MuscleParams | None = None,
             array[0] = value
             array[1:] = column
             fields[name] = array
+    return SimulationResult(**fields)
+
+
+def protocol_pulses(protocol: PulseProtocol, params: MuscleParams) -> tuple:
+    """Every pulse of ``protocol`` as the muscle takes it, each checked against
+    the ``stimulator`` (its width, current and the frequency its burst read).
+
+    :return: ``(times, channels, commands)``: [s] when each acts (sent + ``emd_s``),
+        0-based channels and [-] the fraction u of its channel's territory, in
+        time order
+    :raises ValueError: for more channels than the muscle's, or a pulse the
+        stimulator would refuse (naming the field, channel, value and time)
+    """
+    if len(protocol.channels) > params.n_channels:
+        raise ValueError(f'`channels` of protocol {protocol.name!r} must be at most the '
+                         f"muscle's {params.n_channels} (`channel_fractions`), got "
+                         f'{len(protocol.channels)}')
+    profile = stimulator_profile(params.stimulator, params.pw_max_s)
+    rows = []
+    for c, (train, pulses) in enumerate(zip(protocol.channels, protocol.pulses())):
+        for pulse in pulses:
+            try:
+                check_channel_command(profile, c + 1, train.frequency_at(pulse.time_s),
+                                      pulse.pulse_width_s, pulse.current_a, train.mode,
+                                      train.burst_interval_s)
+            except ValueError as err:
+                raise ValueError(f'{protocol.name}: at t = {pulse.time_s:g} s: {err}') from None
+            rows.append((pulse.time_s + params.emd_s, c,
+                         pulse_command(pulse.pulse_width_s, pulse.current_a, params)))
+    rows.sort()
+    times = np.array([r[0] for r in rows], dtype=float)
+    channels = np.array([r[1] for r in rows], dtype=np.int64)
+    commands = np.array([r[2] for r in rows], dtype=float)
+    return times, channels, commands
+
+
+def simulate_pulses(protocol: PulseProtocol, params: MuscleParams | None = None,
+                    rate_hz: float = 1000.0) -> SimulationResult:
+    """Run a protocol of pulse trains from rest (see :func:`simulate`); the
+    result's ``activation`` holds each channel's a_c at the samples.
+
+    :raises ValueError: for a muscle that is not ``ding2003``, or as
+        :func:`protocol_pulses`
+    """
+    muscle = Muscle(params)
+    p = muscle.params
+    if p.activation_model != 'ding2003':
+        raise ValueError(f'protocol {protocol.name!r} gives pulse trains (`channels`): it needs '
+                         f'`activation_model: ding2003`, got {p.activation_model!r}')
+    times, channels, commands = protocol_pulses(protocol, p)
+    t = sample_times(protocol.duration_s, rate_hz)
+    dl = np.asarray(protocol.dl_mt(t), dtype=float)
+    dt = 1.0 / rate_hz
+    first = muscle.outputs()
+    n_steps = len(t) - 1
+    n = substeps_for(dt)
+    _, dl_end, _ = substep_inputs(np.zeros_like(dl), dl, n)
+    out, act, _ = muscle.run_pulses(times, channels, commands, dl_end, dt / n)
+    rows = output_rows(n, n_steps)
+    out, act = out[rows], act[rows]
+    fields = {'t_s': t}
+    for name, value, column in zip(first._fields, first, out.T):
+        if name not in fields:
+            array = np.empty(len(t), dtype=type(value))
+            array[0] = value
+            array[1:] = column
+            fields[name] = array
+    fields['activation'] = np.vstack([np.zeros((1, muscle.n_channels)), act])
     return SimulationResult(**fields)

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 
+from .equations import equivalent_pulse_width
 from .params import MuscleParams
 
 
@@ -84,3 +85,26 @@ def pulse_width_for_command(command: float, params: MuscleParams,
 def time_constant(params: MuscleParams, a: float, u_d: float) -> float:
     """[s] tau in force: ``tau_act_s`` while u_d > a, else ``tau_deact_s``."""
     return params.tau_act_s if u_d > a else params.tau_deact_s
+
+
+def pulse_command(pulse_width_s: float, current_a: float | None, params: MuscleParams) -> float:
+    """[-] The fraction u of a channel's territory a pulse recruits: the recruitment
+    curve at the equivalent width PW_eq (doc/model.md section 10).
+
+    With a current I, PW_eq is the width that recruits the same units at
+    ``current_ref_a`` under the strength-duration law
+    (:func:`~.equations.equivalent_pulse_width`); without one, PW_eq = PW. A
+    pulse that excites more than any width at I_ref would recruits every unit.
+
+    :param pulse_width_s: [s] pulse width (PW), >= 0
+    :param current_a: [A] pulse current (I), >= 0, or ``None`` for ``current_ref_a``
+    :param params: the muscle's parameters (curve, chronaxie, reference current)
+    :return: [-] u in [0, 1]
+    """
+    pw = pulse_width_s
+    if current_a is not None:
+        pw = equivalent_pulse_width(pulse_width_s, current_a, params.current_ref_a,
+                                    params.chronaxie_s)
+        if pw == math.inf:
+            return 1.0
+    return command_from_pulse_width(pw, params)

@@ -158,6 +158,10 @@ class ChannelTrain:
         """[-] 1, 2 or 3: the pulses of one burst in this mode."""
         return PULSES_PER_BURST[self.mode]
 
+    def frequency_at(self, t_s: float) -> float:
+        """[Hz] f of the track at ``t_s`` (what a burst there reads)."""
+        return _at(self._f, t_s)
+
     def stimulating(self, t_s: float) -> bool:
         """True if the channel stimulates at ``t_s``: PW > 0 and (no current or I > 0)."""
         return _at(self._pw, t_s) > 0.0 and (self._i is None or _at(self._i, t_s) > 0.0)

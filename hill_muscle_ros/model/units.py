@@ -184,3 +184,40 @@ class UnitLayout:
         types = self.types_of(p0, p1)
         sums = np.bincount(types, weights=fl, minlength=self.n_types)
         return [f * float(v) for f, v in zip(self.f_max, sums)]
+
+
+def order_units(params: MuscleParams) -> np.ndarray:
+    """The unit (0-based number) at each position of the recruitment order.
+
+    ``size``: unit p at position p; ``reverse``: the type blocks in reverse
+    order, ascending unit number inside each; ``random``:
+    ``default_rng(recruitment_seed).permutation(N)`` (doc/model.md section 7.4).
+    """
+    n = params.n_units
+    if params.recruitment_order == 'size':
+        return np.arange(n)
+    if params.recruitment_order == 'random':
+        return np.random.default_rng(params.recruitment_seed).permutation(n)
+    ends = type_block_ends(n, params.fibre_fractions)
+    starts = [0] + ends[:-1]
+    return np.concatenate([np.arange(starts[t], ends[t]) for t in reversed(range(len(ends)))])
+
+
+def channel_positions(params: MuscleParams) -> list[np.ndarray]:
+    """Positions along the recruitment order of each channel's territory, ascending.
+
+    Channel c owns the units of block c of ``default_rng(channel_seed).permutation(N)``,
+    with block ends as the fibre types' (:func:`type_block_ends` of
+    ``channel_fractions``); inside its territory a channel recruits along the
+    muscle's recruitment order (doc/model.md section 10).
+    """
+    n = params.n_units
+    perm = np.random.default_rng(params.channel_seed).permutation(n)
+    ends = type_block_ends(n, params.channel_fractions)
+    channel_of_unit = np.empty(n, dtype=np.int64)
+    start = 0
+    for c, end in enumerate(ends):
+        channel_of_unit[perm[start:end]] = c
+        start = end
+    channel_of_position = channel_of_unit[order_units(params)]
+    return [np.flatnonzero(channel_of_position == c) for c in range(len(ends))]

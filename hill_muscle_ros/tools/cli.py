@@ -24,6 +24,7 @@ from typing import Sequence
 from .. import resources
 from ..model import COLUMNS, LENGTH_CHOICES, UNITS_CHOICES, MuscleParams, Protocol
 from ..model import SimulationResult, simulate
+from ..model.protocol import PulseProtocol, read_protocol
 from ..params_file import load_muscle_params
 from . import limb_cli
 from .common import (DEFAULT_RATE_HZ, EXIT_USAGE, PROG, RATE_KEY, UserError, positive_rate,
@@ -188,7 +189,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 # --------------------------------------------------------------------------- simulate
 
-def _read_muscle_protocol(path: Path) -> Protocol:
+def _read_muscle_protocol(path: Path) -> Protocol | PulseProtocol:
     """A single-muscle protocol; a limb protocol (one with ``muscles``) gets a
     hint to add ``--plant`` in place of the muscle protocol's complaint.
 
@@ -196,7 +197,7 @@ def _read_muscle_protocol(path: Path) -> Protocol:
     :raises UserError: for a limb protocol
     """
     try:
-        return Protocol.from_yaml(path)
+        return read_protocol(path)
     except ValueError:
         from ..model.protocol import safe_load_yaml
         try:
@@ -238,8 +239,12 @@ def write_csv(path: Path, result: SimulationResult) -> int:
     :param path: the CSV file; missing parent directories are created
     :return: the number of data rows written
     """
-    return write_csv_table(path, [name for _, name in COLUMNS],
-                           [getattr(result, attr) for attr, _ in COLUMNS])
+    headers = [name for _, name in COLUMNS]
+    columns = [getattr(result, attr) for attr, _ in COLUMNS]
+    if result.activation is not None:   # a pulse protocol: a_<c> per channel
+        headers += [f'a_{c + 1}' for c in range(result.activation.shape[1])]
+        columns += list(result.activation.T)
+    return write_csv_table(path, headers, columns)
 
 
 def format_table(run: SimulationRun) -> str:

@@ -25,11 +25,13 @@ import numpy as np
 
 from .. import engine
 from ..params import MuscleParams
-from ..stimulus import command_from_pulse_width
+from ..stimulator import ChannelCommand, check_channel_command, stimulator_profile
+from ..stimulus import command_from_pulse_width, pulse_command
+from ..trains import ChannelTrain, PulseTrain
 from ..substeps import length_ramp, substeps_for
 from . import kernels
-from .state import (I_MULTI, J_NREC, J_RTOP, N_OUT, S_CMD, S_DL, S_L, S_R, S_T, FesBundle,
-                    delay_capacity, fitness_profile)
+from .state import (I_MULTI, J_NREC, J_RTOP, N_OUT, S_CMD, S_DL, S_L, S_R, S_T, TIME_TOL_S,
+                    FesBundle, delay_capacity, fitness_profile)
 
 #: Largest |dl_mt| accepted as an input: far beyond the range where FL is
 #: non-zero (l_ce / l_opt outside about 0.4..1.6), so anything larger is
@@ -149,6 +151,10 @@ class Muscle:
         self._out = np.zeros((1, N_OUT))
         self._row = np.zeros(N_OUT)
         self._views()
+        self._pulsed = self.params.activation_model == 'ding2003'
+        self._profile = stimulator_profile(self.params.stimulator, self.params.pw_max_s)
+        self._trains: list = [None] * self.params.n_channels
+        self._pending: list = []   # (instant it acts [s], channel, u), emd_s after sending
 
     def _views(self) -> None:
         """Views of the state (taken anew whenever the bundle's arrays move)."""
@@ -160,8 +166,10 @@ class Muscle:
 
     def reset(self) -> None:
         """Return to rest: no command, a = 0, every unit fresh and unrecruited,
-        the motor-unit memory erased."""
+        the motor-unit memory erased; a ding2003 muscle's trains stopped."""
         self._bundle.reset(0)
+        self._trains = [None] * self.params.n_channels
+        self._pending = []
 
     @property
     def build(self) -> str:
@@ -233,15 +241,148 @@ class Muscle:
         """Give an FES pulse width now, through the recruitment curve
         (:func:`~hill_muscle_ros.model.stimulus.command_from_pulse_width`).
 
+        With ``activation_model: ding2003`` the pulse width is channel 1's, sent
+        in single pulses at ``frequency_hz`` (:meth:`stimulate`).
+
         :param pulse_width_s: [s] stimulation pulse width (PW), >= 0
         """
+        if self._pulsed:
+            self.stimulate([ChannelCommand(1, 'single', float(pulse_width_s), None,
+                                           self.params.frequency_hz)])
+            return
         self.give_command(command_from_pulse_width(pulse_width_s, self.params))
+
+    # -- pulses (activation_model ding2003) -----------------------------------
+
+    @property
+    def n_channels(self) -> int:
+        """[-] stimulation channels C."""
+        return self.params.n_channels
+
+    @property
+    def activation(self) -> np.ndarray:
+        """[-] each channel's activation a_c now (C,): Ding's force over its limit
+        A (tau1 + tau2) for ding2003; the recruitment R for first_order."""
+        if not self._pulsed:
+            return np.array([self.recruitment])
+        out = np.zeros(self.n_channels)
+        self._kernels.ding_activation(self._bundle.F, self._bundle.I, 0, out)
+        return out
+
+    def _need_pulses(self, what: str) -> None:
+        if not self._pulsed:
+            raise ValueError(f'`{what}` needs `activation_model: ding2003`, got '
+                             f'{self.params.activation_model!r}')
+
+    def stimulate(self, commands) -> None:
+        """Command channels from now: each channel named gets a new train (its
+        schedule carries over: a running train's next burst stays 1/f after the
+        last), the others keep theirs. Every command is checked against the
+        ``stimulator`` first; nothing changes if one fails.
+
+        :param commands: :class:`~hill_muscle_ros.model.stimulator.ChannelCommand` s
+        :raises ValueError: naming the field, channel and value, for a channel
+            beyond the muscle's or a command out of the stimulator's range
+        """
+        self._need_pulses('stimulate')
+        trains = list(self._trains)
+        for cmd in commands:
+            c = check_channel_command(self._profile, cmd.channel, cmd.frequency_hz,
+                                      cmd.pulse_width_s, cmd.current_a, cmd.mode,
+                                      self.params.burst_interval_s)
+            if c.channel > self.n_channels:
+                raise ValueError(f'`channel` must be in [1, {self.n_channels}] (the muscle\'s '
+                                 f'channels), got {cmd.channel!r}')
+            train = ChannelTrain(c.frequency_hz, c.pulse_width_s, c.current_a, c.mode,
+                                 self.params.burst_interval_s, c.channel)
+            old = trains[c.channel - 1]
+            if old is None:
+                trains[c.channel - 1] = PulseTrain(train, self.t_s)
+            else:
+                replaced = PulseTrain(train, self.t_s)
+                replaced.state = old.state
+                trains[c.channel - 1] = replaced
+        self._trains = trains
+
+    def _sent_until(self, t1_s: float) -> None:
+        """Take every channel's pulses sent up to ``t1_s`` into the pending ones."""
+        emd, params = self.params.emd_s, self.params
+        for c, train in enumerate(self._trains):
+            if train is None:
+                continue
+            for pulse in train.pulses(train.state.time_s, t1_s):
+                self._pending.append((pulse.time_s + emd, c,
+                                      pulse_command(pulse.pulse_width_s, pulse.current_a,
+                                                    params)))
+        self._pending.sort()
+
+    def run_pulses(self, times_s, channels, commands, dl_mt_end_m, dt_s: float) -> tuple:
+        """Advance ``len(dl_mt_end_m)`` steps of ``dt_s`` with the pulses given
+        (acting at their instants; those at or after the last step's end are
+        not used): the core of :meth:`step_trains` and of :func:`.simulate`.
+
+        :param times_s: [s] when each pulse acts, not decreasing
+        :param channels: 0-based channel of each pulse
+        :param commands: [-] the fraction u of its channel's territory each recruits
+        :param dl_mt_end_m: [m] MTU length change at the end of each step
+        :param dt_s: [s] step length, > 0, at most 1 ms
+        :return: ``(outputs, activation, used)``: (steps, 12) outputs as
+            :meth:`run_array`'s, (steps, C) each channel's a, the pulses used
+        """
+        self._need_pulses('run_pulses')
+        t = np.require(times_s, dtype=float, requirements=('C', 'W'))
+        c = np.require(channels, dtype=np.int64, requirements=('C', 'W'))
+        u = np.require(commands, dtype=float, requirements=('C', 'W'))
+        dl = np.require(dl_mt_end_m, dtype=float, requirements=('C', 'W'))
+        out = np.empty((len(dl), N_OUT))
+        act = np.empty((len(dl), self.n_channels))
+        bundle = self._bundle
+        used = self._kernels.ding_run(bundle.F, bundle.I, 0, t, c, u, dl, float(dt_s), out, act)
+        return out, act, int(used)
+
+    def run_trains(self, dl_mt_end_m, dt_s: float) -> tuple:
+        """Advance ``len(dl_mt_end_m)`` steps driven by the channels' trains
+        (:meth:`stimulate`), each pulse at its own instant.
+
+        :return: ``(outputs, activation)`` as :meth:`run_pulses`'
+        """
+        self._need_pulses('run_trains')
+        dl = np.asarray(dl_mt_end_m, dtype=float)
+        t1 = self.t_s + len(dl) * float(dt_s)
+        self._sent_until(t1)
+        pending = self._pending
+        due = 0
+        while due < len(pending) and pending[due][0] < t1 - TIME_TOL_S:
+            due += 1
+        times = [p[0] for p in pending[:due]]
+        channels = [p[1] for p in pending[:due]]
+        commands = [p[2] for p in pending[:due]]
+        out, act, used = self.run_pulses(times, channels, commands, dl, dt_s)
+        del pending[:used]
+        return out, act
+
+    def step_trains(self, dl_mt_m: float, dt_s: float) -> MuscleOutputs:
+        """One step of ``dt_s`` driven by the channels' trains, dl_MT ramping to
+        ``dl_mt_m``; a step longer than 1 ms in substeps.
+
+        :raises ValueError: on a NaN, infinite or out-of-range input
+        """
+        dl = check_dl_mt(dl_mt_m)
+        if not (math.isfinite(dt_s) and dt_s > 0.0):
+            raise ValueError(f'`dt_s` must be positive and finite, got {dt_s!r}')
+        n = substeps_for(dt_s)
+        out, _ = self.run_trains(length_ramp(self.dl_mt_m, dl, n) if n > 1 else [dl],
+                                 dt_s / n)
+        return _as_outputs(out[-1])
 
     def give_command(self, u: float) -> None:
         """Queue command ``u`` at the current instant and apply what is due now.
 
         :param u: [-] recruitment command in [0, 1], already validated
         """
+        if self._pulsed:
+            raise ValueError('a ding2003 muscle is driven by pulses: `stimulate` its channels, '
+                             'it takes no recruitment command')
         bundle = self._bundle
         if not self._kernels.give_command(bundle.F, bundle.I, 0, float(u)):
             raise RuntimeError(f'the delay line of the muscle is full '
@@ -277,6 +418,9 @@ class Muscle:
 
     def _call_run(self, r_start: np.ndarray, dl_end: np.ndarray, dt_s: float,
                   r_end: np.ndarray, have_r_end: bool, out: np.ndarray) -> None:
+        if self._pulsed:
+            raise ValueError('a ding2003 muscle is driven by pulses: `stimulate` its channels '
+                             'and call `run_trains`, not a run of recruitment commands')
         self._ready(dt_s)
         bundle = self._bundle
         done = self._kernels.muscle_run(bundle.F, bundle.I, 0, r_start, dl_end, dt_s, r_end,
@@ -352,6 +496,9 @@ class Muscle:
         :raises ValueError: on a NaN, infinite or out-of-range input; the state
             is unchanged
         """
+        if self._pulsed:
+            raise ValueError('a ding2003 muscle is driven by pulses: `stimulate` its channels '
+                             'and call `step_trains`, not `step` with a recruitment')
         r, dl = float(recruitment), float(dl_mt_m)
         # One combined check (false for NaN too) keeps the node's tick cheap;
         # the helpers run only to raise the error that names the culprit.

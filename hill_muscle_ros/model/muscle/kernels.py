@@ -32,23 +32,29 @@ from typing import Sequence
 import numpy as np
 
 from .. import equations, memory, stimulus, units
+from . import ce as ce_module
+from . import ding as ding_module
+from . import ding_kernels as ding_kernels_module
 from . import pool as pool_module
 from . import state as state_module
 from ..equations import (MAX_EVENTS_PER_PIECE, QUASI_STATIC_RATE_PER_S, activation_at,
-                         fes_velocity, fitness_at, force_length, parallel_force,
-                         piece_activation, quasi_static_force, relaxation_rate, riener_limit,
-                         riener_rate, rise_start, rk4_update, series_force, substep_count,
-                         time_to_reach)
+                         fitness_at, force_length, parallel_force, piece_activation,
+                         riener_limit, riener_rate, rise_start, rk4_update, series_force,
+                         substep_count, time_to_reach)
 from ..memory import recruited_units
+from .ce import quasi_force, rate_at, velocity
+from .ding import ding_activation, ding_f_iso, ding_mean_fitness
+from .ding_kernels import ding_advance
 from .pool import (pool_advance_to, pool_eff_f_iso, pool_eff_f_iso_initial, pool_mean_fitness,
                    pool_update)
-from .state import (A_END, A_JUMP, A_PIECE, A_RECRUIT, A_RELEASE, A_RISE, DELAY_FULL, H_CAPDQ,
-                    H_DQT, H_DQU, H_EVA, H_EVT, H_EVV, H_FP, H_FS, H_IP, H_JS, I_FATIGUE,
-                    I_INITIAL, I_MULTI, I_N, I_RELATIVE, J_DCOUNT, J_DHEAD, J_NEV, J_NREC,
-                    N_OUT, OK, P_A, P_A_ECC, P_B, P_B_ECC, P_EMD, P_F_ISO_MAX, P_K_PE, P_K_SE,
-                    P_L_OPT, P_L_REST, P_MU_MIN0, P_RATE_F0, P_RATE_R0, P_RELEASE, P_TAU_ACT,
-                    P_TAU_DEACT, S_CMD, S_DL, S_F_SINGLE, S_L, S_LAW, S_MU, S_PIECE, S_R, S_T,
-                    S_UD, S_V_FREE, TIME_TOL_S, FesBundle, hdr)
+from .state import (A_END, A_JUMP, A_PIECE, A_RECRUIT, A_RELEASE, A_RISE, DELAY_FULL, FesBundle,
+                    H_CAPDQ, H_DQT, H_DQU, H_EVA, H_EVT, H_EVV, H_FP, H_FS,
+                    H_IP, H_JS, I_DING, I_FATIGUE, I_INITIAL, I_MULTI, I_N,
+                    J_DCOUNT, J_DHEAD, J_NEV, J_NREC, N_OUT, OK, P_EMD,
+                    P_F_ISO_MAX, P_K_PE, P_K_SE, P_L_OPT, P_L_REST, P_MU_MIN0,
+                    P_RATE_F0, P_RATE_R0, P_RELEASE, P_TAU_ACT, P_TAU_DEACT,
+                    S_CMD, S_DL, S_F_SINGLE, S_L, S_LAW, S_MU, S_PIECE, S_R,
+                    S_T, S_UD, S_V_FREE, TIME_TOL_S, hdr)
 
 
 def delay_push(F, I, i, t, u):
@@ -82,6 +88,8 @@ def delay_settle(F, I, i, t):
 def eff_f_iso(F, I, i, l, t):
     """[N] Eff.f_iso at CE length ``l`` and instant ``t``."""
     fs, fp, ip = hdr(I, i, H_FS), hdr(I, i, H_FP), hdr(I, i, H_IP)
+    if I[ip + I_DING]:
+        return ding_f_iso(F, I, i, l, t, -1)
     if I[ip + I_MULTI]:
         return pool_eff_f_iso(F, I, i, l / F[fp + P_L_OPT], t)
     a = piece_activation(F[fs + S_PIECE + 1], F[fs + S_PIECE + 2], F[fs + S_PIECE + 3],
@@ -116,22 +124,6 @@ def eff_f_iso_inline(F, I, i, l, t):
     return eff_f_iso(F, I, i, l, t)
 
 
-def velocity(F, I, i, l, dl, f0):
-    """[m/s] d l_CE / dt at F0 = ``f0``."""
-    fp, ip = hdr(I, i, H_FP), hdr(I, i, H_IP)
-    return fes_velocity(l, dl, f0, F[fp + P_K_SE], F[fp + P_L_REST], F[fp + P_A], F[fp + P_B],
-                        F[fp + P_A_ECC], F[fp + P_B_ECC], F[fp + P_F_ISO_MAX],
-                        I[ip + I_RELATIVE] != 0)
-
-
-def rate_at(F, I, i, l, dl, f0):
-    """[1/s] the CE's relaxation rate at F0 = ``f0``."""
-    fp, ip = hdr(I, i, H_FP), hdr(I, i, H_IP)
-    return relaxation_rate(l, dl, f0, F[fp + P_K_SE], F[fp + P_L_REST], F[fp + P_A],
-                           F[fp + P_B], F[fp + P_A_ECC], F[fp + P_B_ECC], F[fp + P_F_ISO_MAX],
-                           I[ip + I_RELATIVE] != 0)
-
-
 def stiffness_rate(F, I, i, l, dl, t):
     """[1/s] the CE's relaxation rate."""
     return rate_at(F, I, i, l, dl, eff_f_iso(F, I, i, l, t))
@@ -143,14 +135,6 @@ def peak_rate(F, I, i, l, dl, s0, s1):
     r1 = stiffness_rate(F, I, i, l, dl, s0 + 0.5 * (s1 - s0))
     r2 = stiffness_rate(F, I, i, l, dl, s1)
     return max(r0, max(r1, r2))
-
-
-def quasi_force(F, I, i, v, f0):
-    """[N] the CE's force moving at ``v`` with F0 = ``f0``."""
-    fp, ip = hdr(I, i, H_FP), hdr(I, i, H_IP)
-    return quasi_static_force(v, f0, F[fp + P_A], F[fp + P_B],
-                              F[fp + P_A_ECC], F[fp + P_B_ECC], F[fp + P_F_ISO_MAX],
-                              I[ip + I_RELATIVE] != 0)
 
 
 def single_fatigue(F, I, i):
@@ -486,7 +470,12 @@ def muscle_outputs(F, I, i, out):
     out[8] = f_se + f_pe
     out[9] = f0
     out[10] = F[fs + S_CMD]
-    out[11] = pool_mean_fitness(F, I, i, t) if I[ip + I_MULTI] else F[fs + S_MU]
+    if I[ip + I_DING]:
+        out[11] = ding_mean_fitness(F, I, i, t)
+    elif I[ip + I_MULTI]:
+        out[11] = pool_mean_fitness(F, I, i, t)
+    else:
+        out[11] = F[fs + S_MU]
 
 
 def muscle_run(F, I, i, r_start, dl_end, dt, r_end, have_r_end, out):
@@ -505,6 +494,29 @@ def muscle_run(F, I, i, r_start, dl_end, dt, r_end, have_r_end, out):
     return dl_end.shape[0]
 
 
+def ding_run(F, I, i, pt, pc, pu, dl_end, dt, out, act):
+    """Advance ``len(dl_end)`` steps with the pulses (``pt``, ``pc``, ``pu``) in
+    time order; a pulse at t belongs to the step [t0, t1) that holds it (within
+    TIME_TOL_S of t0: that step). Outputs of step k in ``out[k]``, the channels'
+    a in ``act[k]``.
+
+    :return: the index of the first pulse not used (at or after the last step's end)
+    """
+    fs = hdr(I, i, H_FS)
+    j = 0
+    n_pulses = pt.shape[0]
+    for k in range(dl_end.shape[0]):
+        t1 = F[fs + S_T] + dt
+        j1 = j
+        while j1 < n_pulses and pt[j1] < t1 - TIME_TOL_S:
+            j1 += 1
+        ding_advance(F, I, i, pt, pc, pu, j, j1, dl_end[k], dt)
+        j = j1
+        muscle_outputs(F, I, i, out[k])
+        ding_activation(F, I, i, act[k])
+    return j
+
+
 def _plain() -> types.SimpleNamespace:
     """This module's plain functions, as a namespace like :func:`compiled`'s."""
     import sys
@@ -518,25 +530,29 @@ _EQUATIONS = ('force_length', 'force_velocity', 'force_velocity_inverse', 'serie
               'piece_activation', 'rise_start', 'fitness_at', 'riener_rate', 'riener_limit',
               'fes_velocity', 'quasi_static_force', 'relaxation_rate', 'substep_count',
               'recruited_units', 'fl_clear', 'type_fl_sum', 'moment_force', 'recruited_excess',
-              'resting_deficit')
+              'resting_deficit', 'ding_pulse_weight', 'ding_cn_at', 'ding_rate')
 
 
 #: The engine's functions (:mod:`.state`, :mod:`.pool` and this module's), callees
 #: before callers.
 _KERNELS = ('hdr', 'scratch', 'forget_eff_f_iso', 'per_type', 'per_sum', 'moment',
+            'fatigue_alpha', 'fatigue_beta',
             'delay_push', 'delay_settle', 'pool_static_row', 'pool_push_recruited',
             'pool_clocks', 'pool_advance_to', 'pool_recruit', 'pool_release', 'pool_update',
             'pool_eff_f_iso_clipped', 'pool_eff_f_iso_initial', 'pool_eff_f_iso',
-            'pool_mean_fitness', 'eff_f_iso', 'eff_f_iso_inline', 'velocity', 'rate_at',
+            'pool_mean_fitness', 'ding_slot', 'ding_f_iso', 'ding_stages', 'ding_commit',
+            'ding_clocks', 'ding_totals', 'ding_pulse', 'ding_settle', 'ding_mean_fitness',
+            'ding_activation', 'eff_f_iso', 'eff_f_iso_inline', 'velocity', 'rate_at',
             'stiffness_rate', 'peak_rate', 'quasi_force', 'single_fatigue', 'begin_interval',
             'end_interval', 'set_activation', 'tau_for', 'set_piece', 'settle_now',
             'give_command', 'add_event', 'group_target', 'plan_events', 'plan_piece', 'plan',
             'apply', 'muscle_rk4', 'muscle_integrate', 'muscle_advance', 'muscle_outputs',
-            'muscle_run')
+            'muscle_run', 'ding_rk4', 'ding_integrate', 'ding_advance', 'ding_run')
 
 
 #: The modules whose code the kernels inline: their digest names the cache entries.
-_DIGEST_OF = (equations, stimulus, memory, units, state_module, pool_module)
+_DIGEST_OF = (equations, stimulus, memory, units, state_module, pool_module, ce_module,
+              ding_module, ding_kernels_module)
 
 
 #: The compiled namespace once built (None until then).
@@ -549,7 +565,8 @@ def compile_scope() -> dict:
     read their own module's constants; :mod:`.state` and :mod:`.pool` hold
     the layout and the pool's functions)."""
     scope = {}
-    for module in (units, memory, stimulus, equations, state_module, pool_module):
+    for module in (units, memory, stimulus, equations, state_module, pool_module, ce_module,
+                   ding_module, ding_kernels_module):
         scope.update(vars(module))
     scope.update(globals())
     return scope
@@ -586,6 +603,7 @@ def compiled() -> types.SimpleNamespace:
     # each RK4 interval, into theirs (the knee extension: 0.944x and 0.980x
     # on either core, alternating, 31 pair ratios; a cold compile 0.7 s more).
     options.update({name: leaf for name in ('hdr', 'scratch', 'forget_eff_f_iso', 'per_type',
+                                            'fatigue_alpha', 'fatigue_beta', 'ding_slot',
                                             'per_sum', 'moment', 'pool_eff_f_iso_initial',
                                             'pool_eff_f_iso', 'eff_f_iso_inline',
                                             'single_fatigue', 'begin_interval',
@@ -603,9 +621,15 @@ def compiled() -> types.SimpleNamespace:
         f8, i8 = numba.float64, numba.int64
         return numba.types.none(f8[::1], i8[::1], i8, f8, i8, f8, f8, f8, f8)
 
+    def ding_run_signature(numba):
+        f8, i8 = numba.float64, numba.int64
+        c1, c2 = f8[::1], f8[:, ::1]
+        return i8(c1, i8[::1], i8, c1, i8[::1], c1, c1, f8, c2, c2)
+
     _compiled = engine.compile_functions(
         compile_scope(), _EQUATIONS + _KERNELS, digest_of=_DIGEST_OF + (this,),
-        signatures={'muscle_run': run_signature, 'add_event': add_event_signature},
+        signatures={'muscle_run': run_signature, 'add_event': add_event_signature,
+                    'ding_run': ding_run_signature},
         options=options)
     return _compiled
 

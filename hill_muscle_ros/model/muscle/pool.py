@@ -23,11 +23,13 @@ import math
 from ..equations import (FL_A, FL_B, FL_C, force_length, moment_force, recruited_excess,
                          resting_deficit)
 from ..units import fl_clear, type_fl_sum
-from .state import (C_C1, C_C2, C_G, C_N, H_CPOS, H_FP, H_FS, H_IP, H_JS, H_K, H_NP1, H_PREFIX,
-                    H_RDYN, H_REND, H_REXN, H_RSTATIC, H_RX, H_TP, H_TPOS, H_UCUM, H_UDN,
-                    H_UEND, H_USTART, I_FATIGUE, I_INITIAL, I_K, I_N, J_M, J_RTOP, J_UN, N_HDR,
-                    P_RENORM_S, P_SPREAD, SCR_D, SCR_DN, SCR_EXN, SCR_H, SCR_ROW, SCR_SUMS,
-                    S_CACHE, S_EPOCH, T_F_MAX, T_MU_MIN, T_RATE_FAT, T_RATE_REC, hdr, scratch)
+from .state import (C_C1, C_C2, C_G, C_N, H_CLK, H_CPOS, H_FP, H_FS, H_IP, H_JS, H_K, H_NP1,
+                    H_PREFIX, H_RDYN, H_REND, H_REXN, H_RSTATIC, H_RX, H_TP, H_TPOS, H_UCUM,
+                    H_UDN, H_UEND, H_USTART, I_FATIGUE, I_INITIAL, I_K, I_N, I_SLOT, J_M,
+                    J_RTOP, J_UN, K_ALPHA0, K_BETA0, K_BETA_INF, K_LAM, K_S0, N_CLK, N_HDR,
+                    P_RENORM_S, P_SPREAD, SCR_BETA, SCR_D, SCR_DN, SCR_EXN, SCR_H, SCR_ROW,
+                    SCR_SUMS, S_CACHE, S_EPOCH, T_F_MAX, T_MU_MIN, T_RATE_FAT, T_RATE_REC, hdr,
+                    scratch)
 
 
 def forget_eff_f_iso(F, I, i):
@@ -59,6 +61,27 @@ def moment(F, I, i, k, c, p0, p1):
     """Moment ``c`` (0: n, 1: sum c, 2: sum c^2) of type ``k`` over positions [p0, p1)."""
     base = hdr(I, i, H_PREFIX) + (k * 3 + c) * hdr(I, i, H_NP1)
     return F[base + p1] - F[base + p0]
+
+
+def fatigue_alpha(F, I, i, k, t):
+    """[-] alpha_k(t): the factor by which recruited units of type ``k`` keep their
+    stored excess, mu = beta + alpha z. Recruited units of a level-driven muscle
+    tire at a = 1, alpha = D_k(t) = exp(-(t - epoch) / T_fat); a channel slot's
+    follow its activation a_c piece by piece (its clock, ``clk``)."""
+    if I[hdr(I, i, H_IP) + I_SLOT]:
+        c = hdr(I, i, H_CLK) + k * N_CLK
+        return F[c + K_ALPHA0] * math.exp(-(t - F[c + K_S0]) * F[c + K_LAM])
+    return math.exp(-(t - F[hdr(I, i, H_FS) + S_EPOCH]) * F[per_type(I, i, H_TP, T_RATE_FAT, k)])
+
+
+def fatigue_beta(F, I, i, k, t):
+    """[-] beta_k(t), the fitness a recruited unit of type ``k`` with z = 0 has:
+    mu_min at a = 1; a channel slot's from its clock (:func:`fatigue_alpha`)."""
+    if I[hdr(I, i, H_IP) + I_SLOT]:
+        c = hdr(I, i, H_CLK) + k * N_CLK
+        e = math.exp(-(t - F[c + K_S0]) * F[c + K_LAM])
+        return F[c + K_BETA_INF] + (F[c + K_BETA0] - F[c + K_BETA_INF]) * e
+    return F[per_type(I, i, H_TP, T_MU_MIN, k)]
 
 
 def pool_static_row(F, I, i, p0, p1, x_o, row):
@@ -116,12 +139,15 @@ def pool_push_recruited(F, I, i, end, x_o, exn, row):
 
 
 def pool_clocks(F, I, i, t, d, h):
-    """D_k(t) and H_k(t), the fatigue and recovery clocks, into F at ``d`` and ``h``."""
+    """D_k(t) and H_k(t), the fatigue and recovery clocks, into F at ``d`` and
+    ``h``, and beta_k(t) into the scratch (SCR_BETA)."""
     fs, ip = hdr(I, i, H_FS), hdr(I, i, H_IP)
     elapsed = t - F[fs + S_EPOCH]
+    beta = scratch(I, i, SCR_BETA)
     for k in range(I[ip + I_K]):
-        F[d + k] = math.exp(-elapsed * F[per_type(I, i, H_TP, T_RATE_FAT, k)])
+        F[d + k] = fatigue_alpha(F, I, i, k, t)
         F[h + k] = math.exp(-elapsed * F[per_type(I, i, H_TP, T_RATE_REC, k)])
+        F[beta + k] = fatigue_beta(F, I, i, k, t)
 
 
 def pool_advance_to(F, I, i, t):
@@ -145,6 +171,13 @@ def pool_advance_to(F, I, i, t):
             F[per_type(I, i, H_UDN, seg, k)] *= F[h + k]
             F[per_type(I, i, H_UCUM, seg, k)] *= F[h + k]
     F[fs + S_EPOCH] = t
+    if I[ip + I_SLOT]:   # alpha is 1 from now on, beta goes on from its value now
+        beta = scratch(I, i, SCR_BETA)
+        for k in range(k_types):
+            c = hdr(I, i, H_CLK) + k * N_CLK
+            F[c + K_S0] = t
+            F[c + K_ALPHA0] = 1.0
+            F[c + K_BETA0] = F[beta + k]
 
 
 def pool_recruit(F, I, i, m, x_o, t):
@@ -174,9 +207,9 @@ def pool_recruit(F, I, i, m, x_o, t):
         I[js + J_UN] = un
         pool_static_row(F, I, i, pos, take, x_o, row)
         if fatigue:
+            beta = scratch(I, i, SCR_BETA)
             for k in range(k_types):
-                F[exn + k] = recruited_excess(F[dn + k], F[h + k],
-                                              F[per_type(I, i, H_TP, T_MU_MIN, k)], F[d + k])
+                F[exn + k] = recruited_excess(F[dn + k], F[h + k], F[beta + k], F[d + k])
         pool_push_recruited(F, I, i, take, x_o, exn, row)
         pos = take
     I[js + J_M] = m
@@ -218,9 +251,9 @@ def pool_release(F, I, i, m, t):
             I[js + J_UN] = un + 1
             pos = cut
             continue
+        beta = scratch(I, i, SCR_BETA)
         for k in range(k_types):
-            dn_k = resting_deficit(F[exn + k], F[d + k],
-                                   F[per_type(I, i, H_TP, T_MU_MIN, k)], F[h + k])
+            dn_k = resting_deficit(F[exn + k], F[d + k], F[beta + k], F[h + k])
             below = F[per_type(I, i, H_UCUM, un - 1, k)] if un > 0 else 0.0
             F[per_type(I, i, H_UDN, un, k)] = dn_k
             F[per_type(I, i, H_UCUM, un, k)] = below + moment(F, I, i, k, 0, cut, pos) * dn_k
@@ -255,15 +288,13 @@ def pool_eff_f_iso_initial(F, I, i, t):
         if F[c + slot] == t:
             return F[c + 3 + slot]
     k_types, fatigue = I[ip + I_K], I[ip + I_FATIGUE]
-    elapsed = t - F[fs + S_EPOCH]
     f0 = 0.0
     for k in range(k_types):
-        w = F[per_type(I, i, H_TP, T_MU_MIN, k)] if fatigue else 1.0
+        w = fatigue_beta(F, I, i, k, t) if fatigue else 1.0
         f0 += w * F[per_sum(I, i, H_RSTATIC, top, k, C_G)]
     if fatigue:
         for k in range(k_types):
-            f0 += F[per_sum(I, i, H_RDYN, top, k, C_G)] * math.exp(
-                -elapsed * F[per_type(I, i, H_TP, T_RATE_FAT, k)])
+            f0 += F[per_sum(I, i, H_RDYN, top, k, C_G)] * fatigue_alpha(F, I, i, k, t)
     slot = int(F[c + 6])
     F[c + slot] = t
     F[c + 3 + slot] = f0
@@ -274,14 +305,13 @@ def pool_eff_f_iso_initial(F, I, i, t):
 def pool_eff_f_iso(F, I, i, x_ce, t):
     """[N] Eff.f_iso of the recruited units."""
     fp, js = hdr(I, i, H_FP), hdr(I, i, H_JS)
-    ip, fs = hdr(I, i, H_IP), hdr(I, i, H_FS)
+    ip = hdr(I, i, H_IP)
     if I[ip + I_INITIAL]:
         return pool_eff_f_iso_initial(F, I, i, t)
     top = I[js + J_RTOP]
     if top == 0:
         return 0.0   # nothing recruited: every sum below is exactly zero
     k_types, fatigue = I[ip + I_K], I[ip + I_FATIGUE]
-    elapsed = t - F[fs + S_EPOCH]
     s = F[fp + P_SPREAD]
     if s > 0.0 and not fl_clear(x_ce, s):
         return pool_eff_f_iso_clipped(F, I, i, x_ce, t)
@@ -296,12 +326,12 @@ def pool_eff_f_iso(F, I, i, x_ce, t):
         a2, a1, a0 = FL_A * x_ce * x_ce, FL_B * x_ce, FL_C
     total = 0.0
     for k in range(k_types):
-        w = F[per_type(I, i, H_TP, T_MU_MIN, k)] if fatigue else 1.0
+        w = fatigue_beta(F, I, i, k, t) if fatigue else 1.0
         n = F[per_sum(I, i, H_RSTATIC, top, k, C_N)] * w
         c1 = F[per_sum(I, i, H_RSTATIC, top, k, C_C1)] * w
         c2 = F[per_sum(I, i, H_RSTATIC, top, k, C_C2)] * w
         if fatigue:
-            d = math.exp(-elapsed * F[per_type(I, i, H_TP, T_RATE_FAT, k)])
+            d = fatigue_alpha(F, I, i, k, t)
             n = n + d * F[per_sum(I, i, H_RDYN, top, k, C_N)]
             c1 = c1 + d * F[per_sum(I, i, H_RDYN, top, k, C_C1)]
             c2 = c2 + d * F[per_sum(I, i, H_RDYN, top, k, C_C2)]
@@ -311,10 +341,9 @@ def pool_eff_f_iso(F, I, i, x_ce, t):
 
 def pool_eff_f_iso_clipped(F, I, i, x_ce, t):
     """[N] Eff.f_iso when some units may be off the FL range: segment by segment."""
-    fs, js = hdr(I, i, H_FS), hdr(I, i, H_JS)
+    js = hdr(I, i, H_JS)
     ip = hdr(I, i, H_IP)
     k_types, fatigue = I[ip + I_K], I[ip + I_FATIGUE]
-    elapsed = t - F[fs + S_EPOCH]
     sums = scratch(I, i, SCR_SUMS)
     r_end, cpos, tpos = hdr(I, i, H_REND), hdr(I, i, H_CPOS), hdr(I, i, H_TPOS)
     total = 0.0
@@ -327,8 +356,8 @@ def pool_eff_f_iso_clipped(F, I, i, x_ce, t):
         for k in range(k_types):
             mu = 1.0
             if fatigue:
-                mu = F[per_type(I, i, H_TP, T_MU_MIN, k)] + F[per_type(I, i, H_REXN, seg, k)] * (
-                    math.exp(-elapsed * F[per_type(I, i, H_TP, T_RATE_FAT, k)]))
+                mu = fatigue_beta(F, I, i, k, t) + F[per_type(I, i, H_REXN, seg, k)] * (
+                    fatigue_alpha(F, I, i, k, t))
             part += F[per_type(I, i, H_TP, T_F_MAX, k)] * F[sums + k] * mu
         total += part
     return total
@@ -345,11 +374,9 @@ def pool_mean_fitness(F, I, i, t):
     elapsed = t - F[fs + S_EPOCH]
     tired = 0.0
     for k in range(k_types):
-        tired += (1.0 - F[per_type(I, i, H_TP, T_MU_MIN, k)]) * F[
-            per_sum(I, i, H_RSTATIC, top, k, C_N)]
+        tired += (1.0 - fatigue_beta(F, I, i, k, t)) * F[per_sum(I, i, H_RSTATIC, top, k, C_N)]
     for k in range(k_types):
-        tired -= F[per_sum(I, i, H_RDYN, top, k, C_N)] * math.exp(
-            -elapsed * F[per_type(I, i, H_TP, T_RATE_FAT, k)])
+        tired -= F[per_sum(I, i, H_RDYN, top, k, C_N)] * fatigue_alpha(F, I, i, k, t)
     for k in range(k_types):
         rest = F[per_type(I, i, H_UCUM, un - 1, k)] if un > 0 else 0.0
         tired += rest * math.exp(-elapsed * F[per_type(I, i, H_TP, T_RATE_REC, k)])

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..equations import MAX_EVENTS_PER_PIECE
 from ..params import MuscleParams
-from ..units import UnitLayout, length_scale
+from ..units import UnitLayout, channel_positions, length_scale
 
 
 #: Elapsed time over the fastest time constant after which the unit pool's
@@ -42,17 +42,25 @@ TIME_TOL_S = 1e-9
 # Columns of the float parameters ``fp``.
 (P_K_SE, P_K_PE, P_L_REST, P_L_OPT, P_A, P_B, P_A_ECC, P_B_ECC, P_F_ISO_MAX, P_TAU_ACT,
  P_TAU_DEACT, P_EMD, P_RELEASE, P_SPREAD, P_RENORM_S, P_MU_MIN0, P_RATE_F0,
- P_RATE_R0) = range(18)
+ P_RATE_R0, P_TAU_C, P_TAU1, P_TAU2, P_KM, P_R0, P_REL_A) = range(24)
 
 
-N_FP = 18
+N_FP = 24
 
 
-# Columns of the integer parameters ``ip``.
-I_MULTI, I_INITIAL, I_RELATIVE, I_FATIGUE, I_N, I_K = range(6)
+#: [s] A ``ding2003`` channel releases its units once it has had no pulse for
+#: this long and its activation is below ``release_activation`` (doc/model.md
+#: section 10): the time the spec gives, 50 tau_c at the default tau_c.
+RELEASE_QUIET_S = 1.0
 
 
-N_IP = 6
+# Columns of the integer parameters ``ip``. A ``ding2003`` muscle has one
+# channel *slot* per channel: a unit pool of its own over the channel's
+# territory, laid out after every muscle (I_CH0, I_NCH), marked I_SLOT.
+I_MULTI, I_INITIAL, I_RELATIVE, I_FATIGUE, I_N, I_K, I_DING, I_CH0, I_NCH, I_SLOT = range(10)
+
+
+N_IP = 10
 
 
 # Rows of the per-type parameters ``tp``.
@@ -68,7 +76,26 @@ T_F_MAX, T_MU_MIN, T_RATE_FAT, T_RATE_REC = range(4)
 N_CACHE = 2 * 3 + 1
 
 
-N_FS = S_CACHE + N_CACHE
+# Columns of a channel slot's float state after the cache (Ding et al. 2003,
+# doc/model.md section 10): CN; the pulse sum S = sum R_i exp(-(t - t_i)/tau_c);
+# a; the last pulse's instant (-inf before any) and its command u; the
+# activation at the four stages of an RK4 step.
+# D_NEXT holds a at the end of the RK4 step.
+(D_CN, D_SUM, D_A, D_TLAST, D_U, D_STAGE) = range(S_CACHE + N_CACHE, S_CACHE + N_CACHE + 6)
+D_NEXT = D_STAGE + 4
+
+
+N_FS = D_NEXT + 1
+
+
+# Columns of a channel slot's fatigue clock of one fibre type (region ``clk``,
+# 5 per type): recruited units' fitness is mu = alpha(t) z + beta(t), and
+# over a piece with the channel's activation held, alpha = alpha0 e^(-lam (t - s0))
+# and beta = beta_inf + (beta0 - beta_inf) e^(-lam (t - s0)) (Riener's law).
+K_S0, K_ALPHA0, K_BETA0, K_LAM, K_BETA_INF = range(5)
+
+
+N_CLK = 5
 
 
 # Columns of the integer state ``js``.
@@ -96,12 +123,12 @@ OK, DELAY_FULL = 0, 1
 
 # The header of muscle i: I[i * N_HDR + H_*], offsets of its regions in F and I.
 (H_FP, H_FS, H_TP, H_PREFIX, H_CPOS, H_RX, H_REXN, H_RSTATIC, H_RDYN, H_UDN, H_UCUM,
- H_DQT, H_DQU, H_EVT, H_EVV, H_SCR,                       # in F
+ H_DQT, H_DQU, H_EVT, H_EVV, H_SCR, H_CLK,                # in F
  H_IP, H_JS, H_TPOS, H_REND, H_USTART, H_UEND, H_EVA,     # in I
- H_CAPDQ, H_CAPEV, H_K, H_NP1) = range(27)                 # sizes
+ H_CAPDQ, H_CAPEV, H_K, H_NP1) = range(28)                 # sizes
 
 
-N_HDR = 27
+N_HDR = 28
 
 
 #: Regions of a muscle: name, header entry, array ('F' or 'I'), size from (N, K, cap, ecap).
@@ -121,7 +148,8 @@ REGIONS = (
     ('dq_u', H_DQU, 'F', lambda n, k, c, e: c),
     ('ev_t', H_EVT, 'F', lambda n, k, c, e: e),
     ('ev_v', H_EVV, 'F', lambda n, k, c, e: 4 * e),
-    ('scratch', H_SCR, 'F', lambda n, k, c, e: 9 * k),
+    ('scratch', H_SCR, 'F', lambda n, k, c, e: 10 * k),
+    ('clk', H_CLK, 'F', lambda n, k, c, e: N_CLK * k),
     ('ip', H_IP, 'I', lambda n, k, c, e: N_IP),
     ('js', H_JS, 'I', lambda n, k, c, e: N_JS),
     ('tpos', H_TPOS, 'I', lambda n, k, c, e: n),
@@ -133,8 +161,9 @@ REGIONS = (
 
 
 # Scratch of a pool update, in multiples of K: clocks D and H, resting deficits,
-# excesses, a segment's static row (4 K) and per-type sums.
-SCR_D, SCR_H, SCR_DN, SCR_EXN, SCR_ROW, SCR_SUMS = 0, 1, 2, 3, 4, 8
+# excesses, a segment's static row (4 K), per-type sums and the fitness floor
+# beta (mu_min, or a channel slot's beta(t)).
+SCR_D, SCR_H, SCR_DN, SCR_EXN, SCR_ROW, SCR_SUMS, SCR_BETA = 0, 1, 2, 3, 4, 8, 9
 
 
 def hdr(I, i, h):
@@ -176,6 +205,7 @@ class FesBundle:
     def __init__(self, params: Sequence[MuscleParams], dt_s: float = 1e-3,
                  pool: 'ScratchPool | None' = None) -> None:
         self.params = list(params)
+        self.slots = _slots(self.params)
         cap = max([delay_capacity(p.emd_s, dt_s) for p in self.params], default=4)
         self.cap = cap
         F, I = _fresh_arrays(tuple(self.params), cap)
@@ -190,20 +220,33 @@ class FesBundle:
         """A bundle laid out, filled and reset from scratch (:func:`_fresh_arrays`)."""
         bundle = cls.__new__(cls)
         bundle.params = list(params)
+        bundle.slots = _slots(bundle.params)
         bundle._build(cap)
         for i, p in enumerate(bundle.params):
             bundle._fill(i, p)
+        for j, (parent, positions) in enumerate(bundle.slots):
+            bundle._fill_slot(len(bundle.params) + j, parent, positions)
+        for i in range(len(bundle.params)):
             bundle.reset(i)
         return bundle
 
+    @property
+    def n_headers(self) -> int:
+        """Muscles and channel slots: the rows of the header."""
+        return len(self.params) + len(self.slots)
+
     def _sizes(self, i: int) -> tuple:
+        nm = len(self.params)
+        if i >= nm:   # a channel slot: a pool over its territory, no delay line nor plan
+            parent, positions = self.slots[i - nm]
+            return len(positions), self.params[parent].n_fibre_types, 1, 1
         p = self.params[i]
         return p.n_units, p.n_fibre_types, self.cap, event_capacity(self.cap)
 
     def _build(self, cap: int) -> None:
         """Lay out the regions for delay lines of ``cap`` commands (F, I zeroed)."""
         self.cap = cap
-        nm = len(self.params)
+        nm = self.n_headers
         offset = {'F': 0, 'I': nm * N_HDR}
         header = np.zeros(nm * N_HDR, dtype=np.int64)
         for i in range(nm):
@@ -232,11 +275,13 @@ class FesBundle:
         cap = max([delay_capacity(p.emd_s, dt_s) for p in self.params], default=4)
         if cap <= self.cap:
             return
-        old = {(i, name): self.view(i, name).copy() for i in range(len(self.params))
+        old = {(i, name): self.view(i, name).copy() for i in range(self.n_headers)
                for name, *_ in REGIONS}
         old_cap = self.cap
         self._build(cap)
         for (i, name), values in old.items():
+            if i >= len(self.params) and name in ('dq_t', 'dq_u'):
+                continue   # a slot's one-entry ring is never used
             if name in ('dq_t', 'dq_u'):
                 js = old[(i, 'js')]
                 idx = (js[J_DHEAD] + np.arange(js[J_DCOUNT])) % old_cap
@@ -262,12 +307,19 @@ class FesBundle:
         fp[P_RENORM_S] = _RENORMALISE_AFTER_TAUS / max(max(rate_fat), max(rate_rec))
         fp[P_MU_MIN0] = p.fatigue_min[0]
         fp[P_RATE_F0], fp[P_RATE_R0] = 1.0 / p.tau_fatigue_s[0], 1.0 / p.tau_recovery_s[0]
+        fp[P_TAU_C], fp[P_TAU1], fp[P_TAU2] = p.ding_tau_c_s, p.ding_tau1_s, p.ding_tau2_s
+        fp[P_KM], fp[P_R0] = p.ding_km, p.ding_km + p.ding_r0_offset
+        fp[P_REL_A] = p.release_activation
         ip[I_MULTI] = p.units == 'multi'
         ip[I_INITIAL] = p.length == 'initial'
         ip[I_RELATIVE] = p.fv_scaling == 'relative'
         ip[I_FATIGUE] = p.fatigue == 'riener'
         ip[I_N] = n = p.n_units
         ip[I_K] = k = p.n_fibre_types
+        ip[I_DING] = p.activation_model == 'ding2003'
+        if ip[I_DING]:
+            ip[I_CH0] = len(self.params) + [parent for parent, _ in self.slots].index(i)
+            ip[I_NCH] = p.n_channels
         if p.units != 'multi':
             return
         layout = UnitLayout(p)
@@ -288,9 +340,43 @@ class FesBundle:
             for t in range(k):
                 prefix[t, :, :] = np.concatenate(([0.0], np.cumsum(types_ == t, dtype=float)))
 
+    def _fill_slot(self, j: int, parent: int, positions: np.ndarray) -> None:
+        """Slot ``j``: the unit pool of one channel of muscle ``parent``, over the
+        units at ``positions`` of its recruitment order (ascending): their types,
+        length scales and prefix sums, the muscle's parameters."""
+        p = self.params[parent]
+        self.view(j, 'fp')[:] = self.view(parent, 'fp')
+        self.view(j, 'tp')[:] = self.view(parent, 'tp')
+        ip = self.view(j, 'ip')
+        ip[:] = self.view(parent, 'ip')
+        ip[I_N] = n = len(positions)
+        ip[I_DING] = ip[I_CH0] = ip[I_NCH] = 0
+        ip[I_SLOT] = 1
+        k = p.n_fibre_types
+        types_ = UnitLayout(p).types_of(0, p.n_units)[positions].astype(np.int64)
+        self.view(j, 'tpos')[:] = types_
+        c = length_scale(positions, p.unit_length_spread)
+        self.view(j, 'cpos')[:] = c
+        prefix = self.view(j, 'prefix').reshape(k, 3, n + 1)
+        for t in range(k):
+            mask = (types_ == t).astype(float)
+            prefix[t, 0] = np.concatenate(([0.0], np.cumsum(mask)))
+            prefix[t, 1] = np.concatenate(([0.0], np.cumsum(mask * c)))
+            prefix[t, 2] = np.concatenate(([0.0], np.cumsum(mask * c * c)))
+
     def reset(self, i: int) -> None:
         """Muscle ``i`` at rest: no command, every unit fresh and free."""
-        p = self.params[i]
+        nm = len(self.params)
+        for j, (parent, _) in enumerate(self.slots):
+            if parent == i:
+                self._reset_pool(nm + j, self.params[parent])
+                fs = self.view(nm + j, 'fs')
+                fs[D_TLAST] = -math.inf
+        self._reset_pool(i, self.params[i])
+
+    def _reset_pool(self, i: int, p: MuscleParams) -> None:
+        """Header row ``i`` (a muscle or a slot) at rest."""
+        n = int(self.view(i, 'ip')[I_N])
         fs, js = self.view(i, 'fs'), self.view(i, 'js')
         fs[:] = 0.0
         fs[S_L] = p.l_rest_m
@@ -304,30 +390,64 @@ class FesBundle:
             self.view(i, name)[:] = 0.0
         self.view(i, 'r_end')[0] = 0
         self.view(i, 'u_start')[0] = 0
-        self.view(i, 'u_end')[0] = p.n_units
+        self.view(i, 'u_end')[0] = n
+        clk = self.view(i, 'clk').reshape(-1, N_CLK)
+        clk[:, K_S0] = 0.0
+        clk[:, K_ALPHA0] = 1.0
+        clk[:, K_BETA0] = clk[:, K_BETA_INF] = p.per_type('fatigue_min')
+        clk[:, K_LAM] = [1.0 / v for v in p.per_type('tau_fatigue_s')]
+
+
+def _slots(params: Sequence[MuscleParams]) -> list:
+    """The channel slots of ``params``: (muscle index, territory positions) for
+    every channel of every ``ding2003`` muscle, in order."""
+    return [(i, positions) for i, p in enumerate(params) if p.activation_model == 'ding2003'
+            for positions in channel_positions(p)]
 
 
 def fitness_profile(bundle: FesBundle, i: int) -> np.ndarray:
     """[-] mu of every unit of multi muscle ``i`` along the recruitment order now,
-    read off its two segment stacks: O(N), for figures and tests (not a kernel).
+    read off its two segment stacks (a ``ding2003`` muscle: each channel's): O(N),
+    for figures and tests (not a kernel).
 
     :raises ValueError: for a ``single`` muscle, which has no units of its own
     """
-    ip, fs, js = bundle.view(i, 'ip'), bundle.view(i, 'fs'), bundle.view(i, 'js')
+    ip = bundle.view(i, 'ip')
     if not ip[I_MULTI]:
         raise ValueError('`fitness_profile` needs `units: multi`, got single')
+    t = bundle.view(i, 'fs')[S_T]
+    if not ip[I_DING]:
+        return _pool_profile(bundle, i, t)
+    mu = np.ones(int(ip[I_N]))
+    nm = len(bundle.params)
+    for j, (parent, positions) in enumerate(bundle.slots):
+        if parent == i:
+            mu[positions] = _pool_profile(bundle, nm + j, t)
+    return mu
+
+
+def _pool_profile(bundle: FesBundle, i: int, t: float) -> np.ndarray:
+    """[-] mu along the positions of pool ``i`` (a muscle or a slot) at ``t``."""
+    ip, fs, js = bundle.view(i, 'ip'), bundle.view(i, 'fs'), bundle.view(i, 'js')
     n, k = int(ip[I_N]), int(ip[I_K])
     mu = np.ones(n)
     if not ip[I_FATIGUE]:
         return mu
     tp = bundle.view(i, 'tp').reshape(4, k)
-    elapsed = fs[S_T] - fs[S_EPOCH]
-    d, h = np.exp(-elapsed * tp[T_RATE_FAT]), np.exp(-elapsed * tp[T_RATE_REC])
+    elapsed = t - fs[S_EPOCH]
+    h = np.exp(-elapsed * tp[T_RATE_REC])
+    if ip[I_SLOT]:
+        clk = bundle.view(i, 'clk').reshape(k, N_CLK)
+        e = np.exp(-(t - clk[:, K_S0]) * clk[:, K_LAM])
+        d = clk[:, K_ALPHA0] * e
+        beta = clk[:, K_BETA_INF] + (clk[:, K_BETA0] - clk[:, K_BETA_INF]) * e
+    else:
+        d, beta = np.exp(-elapsed * tp[T_RATE_FAT]), tp[T_MU_MIN]
     types = bundle.view(i, 'tpos')
     r_end, r_exn = bundle.view(i, 'r_end'), bundle.view(i, 'r_exn').reshape(n + 2, k)
     for seg in range(1, js[J_RTOP] + 1):   # segment 0 is the empty sentinel
         p0, p1 = r_end[seg - 1], r_end[seg]
-        mu[p0:p1] = (tp[T_MU_MIN] + r_exn[seg] * d)[types[p0:p1]]
+        mu[p0:p1] = (beta + r_exn[seg] * d)[types[p0:p1]]
     u_start, u_end = bundle.view(i, 'u_start'), bundle.view(i, 'u_end')
     u_dn = bundle.view(i, 'u_dn').reshape(n + 2, k)
     for seg in range(js[J_UN]):
@@ -410,8 +530,9 @@ def _state_ranges(params: tuple, cap: int) -> dict:
     F, I = _fresh_arrays(params, cap)
     bundle = FesBundle.__new__(FesBundle)
     bundle.params, bundle.cap, bundle.F, bundle.I = list(params), cap, F, I
+    bundle.slots = _slots(bundle.params)
     scratch = {'F': [], 'I': []}
-    for i in range(len(params)):
+    for i in range(bundle.n_headers):
         sizes = bundle._sizes(i)
         for name, h, where, size in REGIONS:
             if name.startswith('ev_'):
