@@ -52,6 +52,7 @@ import bench_gym  # noqa: E402
 import bench_limb_compiled  # noqa: E402
 import compile_cost  # noqa: E402
 import bench_node  # noqa: E402
+import bench_pulses  # noqa: E402
 import bench_sweep  # noqa: E402
 # bench_rtf.py (item 6, live); run_all.bench_rtf is the offline item 2.
 import bench_rtf as live_rtf  # noqa: E402
@@ -590,6 +591,7 @@ def write_report(path: Path, runs: int, started: dict, results: dict) -> None:
     write_rtf_section(add, results.get('rtf_live'))
     add('')
     bench_fes.write_section(add, results['fes'])
+    bench_pulses.write_section(add, results['pulses'])
     add('')
     bench_fit.write_section(add, results['fit'])
     bench_gym.write_section(add, results['gym'])
@@ -615,13 +617,14 @@ def main(argv: list[str] | None = None) -> int:
                         help='Markdown file to write (default: BENCHMARKS.md; with --only, '
                              'print the section instead)')
     parser.add_argument('--only', choices=('batch', 'compile', 'fes', 'fit', 'gym', 'limb',
-                                           'single', 'step', 'sweep'),
+                                           'pulses', 'single', 'step', 'sweep'),
                         default=None,
                         help='run one section only: batch = section 3, the batch '
                              'of muscles; fes = section 7, the FES features; '
                              'fit = section 8, hill-muscle fit; gym = the Gymnasium '
                              'vector environments; limb = the limb and the muscle '
-                             'compiled; single = one muscle\'s offline run '
+                             'compiled; pulses = the ding2003 muscle\'s channels at '
+                             'N = 1e3 and 1e6; single = one muscle\'s offline run '
                              'compiled and plain; step = sections 1 and 2, the cost per '
                              'model step and hill-muscle simulate; sweep = section 9, '
                              'hill-muscle sweep; '
@@ -641,7 +644,8 @@ def main(argv: list[str] | None = None) -> int:
         lines = []
         section = {'batch': bench_batch_module, 'compile': compile_cost, 'fes': bench_fes,
                    'fit': bench_fit,
-                   'gym': bench_gym, 'limb': bench_limb_compiled, 'single': bench_compiled,
+                   'gym': bench_gym, 'limb': bench_limb_compiled, 'pulses': bench_pulses,
+                   'single': bench_compiled,
                    'step': types.SimpleNamespace(run=run_step_sections,
                                                  write_section=write_step_sections),
                    'sweep': bench_sweep}[args.only]
@@ -668,6 +672,8 @@ def main(argv: list[str] | None = None) -> int:
     results['single'] = bench_compiled.run(args.runs)
     print('FES features', flush=True)
     results['fes'] = bench_fes.run(args.runs)
+    print('pulses and channels', flush=True)
+    results['pulses'] = bench_pulses.run(args.runs)
     print('hill-muscle fit', flush=True)
     results['fit'] = bench_fit.run(args.runs)
     print('Gymnasium vector environments', flush=True)
