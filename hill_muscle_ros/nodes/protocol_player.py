@@ -10,6 +10,17 @@ until every subscriber has acknowledged it, and then starts the protocol's
 clock with its first sample (:mod:`hill_muscle_ros.playback`, the timeline
 without ROS). At the end it publishes zero stimulation and exits with status 0.
 
+A protocol with ``channels`` (pulse trains) goes on ``stimulation``
+(``hill_muscle_interfaces/msg/Stimulation``) instead, on the same clock and
+handshake: one message with every channel's command at time 0 and at each
+knot time of the channels' tracks, ``header.stamp`` the time it takes effect
+(:class:`~hill_muscle_ros.playback.PulsePlayback`); a zero stimulation (every
+channel's pulse width 0) is the rest state and the end. Every command is
+checked at start-up against the ``stimulator`` parameter's profile (with
+``pw_max_s`` for ``generic``); a protocol that stimulator would reject is
+refused, the message naming the field, the channel, the value and the time.
+``output`` applies to level protocols only.
+
 With ``lookahead_s`` > 0 the length goes ahead of time instead: the player
 publishes ``length_command_stamped`` (geometry_msgs/PointStamped, dl_MT [m]
 in ``point.x``, ``header.stamp`` = when it is to be reached, on the player's
@@ -42,10 +53,11 @@ from rclpy.task import Future
 from rclpy.time import Time
 from std_msgs.msg import Float64
 
-from ..model import MuscleParams, Protocol, ProtocolError
+from ..model import MuscleParams, ProtocolError
 from ..model.params import CURVE_FIELDS
-from ..model.protocol import STIMULATION_OUTPUTS
-from ..playback import LENGTH, LENGTH_STAMPED, STIMULATION, Playback, Send
+from ..model.protocol import STIMULATION_OUTPUTS, PulseProtocol, read_protocol
+from ..playback import (CHANNELS, LENGTH, LENGTH_STAMPED, STIMULATION, Playback, PulsePlayback,
+                        Send)
 from ..qos import OUTPUT_QOS
 from ..resources import BUILTIN_PROTOCOLS, find_protocol
 from ..timebase import NS_PER_S
@@ -53,6 +65,7 @@ from ._diagnostics import DiagnosticReport, NodeDiagnostics
 from ._overrides import reject_unknown_overrides
 from ._parameters import declare_checked, field_descriptor, number_descriptor
 from ._process import EXIT_FAILURE, EXIT_SUCCESS, StartupError, process_entry, run_node
+from ._stimulation_send import STIMULATION_TOPIC, stimulation_message, stimulation_type
 from ._topics import overridable_publisher
 
 NODE_NAME = 'protocol_player'
@@ -79,6 +92,10 @@ LOOKAHEAD_RANGE_S = (0.0, 10.0)
 #: recorder that must not miss the start makes it 2).
 DEFAULT_MIN_SUBSCRIBERS = 1
 MIN_SUBSCRIBERS_RANGE = (1, 100)
+#: Muscle fields the player declares for a protocol with ``channels``: the
+#: stimulator its commands are checked against, and the interval of the
+#: muscle's doublets and triplets (the Stimulation message carries none).
+PULSE_FIELDS = ('stimulator', 'burst_interval_s')
 
 
 
@@ -123,6 +140,10 @@ class ProtocolPlayer(Node):
         curve = {name: declare_checked(self, name, getattr(defaults, name), field_descriptor(
             fields[name], read_only=True, note='the recruitment curve between pulse width '
             'and recruitment command')) for name in CURVE_FIELDS}
+        pulse_fields = {name: declare_checked(
+            self, name, getattr(defaults, name), field_descriptor(
+                fields[name], read_only=True, note='checks the commands of a protocol with '
+                'channels; give the simulator\'s value')) for name in PULSE_FIELDS}
         reject_unknown_overrides(self)
         if not math.isfinite(self._lookahead_s):
             raise StartupError(f'parameter `lookahead_s` must be finite, got '
@@ -130,16 +151,31 @@ class ProtocolPlayer(Node):
         if self._output not in OUTPUT_CHOICES:
             raise StartupError(f'parameter `output` must be one of '
                                f'{", ".join(OUTPUT_CHOICES)}, got {self._output!r}')
+        self._period_s = 1.0 / rate_hz
         try:
-            self._curve = MuscleParams(**curve)
-            self._protocol = Protocol.from_yaml(find_protocol(spec))
-            # Fail now, not mid-run: every knot of the protocol maps on the curve.
-            for t_s in self._protocol.stimulation.times_s:
-                self._protocol.stimulation_command(float(t_s), self._output, self._curve)
+            self._curve = MuscleParams(**curve, **pulse_fields)
+            path = find_protocol(spec)
+            self._protocol = read_protocol(path)
+            #: True for a protocol with ``channels``: pulse trains on ``stimulation``
+            self.pulsed = isinstance(self._protocol, PulseProtocol)
+            if self.pulsed:
+                # Fail now, not mid-run: every command is checked against the stimulator.
+                self._playback = PulsePlayback(self._protocol, self._curve, self._period_s,
+                                               self._lookahead_s, source=str(path))
+            else:
+                # Fail now, not mid-run: every knot of the protocol maps on the curve.
+                for t_s in self._protocol.stimulation.times_s:
+                    self._protocol.stimulation_command(float(t_s), self._output, self._curve)
+                self._playback = Playback(self._protocol, self._output, self._curve,
+                                          self._period_s, self._lookahead_s)
         except (ValueError, ProtocolError) as err:
             raise StartupError(str(err)) from None
 
-        self._pub_stim = overridable_publisher(self, Float64, self._output, OUTPUT_QOS)
+        if self.pulsed:
+            self._pub_stim = overridable_publisher(self, stimulation_type(), STIMULATION_TOPIC,
+                                                   OUTPUT_QOS)
+        else:
+            self._pub_stim = overridable_publisher(self, Float64, self._output, OUTPUT_QOS)
         self._stamped = self._lookahead_s > 0.0
         self._pub_dl = (overridable_publisher(self, PointStamped, 'length_command_stamped',
                                               OUTPUT_QOS)
@@ -147,9 +183,6 @@ class ProtocolPlayer(Node):
                         else overridable_publisher(self, Float64, 'length_command', OUTPUT_QOS))
         self.done = Future()
         self._failure = ''       # why the player gave up, if it did
-        self._period_s = 1.0 / rate_hz
-        self._playback = Playback(self._protocol, self._output, self._curve, self._period_s,
-                                  self._lookahead_s)
         # Waiting is in wall time: the sim clock may not run yet.
         self._steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._wait_deadline_ns = (self._steady.now().nanoseconds
@@ -159,10 +192,14 @@ class ProtocolPlayer(Node):
         self._timer = None
         self._diagnostics = NodeDiagnostics(self, 'protocol playback', self._diagnose)
         ahead = (f', length {self._lookahead_s:g} s ahead' if self._stamped else '')
+        trains = (f' ({len(self._protocol.channels)} channel(s), {len(self._playback.times_s)} '
+                  f'commands checked against {self._playback.profile.name})'
+                  if self.pulsed else '')
         self.get_logger().info(
             f'{self._protocol.name} ({self._protocol.duration_s:g} s) on '
-            f'{self._pub_stim.topic_name} and {self._pub_dl.topic_name}{ahead}; waiting up '
-            f'to {self._wait_s:g} s for {self._min_subscribers} subscriber(s) on each')
+            f'{self._pub_stim.topic_name}{trains} and {self._pub_dl.topic_name}{ahead}; '
+            f'waiting up to {self._wait_s:g} s for {self._min_subscribers} subscriber(s) on '
+            'each')
 
     def _on_poll(self) -> None:
         """Start once every output is matched and the clock runs; else time out."""
@@ -272,6 +309,10 @@ class ProtocolPlayer(Node):
         for send in sends:
             if send.topic == STIMULATION:
                 self._pub_stim.publish(Float64(data=float(send.value)))
+            elif send.topic == CHANNELS:
+                stamp_ns = (send.stamp_ns if send.stamp_ns is not None
+                            else self.get_clock().now().nanoseconds)
+                self._pub_stim.publish(stimulation_message(send.value, stamp_ns))
             elif send.topic == LENGTH:
                 self._pub_dl.publish(Float64(data=float(send.value)))
             else:
