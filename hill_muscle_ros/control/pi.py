@@ -1,6 +1,11 @@
 """A force controller for FES: a feedforward plus a PI loop with anti-windup,
 output clamped to [0, PW_max].
 
+The output is a pulse width (``modulate: pulse_width``, the default) or, with
+``modulate: frequency``, read as a fraction u = output / PW_max of the range
+[``frequency_min_hz``, ``frequency_max_hz``] of a train of pulses of a fixed
+width ``pulse_width_s`` on channel 1 (:func:`frequency_command`).
+
 The feedforward is either the inverse recruitment curve (``recruitment``:
 R = F* / ff_force_n) or, when the controller is given a nominal muscle model
 and the imposed length, the model's inverse dynamics (``model``): the
@@ -22,6 +27,7 @@ from ..model.command_track import CommandTrack, check_time
 from ..model.equations import force_length, isometric_force_for, parallel_force
 from ..model.muscle import check_dl_mt
 from ..model.params import MuscleParams
+from ..model.stimulator import ChannelCommand, StimulatorProfile, check_channel_command
 from ..model.stimulus import command_from_pulse_width, pulse_width_for_command
 
 _DEFAULTS = MuscleParams()
@@ -71,6 +77,23 @@ DEFAULT_TARGET_TIMEOUT_S = 0.0
 #: Feedforward choices: the nominal model's inverse dynamics (uses the
 #: imposed length), the inverse recruitment curve (force only), or none.
 FEEDFORWARD_CHOICES = ('model', 'recruitment', 'none')
+#: What the output drives: the pulse width (``pulse_width`` topic, the
+#: default), or the frequency of channel 1 at a fixed pulse width
+#: (``stimulation`` topic, :func:`frequency_command`).
+MODULATE_CHOICES = ('pulse_width', 'frequency')
+#: [s] the fixed pulse width of ``modulate: frequency``: 500 us, the paper's
+#: PW_max (every unit recruited on its linear curve, so that frequency grades
+#: the whole muscle's force) and the widest pulse of the RehaStim 2
+#: (pyScienceMode 1.1.5, ``Channel.check_value_param``). Kesar & Binder-Macleod
+#: 2006 paired the longest pulses (600 us) with the lowest frequency (11.5 Hz)
+#: and found that protocol the least fatiguing.
+DEFAULT_MODULATED_PULSE_WIDTH_S = 500e-6
+#: [Hz] the frequency range of ``modulate: frequency``: the lowest and the
+#: highest frequency of Kesar & Binder-Macleod 2006's three quadriceps protocols
+#: (11.5 Hz at 600 us, 30 Hz at 150 us, 60 Hz at 131 us), which gave the same
+#: initial force.
+DEFAULT_FREQUENCY_MIN_HZ = 11.5
+DEFAULT_FREQUENCY_MAX_HZ = 60.0
 
 
 def _spec(unit: str, description: str, low: float | None = None, high: float | None = None,
@@ -130,6 +153,16 @@ class ControllerParams:
     :param length_preview_s: [s] stamped set points are read this far ahead
         (:class:`ImposedLength`)
     :param force_limit_n: [N] inputs beyond this are rejected (see :meth:`ForceController.check_target`)
+    :param modulate: ``pulse_width`` (the default): the output is the pulse
+        width sent. ``frequency``: the output, as a fraction of ``pw_max_s``,
+        sets the frequency of channel 1 at the fixed ``pulse_width_s``
+        (:func:`frequency_command`)
+    :param pulse_width_s: [s] the fixed pulse width of ``modulate: frequency``,
+        at most ``pw_max_s`` there
+    :param frequency_min_hz: [Hz] the frequency of the smallest output above 0
+    :param frequency_max_hz: [Hz] the frequency of the output ``pw_max_s``;
+        above ``frequency_min_hz``
+    :raises ValueError: naming the field, its range and the value
     """
 
     feedforward: str = field(default=FEEDFORWARD_CHOICES[0], metadata=_spec(
@@ -162,9 +195,71 @@ class ControllerParams:
     force_limit_n: float = field(default=DEFAULT_FORCE_LIMIT_N, metadata=_spec(
         'N', 'a force target above this, or a force feedback beyond +-this, is '
         'rejected as garbage', 1e-3, 1e9))
+    modulate: str = field(default=MODULATE_CHOICES[0], metadata=_spec(
+        '-', 'what the output drives: pulse_width (published on pulse_width) or frequency '
+        '(channel 1 at pulse_width_s, its frequency in [frequency_min_hz, frequency_max_hz], '
+        'published on stimulation); read-only', choices=MODULATE_CHOICES))
+    pulse_width_s: float = field(default=DEFAULT_MODULATED_PULSE_WIDTH_S, metadata=_spec(
+        's', 'fixed pulse width of modulate frequency, at most pw_max_s (500 us: the paper\'s '
+        'PW_max, the RehaStim 2\'s widest pulse)', 1e-9, 1.0))
+    frequency_min_hz: float = field(default=DEFAULT_FREQUENCY_MIN_HZ, metadata=_spec(
+        'Hz', 'frequency of the smallest output above 0 in modulate frequency (11.5 Hz: '
+        'Kesar & Binder-Macleod 2006)', 1e-3, 1e4))
+    frequency_max_hz: float = field(default=DEFAULT_FREQUENCY_MAX_HZ, metadata=_spec(
+        'Hz', 'frequency of the output pw_max_s in modulate frequency, above frequency_min_hz '
+        '(60 Hz: Kesar & Binder-Macleod 2006)', 1e-3, 1e4))
 
     def __post_init__(self) -> None:
         check_spec_fields(self)
+        if not self.frequency_min_hz < self.frequency_max_hz:
+            raise ValueError(f'`frequency_max_hz` must be above `frequency_min_hz` '
+                             f'({self.frequency_min_hz!r} Hz), got {self.frequency_max_hz!r}')
+        if self.modulate == 'frequency' and not self.pulse_width_s <= self.pw_max_s:
+            raise ValueError(f'`pulse_width_s` must be at most `pw_max_s` ({self.pw_max_s!r} '
+                             f's) with modulate frequency, got {self.pulse_width_s!r}')
+
+
+def frequency_command(output_s: float, params: ControllerParams) -> ChannelCommand:
+    """Channel 1's command for a controller output in ``modulate: frequency``.
+
+    The output is read as u = ``output_s`` / ``pw_max_s``, clipped to [0, 1].
+    u = 0 is no stimulation: pulse width 0 (at ``frequency_min_hz``), as the
+    pulse-width output 0 is. Above it the train has the fixed width
+    ``pulse_width_s`` and the frequency
+    ``frequency_min_hz + u (frequency_max_hz - frequency_min_hz)``, single pulses.
+
+    :param output_s: [s] the controller's output (:meth:`ForceController.update`),
+        in [0, ``pw_max_s``]
+    :param params: the controller's parameters
+    :return: channel 1's command, no current (the muscle's reference current)
+    """
+    u = min(max(output_s / params.pw_max_s, 0.0), 1.0)
+    f_min, f_max = params.frequency_min_hz, params.frequency_max_hz
+    if not u > 0.0:
+        return ChannelCommand(1, 'single', 0.0, None, f_min)
+    f = min(max(f_min + u * (f_max - f_min), f_min), f_max)
+    return ChannelCommand(1, 'single', params.pulse_width_s, None, f)
+
+
+def check_frequency_range(params: ControllerParams, profile: StimulatorProfile) -> None:
+    """Check that every command of ``modulate: frequency`` is one the
+    stimulator accepts: its ends (the profile's ranges are intervals) and the
+    zero stimulation.
+
+    :param params: the controller's parameters
+    :param profile: the stimulator
+    :raises ValueError: naming the parameter, the field, the channel and the value
+    """
+    for name, pulse_width_s, f in (
+            ('frequency_min_hz', params.pulse_width_s, params.frequency_min_hz),
+            ('frequency_max_hz', params.pulse_width_s, params.frequency_max_hz),
+            ('frequency_min_hz', 0.0, params.frequency_min_hz)):
+        try:
+            check_channel_command(profile, 1, f, pulse_width_s, None, 'single')
+        except ValueError as err:
+            which = (f'`pulse_width_s` {params.pulse_width_s!r} s' if 'pulse_width_s' in str(err)
+                     else f'`{name}` {f!r} Hz')
+            raise ValueError(f'{which} is refused by the stimulator: {err}') from None
 
 
 class LengthRate:

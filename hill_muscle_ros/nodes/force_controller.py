@@ -16,6 +16,14 @@ force is older than ``feedback_timeout_s`` (or, with ``target_timeout_s`` >
 control period without a new force sample holds the last pulse width. On
 shutdown it publishes zero stimulation.
 
+With ``modulate: frequency`` it publishes ``stimulation``
+(``hill_muscle_interfaces/msg/Stimulation``) instead of ``pulse_width``:
+channel 1, single pulses of the fixed width ``pulse_width_s``, at the frequency
+the controller's output gives in [``frequency_min_hz``, ``frequency_max_hz``]
+(:func:`~hill_muscle_ros.control.frequency_command`; an output of 0, and zero
+stimulation, is pulse width 0). The range is checked at start-up, and on a
+live change, against the ``stimulator`` of the nominal muscle.
+
 Run: ``ros2 run hill_muscle_ros force_controller`` or ``hill-muscle controller``.
 """
 from __future__ import annotations
@@ -27,9 +35,11 @@ from rclpy.node import Node
 from geometry_msgs.msg import PointStamped
 from std_msgs.msg import Float64
 
-from ..control import ControllerInputs, ControllerParams, ForceController, ImposedLength
+from ..control import (ControllerInputs, ControllerParams, ForceController, ImposedLength,
+                       check_frequency_range, frequency_command)
 from ..model import MuscleParams
 from ..model.muscle import check_dl_mt
+from ..model.stimulator import stimulator_profile
 from ..qos import OUTPUT_QOS, RELIABLE_QOS
 from ..timebase import NS_PER_S
 from ._diagnostics import DiagnosticReport, NodeDiagnostics
@@ -37,12 +47,16 @@ from ._inputs import BadInputWarner
 from ._overrides import reject_unknown_overrides
 from ._parameters import declare_checked, declare_spec_fields, field_descriptor
 from ._process import StartupError, process_entry, run_node
+from ._stimulation_send import STIMULATION_TOPIC, stimulation_message, stimulation_type
 from ._topics import (FINAL_ACK_TIMEOUT_S, overridable_publisher, overridable_subscription,
                       publish_last)
 
 NODE_NAME = 'force_controller'
 #: Longest time step, in control periods, that one update integrates over.
 MAX_DT_PERIODS = 2.0
+#: The parameter that cannot change while the node runs although its
+#: descriptor (a choice) does not say read-only: it chooses the output topic.
+MODULATE = 'modulate'
 
 
 class ForceControllerNode(Node):
@@ -63,6 +77,11 @@ class ForceControllerNode(Node):
             params = ControllerParams(**values)
             model = MuscleParams(**model_values, pw_max_s=params.pw_max_s)
             self.controller = ForceController(params, model)
+            #: True with ``modulate: frequency``: Stimulation on ``stimulation``
+            self.frequency_mode = params.modulate == 'frequency'
+            if self.frequency_mode:
+                check_frequency_range(params, stimulator_profile(model.stimulator,
+                                                                 params.pw_max_s))
         except ValueError as err:
             raise StartupError(f'parameter {err}') from None
         reject_unknown_overrides(self)
@@ -74,9 +93,16 @@ class ForceControllerNode(Node):
         #: ControllerInputs.state of the last tick: a change is logged once.
         self.input_state = ControllerInputs.NO_TARGET
         self._last_tick_ns: int | None = None
-        #: [s] the pulse width last published
+        #: [s] the controller's output last published: the pulse width, or with
+        #: ``modulate: frequency`` what :attr:`command` was made from
         self.pulse_width_s = 0.0
-        self._pub = overridable_publisher(self, Float64, 'pulse_width', OUTPUT_QOS)
+        #: ``modulate: frequency``: channel 1's command last published
+        self.command = frequency_command(0.0, p) if self.frequency_mode else None
+        if self.frequency_mode:
+            self._pub = overridable_publisher(self, stimulation_type(), STIMULATION_TOPIC,
+                                              OUTPUT_QOS)
+        else:
+            self._pub = overridable_publisher(self, Float64, 'pulse_width', OUTPUT_QOS)
         self._sub_target = overridable_subscription(self, Float64, 'force_target',
                                                     self._on_target, RELIABLE_QOS)
         self._sub_force = overridable_subscription(self, Float64, 'force', self._on_force,
@@ -89,9 +115,12 @@ class ForceControllerNode(Node):
         self.create_timer(1.0 / self.controller.params.rate_hz, self._on_tick)
         self._diagnostics = NodeDiagnostics(self, 'force control', self._diagnose)
         p = self.controller.params
+        modulated = (f' (frequency modulation: channel 1 at {p.pulse_width_s:g} s, '
+                     f'{p.frequency_min_hz:g}-{p.frequency_max_hz:g} Hz, checked against '
+                     f'{self.controller.model.stimulator})' if self.frequency_mode else '')
         self.get_logger().info(
             f'controlling {self._sub_force.topic_name} to {self._sub_target.topic_name} on '
-            f'{self._pub.topic_name} at {p.rate_hz:g} Hz: kp {p.kp_s_per_n:g} s/N, '
+            f'{self._pub.topic_name}{modulated} at {p.rate_hz:g} Hz: kp {p.kp_s_per_n:g} s/N, '
             f'ki {p.ki_s_per_n_s:g} s/(N s), {p.feedforward} feedforward (length from '
             f'{self._sub_length.topic_name} or {self._sub_length_stamped.topic_name}), PW_max {p.pw_max_s:g} s, feedback timeout '
             f'{p.feedback_timeout_s:g} s')
@@ -149,9 +178,16 @@ class ForceControllerNode(Node):
                          if p.name in MuscleParams.field_names() and p.name != 'pw_max_s'}
         if not (changes or model_changes):
             return SetParametersResult(successful=True)
+        if changes.get(MODULATE, self.controller.params.modulate) != \
+                self.controller.params.modulate:
+            return SetParametersResult(successful=False, reason=(
+                f'`{MODULATE}` is read-only: it chooses the output topic at start-up '
+                f'({self._pub.topic_name}); restart the node to change it'))
         try:
             new = dataclasses.replace(self.controller.params, **changes)
             model = self.controller.model.replace(**model_changes, pw_max_s=new.pw_max_s)
+            if self.frequency_mode:
+                check_frequency_range(new, stimulator_profile(model.stimulator, new.pw_max_s))
         except (ValueError, TypeError) as err:
             return SetParametersResult(successful=False, reason=str(err))
         self.controller.params, self.controller.model = new, model
@@ -214,12 +250,19 @@ class ForceControllerNode(Node):
         report.add('feedback_timeout_s', p.feedback_timeout_s)
         report.add('pulse_width_s', self.pulse_width_s)
         report.add('stimulating', self.pulse_width_s > 0.0)
+        if self.frequency_mode:
+            report.add('modulate', p.modulate)
+            report.add('frequency_hz', self.command.frequency_hz)
         bad_period = report.delta('bad_inputs', self._warner.total)
         report.add('bad_inputs_total', self._warner.total)
         report.add('bad_inputs_last_period', bad_period)
         for topic, n in sorted(self._warner.counts.items()):
             report.add(f'bad_inputs[{topic}]', n)
-        if state == ControllerInputs.READY:
+        if state == ControllerInputs.READY and self.frequency_mode:
+            report.ok(f'controlling: target {inputs.target_n:g} N, force {inputs.force_n:g} N, '
+                      f'channel 1 at {self.command.pulse_width_s:g} s, '
+                      f'{self.command.frequency_hz:g} Hz')
+        elif state == ControllerInputs.READY:
             report.ok(f'controlling: target {inputs.target_n:g} N, force {inputs.force_n:g} N, '
                       f'pulse_width {self.pulse_width_s:g} s')
         elif state == ControllerInputs.NO_TARGET:
@@ -265,13 +308,23 @@ class ForceControllerNode(Node):
 
     def _publish(self, pulse_width_s: float) -> None:
         self.pulse_width_s = pulse_width_s
+        if self.frequency_mode:
+            self._pub.publish(self._stimulation(pulse_width_s))
+            return
         self._pub.publish(Float64(data=pulse_width_s))
+
+    def _stimulation(self, output_s: float):
+        """``modulate: frequency``: the Stimulation for the controller's output
+        ``output_s`` [s] (:func:`frequency_command`), stamped now; kept as :attr:`command`."""
+        self.command = frequency_command(output_s, self.controller.params)
+        return stimulation_message((self.command,), self.get_clock().now().nanoseconds)
 
     def on_exit(self) -> None:
         """Leave the muscle unstimulated: a controller that stops must say 0."""
         try:
             self.pulse_width_s = 0.0
-            if not publish_last([(self._pub, Float64(data=0.0))]):
+            zero = self._stimulation(0.0) if self.frequency_mode else Float64(data=0.0)
+            if not publish_last([(self._pub, zero)]):
                 self.get_logger().debug('zero stimulation on exit not acknowledged within '
                                         f'{FINAL_ACK_TIMEOUT_S:g} s on {self._pub.topic_name}')
         except Exception as err:  # noqa: BLE001 - the context may already be down
