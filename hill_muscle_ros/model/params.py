@@ -309,9 +309,9 @@ class MuscleParams:
     current_ref_a: float = field(default=DEFAULT_CURRENT_REF_A, metadata=_spec(
         'A', 'current I_ref at which the recruitment curve in pulse width holds', low=0.0,
         high=_FLOAT_MAX, source='IFESS 2016 quadriceps SDSS study'))
-    # Ding et al. 2003 (J Biomech 36: 1345-1356; Muscle Nerve 2003) as written in
-    # cocofest's ding2003.py: tau_c 20 ms, tau1 50.957 ms, tau2 60 ms, Km 0.103,
-    # R0 = Km + 1.04.
+    # Ding, Wexler & Binder-Macleod 2003 (J Electromyogr Kinesiol 13(6): 575-588)
+    # as written in cocofest's ding2003.py: tau_c 20 ms, tau1 50.957 ms,
+    # tau2 60 ms, Km 0.103, R0 = Km + 1.04; doc/model.md section 10.5.
     ding_tau_c_s: float = field(default=0.020, metadata=_spec(
         's', 'time constant of the Ca2+-troponin complex formation tau_c (Ding 2003)',
         low=0.0, high=_FLOAT_MAX, source='Ding et al. 2003 as in cocofest'))
