@@ -102,7 +102,8 @@ STRETCH = [[0.0, 0.0], [0.3, 0.0], [0.5, 0.004], [0.8, 0.004], [1.0, 0.0]]
 @pytest.mark.parametrize('frequency_hz', [10.0, 33.0, 80.0])
 def test_single_pulse_trains_give_the_reference_force(frequency_hz):
     """60 % of the units (PW 0.3 ms of 0.5 ms) at 10, 33 and 80 Hz for 0.7 s,
-    then relaxation, under a stretch and release."""
+    then relaxation, under a stretch and release. Measured 7.0e-5, 2.7e-5 and
+    2.7e-5 N."""
     channel = {'frequency_hz': frequency_hz, 'pulse_width_s': [(0.0, 0.0003), (0.7, 0.0)]}
     result, ref = _run_both(DING, [channel], 1.0, STRETCH)
     assert _max_diff(result.force_n, ref['force_n']) <= ACCURACY_N
@@ -113,7 +114,8 @@ def test_single_pulse_trains_give_the_reference_force(frequency_hz):
                           ('doublet', 25.0, 0.012)])
 def test_doublets_and_triplets_give_the_reference_force(mode, frequency_hz, burst_interval_s):
     """Bursts of 2 or 3 pulses 5 ms (or 12 ms) apart: the later pulses of a
-    burst enhance CN by R_i = 1 + (R0 - 1) exp(-interval / tau_c)."""
+    burst enhance CN by R_i = 1 + (R0 - 1) exp(-interval / tau_c). Measured
+    3.7e-5, 3.8e-5 and 3.5e-5 N."""
     channel = {'frequency_hz': frequency_hz, 'pulse_width_s': [(0.0, 0.0004), (0.6, 0.0)],
                'mode': mode, 'burst_interval_s': burst_interval_s}
     result, ref = _run_both(DING, [channel], 0.9)
@@ -126,13 +128,14 @@ FREQUENCY_STEP = {'frequency_hz': [(0.0, 20.0), (0.51, 50.0)], 'pulse_width_s': 
 
 
 def test_a_frequency_step_gives_the_reference_force():
+    """Measured 3.1e-5 N."""
     result, ref = _run_both(DING, [FREQUENCY_STEP], 1.0)
     assert _max_diff(result.force_n, ref['force_n']) <= ACCURACY_N
 
 
 def test_a_frequency_step_by_stimulate_and_step_trains_gives_the_reference_force():
     """The same step given live: ``stimulate`` at 0 s and at 0.51 s (the
-    schedule carries over), ``step_trains`` every millisecond."""
+    schedule carries over), ``step_trains`` every millisecond. Measured 3.1e-5 N."""
     muscle = Muscle(MuscleParams(**DING))
     n_steps = 1000
     force = [muscle.outputs().force_n]
@@ -150,7 +153,7 @@ def test_stiff_tendon_at_optimal_length_gives_dings_force_in_newtons():
     """k_SE 1e10 N/m, the CE at l_opt and f_iso_max = A (tau1 + tau2) = 333.87 N,
     every unit recruited: the muscle's force is Ding's F of the original model,
     F' = A x - F / (tau1 + tau2 x). (The Hill muscle lags F by about
-    (F0 + a) / b F' / k_SE: 2e-3 N at k_SE 1e10 N/m.)"""
+    (F0 + a) / b F' / k_SE: 2e-3 N at k_SE 1e10 N/m.) Measured 6.9e-4 N of 276 N."""
     params = dict(DING, f_iso_max_n=F_DING_MAX, k_se_n_per_m=1e10, l_rest_m=0.1, l_opt_m=0.1)
     channel = {'frequency_hz': [(0.0, 12.0), (0.4, 40.0)], 'pulse_width_s': [(0.0, 0.0005),
                                                                              (0.8, 0.0)]}
@@ -170,7 +173,8 @@ TWO_CHANNELS = dict(DING, channel_fractions=[0.4, 0.6], channel_seed=3,
 
 def test_two_channels_with_their_own_trains_recruit_their_own_territories():
     """Channel 1: 25 Hz singles, its width stepping up and down; channel 2: a
-    40 Hz doublet train starting at 0.2 s. Each recruits only its territory."""
+    40 Hz doublet train starting at 0.2 s. Each recruits only its territory.
+    Measured 1.5e-3 N."""
     channels = [
         {'frequency_hz': 25.0,
          'pulse_width_s': [(0.0, 0.0002), (0.3, 0.00045), (0.6, 0.0001)]},
@@ -184,7 +188,7 @@ def test_two_channels_with_their_own_trains_recruit_their_own_territories():
 def test_pulse_current_recruits_by_the_strength_duration_law():
     """Two channels with currents: 20 mA then 30 mA at 0.4 ms on channel 1
     (PW_eq = c k / (I_ref - k), k = I PW / (PW + c)); 60 mA on channel 2,
-    beyond I_ref at 0.3 ms, which recruits the whole territory."""
+    beyond I_ref at 0.3 ms, which recruits the whole territory. Measured 6.7e-5 N."""
     params = dict(TWO_CHANNELS, chronaxie_s=459e-6, current_ref_a=0.040)
     channels = [
         {'frequency_hz': 30.0, 'pulse_width_s': 0.0004,
@@ -202,8 +206,9 @@ FAST_FATIGUE = dict(DING, fatigue='riener', fatigue_min=[0.2], tau_fatigue_s=[3.
 
 def test_higher_frequency_tires_the_units_faster_as_the_reference():
     """4 s at 20 Hz and at 50 Hz, 60 % of the units recruited: each unit's
-    fitness follows Riener's law with a = a_c(t), so 50 Hz (a near 0.8) tires
-    more than 20 Hz (a near 0.5); force and mean fitness as the reference."""
+    fitness follows Riener's law with a = a_c(t), so 50 Hz (a near 0.87) tires
+    more than 20 Hz (a near 0.70); force and mean fitness as the reference.
+    Measured 2.7e-5 N and 7.8e-8 in mean fitness (0.740 and 0.690 at 4 s)."""
     final = {}
     for frequency_hz in (20.0, 50.0):
         channel = {'frequency_hz': frequency_hz, 'pulse_width_s': 0.0003}
