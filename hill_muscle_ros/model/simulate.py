@@ -195,11 +195,14 @@ def simulate_pulses(protocol: PulseProtocol, params: MuscleParams | None = None,
     t = sample_times(protocol.duration_s, rate_hz)
     dl = np.asarray(protocol.dl_mt(t), dtype=float)
     dt = 1.0 / rate_hz
+    now = muscle.pulses_now(times, channels, commands)   # the sample at 0 shows them
     first = muscle.outputs()
+    first_activation = muscle.activation
     n_steps = len(t) - 1
     n = substeps_for(dt)
     _, dl_end, _ = substep_inputs(np.zeros_like(dl), dl, n)
-    out, act, _ = muscle.run_pulses(times, channels, commands, dl_end, dt / n)
+    out, act, _ = muscle.run_pulses(times[now:], channels[now:], commands[now:], dl_end,
+                                    dt / n)
     rows = output_rows(n, n_steps)
     out, act = out[rows], act[rows]
     fields = {'t_s': t}
@@ -209,5 +212,5 @@ def simulate_pulses(protocol: PulseProtocol, params: MuscleParams | None = None,
             array[0] = value
             array[1:] = column
             fields[name] = array
-    fields['activation'] = np.vstack([np.zeros((1, muscle.n_channels)), act])
+    fields['activation'] = np.vstack([first_activation[None, :], act])
     return SimulationResult(**fields)

@@ -88,9 +88,20 @@ def ding_advance(F, I, i, pt, pc, pu, j0, j1, dl1, dt):
         tp = min(max(pt[j], s), t1)
         ding_integrate(F, I, i, s, tp, t0, dl0, rate)
         ding_pulse(F, I, i, pc[j], pu[j], tp)
+        free_if_idle(F, I, i, tp, dl0 + rate * (tp - t0))
         s = tp
     ding_integrate(F, I, i, s, t1, t0, dl0, rate)
     F[fs + S_V_FREE] = rate
     F[fs + S_DL] = dl1
     F[fs + S_T] = t1
     ding_settle(F, I, i, t1)
+    free_if_idle(F, I, i, t1, dl1)
+
+
+def free_if_idle(F, I, i, t, dl):
+    """A CE with no isometric force left at ``t`` (its units released by a pulse
+    or by the quiet channel's release) is free at once: it takes up the SE's
+    slack, l_CE = l_rest + dl_MT, and the tendon carries nothing."""
+    fs, fp = hdr(I, i, H_FS), hdr(I, i, H_FP)
+    if ding_f_iso(F, I, i, F[fs + S_L], t, -1) == 0.0:
+        F[fs + S_L] = F[fp + P_L_REST] + dl

@@ -340,6 +340,24 @@ class Muscle:
         used = self._kernels.ding_run(bundle.F, bundle.I, 0, t, c, u, dl, float(dt_s), out, act)
         return out, act, int(used)
 
+    def pulses_now(self, times_s, channels, commands) -> int:
+        """Apply the leading pulses that act now (within TIME_TOL_S of :attr:`t_s`),
+        so that the outputs of this instant show them, as a sample shows the
+        command of its instant.
+
+        :return: how many of the pulses (in time order) were applied
+        """
+        self._need_pulses('pulses_now')
+        bundle, k = self._bundle, self._kernels
+        used = 0
+        while used < len(times_s) and times_s[used] <= self.t_s + TIME_TOL_S:
+            k.ding_pulse(bundle.F, bundle.I, 0, int(channels[used]), float(commands[used]),
+                         self.t_s)
+            used += 1
+        if used:
+            k.free_if_idle(bundle.F, bundle.I, 0, self.t_s, self.dl_mt_m)
+        return used
+
     def run_trains(self, dl_mt_end_m, dt_s: float) -> tuple:
         """Advance ``len(dl_mt_end_m)`` steps driven by the channels' trains
         (:meth:`stimulate`), each pulse at its own instant.

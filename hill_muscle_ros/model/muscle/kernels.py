@@ -547,7 +547,8 @@ _KERNELS = ('hdr', 'scratch', 'forget_eff_f_iso', 'per_type', 'per_sum', 'moment
             'end_interval', 'set_activation', 'tau_for', 'set_piece', 'settle_now',
             'give_command', 'add_event', 'group_target', 'plan_events', 'plan_piece', 'plan',
             'apply', 'muscle_rk4', 'muscle_integrate', 'muscle_advance', 'muscle_outputs',
-            'muscle_run', 'ding_rk4', 'ding_integrate', 'ding_advance', 'ding_run')
+            'muscle_run', 'ding_rk4', 'ding_integrate', 'free_if_idle', 'ding_advance',
+            'ding_run')
 
 
 #: The modules whose code the kernels inline: their digest names the cache entries.
