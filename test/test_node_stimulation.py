@@ -20,7 +20,7 @@ from std_msgs.msg import Float64, Float64MultiArray
 from std_srvs.srv import Trigger
 
 from hill_muscle_interfaces.msg import Stimulation
-from hill_muscle_ros.model import MuscleParams
+from hill_muscle_ros.model import Muscle, MuscleParams
 from hill_muscle_ros.model.equations import equivalent_pulse_width
 from hill_muscle_ros.model.stimulator import ChannelCommand
 from hill_muscle_ros.model.stimulus import command_from_pulse_width
@@ -245,3 +245,188 @@ def test_the_pulse_parameters_are_declared_with_descriptors(make_node):
     assert fractions.additional_constraints == 'each entry >= 0 and <= 1e+12 (finite)'
     assert node.describe_parameter('frequency_hz').description.startswith('[Hz] ')
     assert 'state kept' in node.describe_parameter('stimulator').description
+
+
+def _offline(node, commands, n):
+    """[N] the forces of ``n`` steps of a muscle like the node's, given ``commands``
+    at t = 0 and stepped by its trains at the node's dt, offline."""
+    muscle = Muscle(node._params, build=node._muscle.build)
+    muscle.stimulate(commands)
+    return [muscle.step_trains(0.0, node._dt_s).force_n for _ in range(n)]
+
+
+def _node_forces(node, n):
+    forces = []
+    for _ in range(n):
+        _steps(node, 1)
+        forces.append(node._force_msg.data)
+    return forces
+
+
+def test_a_ding2003_node_steps_its_muscle_by_the_channels_trains(make_node):
+    node = make_node(**DING)
+    msg = stimulation()
+    node._on_stimulation(msg)
+    forces = _node_forces(node, 300)
+    assert forces == _offline(node, _stimulation.check_message(msg, DING_PARAMS, 2), 300)
+    assert max(forces) > 1.0
+    assert list(node._activation_msg.data) == node._muscle.activation.tolist()
+    assert len(node._activation_msg.data) == 2 and min(node._activation_msg.data) > 0.0
+
+
+def test_a_rejected_message_leaves_every_channels_train_as_it_was(make_node):
+    node = make_node(**DING)
+    good = stimulation()
+    node._on_stimulation(good)
+    forces = _node_forces(node, 100)
+    for msg, _ in BAD_MESSAGES.values():
+        node._on_stimulation(msg)
+    forces += _node_forces(node, 200)
+    assert forces == _offline(node, _stimulation.check_message(good, DING_PARAMS, 2), 300)
+    assert node._bad_input.total == len(BAD_MESSAGES)
+
+
+def test_with_ding2003_pulse_width_is_channel_1_at_frequency_hz(make_node):
+    node = make_node(**DING, frequency_hz=20.0)
+    node._on_pulse_width(Float64(data=GOOD_PW_S))
+    assert node._held == {1: ChannelCommand(1, 'single', GOOD_PW_S, None, 20.0)}
+    forces = _node_forces(node, 300)
+    assert forces == _offline(node, [ChannelCommand(1, 'single', GOOD_PW_S, None, 20.0)], 300)
+    a1, a2 = node._activation_msg.data
+    assert a1 > 0.0 and a2 == 0.0
+
+
+def test_with_ding2003_pulse_width_is_checked_against_the_stimulator(make_node):
+    node = make_node(**DING)
+    node._on_pulse_width(Float64(data=600e-6))
+    assert node._held == {}
+    assert '`pulse_width_s` of channel 1 must be 0 or in [2e-05, 0.0005] s on rehastim2, ' \
+           'got 0.0006' in _warnings(node)[0]
+
+
+def test_with_ding2003_recruitment_is_refused(make_node):
+    node = make_node(**DING)
+    node._on_recruitment(Float64(data=0.5))
+    assert node._recruitment == 0.0 and not node._stim_messages
+    assert 'does not take: send pulse_width (channel 1 at frequency_hz) or stimulation' \
+        in _warnings(node)[0]
+
+
+def test_with_ding2003_the_watchdog_turns_every_channel_off(make_node):
+    node = make_node(**DING, input_timeout_s=0.05)   # 50 steps at 1 kHz
+    msg = stimulation()
+    node._on_stimulation(msg)
+    forces = _node_forces(node, 51)
+    assert not node._watchdog_tripped
+    forces += _node_forces(node, 1000)   # trips before the 52nd step
+    assert node._watchdog_tripped
+    assert [c.pulse_width_s for c in node._held.values()] == [0.0, 0.0]
+    # The muscle given the good command, then pulse width 0 on both channels.
+    muscle = Muscle(node._params, build=node._muscle.build)
+    muscle.stimulate(_stimulation.check_message(msg, DING_PARAMS, 2))
+    offline = [muscle.step_trains(0.0, node._dt_s).force_n for _ in range(51)]
+    muscle.stimulate([ChannelCommand(c, 'single', 0.0, None, GOOD_F_HZ) for c in (1, 2)])
+    offline += [muscle.step_trains(0.0, node._dt_s).force_n for _ in range(1000)]
+    assert forces == offline
+    assert max(node._muscle.activation) < 0.01   # no pulse for a second
+    # The next message brings it back.
+    node._on_stimulation(stimulation(channel=(2,)))
+    assert not node._watchdog_tripped and node._held[2].pulse_width_s == GOOD_PW_S
+
+
+def test_a_reset_stops_every_channel(make_node):
+    node = make_node(**DING)
+    node._on_stimulation(stimulation())
+    _steps(node, 50)
+    node._on_reset(Trigger.Request(), Trigger.Response())
+    assert node._held == {}
+    assert _node_forces(node, 100) == [0.0] * 100
+
+
+# -- over DDS ---------------------------------------------------------------------
+
+NS = '/stim'
+RATE_HZ = 200.0
+#: Steps of 1 / RATE_HZ: 1.5 s for the force to settle under a command, then
+#: 0.5 s (15 pulses at 30 Hz) of its ripple as the reference band.
+SETTLE_STEPS = 300
+BAND_STEPS = 100
+#: [-] the force under a kept command stays within its band, this much wider.
+BAND_TOL = 0.05
+
+
+@pytest.fixture(scope='module')
+def shared(tmp_path_factory):
+    """A ding2003 simulator with two channels on a RehaStim 2, and a probe."""
+    tmp = tmp_path_factory.mktemp('stimulation')
+    params = tmp / 'ding.yaml'
+    params.write_text(yaml.safe_dump({'/**': {'ros__parameters': dict(
+        DING, rate_hz=RATE_HZ, input_timeout_s=0.0)}}))
+    with ProcessGroup(tmp) as procs, Probe('stimulation_probe') as probe:
+        sim = procs.start('ding', node_command('simulator', ns=NS, params_files=[params]))
+        recs = {'force': probe.record(f'{NS}/force', Float64),
+                'activation': probe.record(f'{NS}/activation', Float64MultiArray)}
+        for rec in recs.values():   # the simulator's publishers seen from here
+            probe.wait_for_messages(rec, procs=[sim])
+        yield {'probe': probe, 'sim': sim, 'recs': recs}
+
+
+@pytest.fixture
+def stimulated(shared):
+    """The shared simulator reset, then given the good command on both channels
+    (sent once the simulator's subscription is matched), and the band of its
+    settled force: (low, high) [N]."""
+    probe, sim, force = shared['probe'], shared['sim'], shared['recs']['force']
+    assert probe.call(Trigger, f'{NS}/reset', Trigger.Request(), procs=[sim]).success
+    probe.wait_for_value(force, lambda f: f == 0.0, 'zero force at rest', mark=force.mark(),
+                         procs=[sim])
+    probe.publish_when_matched(f'{NS}/stimulation', stimulation(), procs=[sim])
+    start = probe.wait_for_value(force, lambda f: f > 1.0, 'the force rising',
+                                 mark=force.mark(), procs=[sim])
+    settled = probe.wait_for_messages(force, SETTLE_STEPS, mark=start, procs=[sim])
+    band = [m.data for m in settled[-BAND_STEPS:]]
+    return dict(shared, band=(min(band), max(band)))
+
+
+def test_a_two_channel_stimulation_drives_the_force_and_both_activations(stimulated):
+    probe, sim, activation = stimulated['probe'], stimulated['sim'], \
+        stimulated['recs']['activation']
+    low, high = stimulated['band']
+    assert low > 1.0
+    msgs = probe.wait_for_messages(activation, BAND_STEPS, mark=activation.mark(), procs=[sim])
+    assert all(len(m.data) == 2 for m in msgs)
+    assert all(min(m.data) > 0.0 for m in msgs)
+    assert [(d.label, d.size) for d in msgs[-1].layout.dim] == [('channel', 2)]
+
+
+def _rejection_line(shared, msg, reason, log_start):
+    """Send ``msg`` until the simulator logs its rejection; return that line.
+
+    Warnings are throttled per topic (1 s): an earlier message may hold this
+    second's, so the message is sent again until its own line appears.
+    """
+    probe, sim = shared['probe'], shared['sim']
+    pub = probe.publisher(f'{NS}/stimulation', Stimulation)
+
+    def line():
+        found = [ln for ln in sim.output()[log_start:].splitlines() if reason in ln]
+        if not found:
+            pub.publish(msg)
+        return found[0] if found else None
+
+    return probe.spin_until(line, f'the warning {reason!r}', procs=[sim])
+
+
+@pytest.mark.parametrize('case', sorted(BAD_MESSAGES))
+def test_a_rejected_message_is_one_clear_line_and_the_force_keeps_the_last_good_command(
+        stimulated, case):
+    msg, reason = BAD_MESSAGES[case]
+    probe, sim, force = stimulated['probe'], stimulated['sim'], stimulated['recs']['force']
+    line = _rejection_line(stimulated, msg, reason, len(sim.output()))
+    assert f'ignoring {NS}/stimulation = {_stimulation.message_text(msg)}: {reason}; keeping ' \
+           'channel 1: single 0.0003 s at 30 Hz, channel 2: single 0.0003 s at 30 Hz' in line
+    after = [m.data for m in probe.wait_for_messages(force, BAND_STEPS, mark=force.mark(),
+                                                     procs=[sim])]
+    low, high = stimulated['band']
+    assert low * (1.0 - BAND_TOL) <= min(after) and max(after) <= high * (1.0 + BAND_TOL), \
+        (min(after), max(after), stimulated['band'])
