@@ -23,9 +23,35 @@ from .plant import MUSCLE_COLUMNS, LimbPlant, stretch_message
 ROW_JOINT = 3
 
 
-def row_length(n_muscles: int) -> int:
-    """[-] entries of an outputs row of a limb of ``n_muscles`` muscles."""
-    return ROW_JOINT + len(MUSCLE_COLUMNS) * n_muscles
+def row_length(n_muscles: int, n_activations: int = 0) -> int:
+    """[-] entries of an outputs row of a limb of ``n_muscles`` muscles whose
+    pulsed muscles have ``n_activations`` channels in all
+    (:func:`activation_count`): their a_c close the row."""
+    return ROW_JOINT + len(MUSCLE_COLUMNS) * n_muscles + n_activations
+
+
+def activation_count(plant: LimbPlant) -> int:
+    """[-] the channels of the plant's pulsed (``ding2003``) muscles, in all."""
+    return sum(m.params.n_channels for m in plant.muscles
+               if m.params.activation_model == 'ding2003')
+
+
+def no_pulses() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The pulse arrays of a run without pulses: (instants, (2, 0) muscle and
+    channel, commands)."""
+    return np.zeros(0), np.zeros((2, 0), dtype=np.int64), np.zeros(0)
+
+
+def pulse_arrays(pulses) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The kernels' pulse arrays from ``(instant [s], muscle, 0-based channel, u)``
+    rows in time order."""
+    if not pulses:
+        return no_pulses()
+    pt = np.array([p[0] for p in pulses], dtype=float)
+    pi = np.ascontiguousarray(np.array([[p[1] for p in pulses], [p[2] for p in pulses]],
+                                       dtype=np.int64))
+    pu = np.array([p[3] for p in pulses], dtype=float)
+    return pt, pi, pu
 
 
 class LimbArrays:
@@ -43,7 +69,10 @@ class LimbArrays:
     def __init__(self, plant: LimbPlant, dt_s: float, pool: ScratchPool | None = None) -> None:
         self.plant = plant
         self.nm = nm = len(plant.muscles)
+        self.n_activations = activation_count(plant)
         self._pool = pool
+        #: The pulses the next call of the kernels takes (:func:`pulse_arrays`).
+        self.pulses = no_pulses()
         self.bundle = FesBundle([m.params for m in plant.muscles], dt_s, pool)
         self.L = np.zeros(L_MUSCLES + L_PER_MUSCLE * max(nm, 1))
         j = plant.joint
@@ -108,8 +137,10 @@ class LimbArrays:
         :return: the kernel's status
         """
         b = self.bundle
+        pt, pi, pu = self.pulses
         return kernels.limb_entry(b.F, b.I, self.L, self.W, self.TT, self.TI, self.nm, mode,
-                                  u, tau, dt_s, DL_MT_LIMIT_M, n_steps, target_rad, acc, rows)
+                                  u, tau, dt_s, DL_MT_LIMIT_M, n_steps, target_rad, acc, rows,
+                                  pt, pi, pu)
 
     def error(self, status: int) -> Exception:
         """The error of a kernel's failed ``status``: the ValueError naming the

@@ -33,15 +33,19 @@ import sys
 import types
 
 from .. import equations, memory, stimulus, units
+from ..muscle import ding as muscle_ding
 from ..muscle import kernels as muscle_kernels
 from ..muscle import pool as muscle_pool
 from ..muscle import state as muscle_state
 from ..equations import (QUASI_STATIC_RATE_PER_S, SINE_SERIES_MAX_RAD, activation_at,
                          joint_acceleration_sin, mtu_length_change, parallel_force, rk4_update,
                          series_force, sine_near, substep_count)
-from ..muscle.state import (DELAY_FULL, H_DQT, H_EVT, H_FP, H_FS, H_IP, H_JS, I_INITIAL,
-                            I_MULTI, I_N, J_DCOUNT, J_DHEAD, J_NEV, J_NREC, OK, P_K_PE, P_K_SE,
-                            P_L_REST, S_CMD, S_DL, S_L, S_R, S_T, S_UD, TIME_TOL_S, hdr)
+from ..muscle.state import (D_A, DELAY_FULL, H_DQT, H_EVT, H_FP, H_FS, H_IP, H_JS, I_DING,
+                            I_INITIAL, I_MULTI, I_N, I_NCH, J_DCOUNT, J_DHEAD, J_NEV, J_NREC, OK,
+                            P_K_PE, P_K_SE, P_L_REST, S_CMD, S_DL, S_L, S_R, S_T, S_UD,
+                            TIME_TOL_S, hdr)
+from ..muscle.ding import (ding_clocks, ding_commit, ding_f_iso, ding_pulse, ding_settle,
+                           ding_slot, ding_stages)
 from ..muscle.kernels import (apply, begin_interval, eff_f_iso, eff_f_iso_inline, end_interval,
                               give_command, peak_rate, plan, quasi_force, rate_at, set_piece,
                               settle_now, tau_for, velocity)
@@ -85,10 +89,19 @@ def dl_mt(L, i, theta):
     return mtu_length_change(L[j + M_SIGN] * L[j + M_ARM], theta, L[j + M_REF])
 
 
+def pulsed(I, i):
+    """True if muscle ``i`` is driven by pulses (``activation_model: ding2003``):
+    no command, no plan; its channels' pulses are events of the step and its
+    activations are integrated by the joint's RK4 (:func:`limb_rk4`)."""
+    return I[hdr(I, i, H_IP) + I_DING] != 0
+
+
 def length_free(I, i):
     """True if muscle ``i``'s F0 does not depend on l_CE (``length: initial``):
-    a step then takes it once per stage instant (W_F0A, W_F0M, W_F0B)."""
-    return I[hdr(I, i, H_IP) + I_INITIAL] != 0
+    a step then takes it once per stage instant (W_F0A, W_F0M, W_F0B). Never
+    for a pulsed muscle, whose F0 follows its channels' activations."""
+    ip = hdr(I, i, H_IP)
+    return I[ip + I_INITIAL] != 0 and I[ip + I_DING] == 0
 
 
 def plan_steady(F, I, W, i, t0, t1):
@@ -135,15 +148,24 @@ def resting(F, I, W, i):
 def settle_ce(F, I, i, t):
     """After an event of muscle ``i`` at ``t``: a CE without F0 is free (limb_step)."""
     fs = hdr(I, i, H_FS)
-    if eff_f_iso_inline(F, I, i, F[fs + S_L], t) == 0.0:
+    if pulsed(I, i):
+        f0 = ding_f_iso(F, I, i, F[fs + S_L], t, -1)
+    else:
+        f0 = eff_f_iso_inline(F, I, i, F[fs + S_L], t)
+    if f0 == 0.0:
         F[fs + S_L] = F[hdr(I, i, H_FP) + P_L_REST] + F[fs + S_DL]
 
 
 def stage_f0(F, I, W, i, l, stage, t):
     """[N] F0 of muscle ``i`` at RK4 stage ``stage`` (a row W_L1..W_L4 of ``W``),
-    CE length ``l``, instant ``t``: limb_rk4's where it does not depend on l_CE."""
+    CE length ``l``, instant ``t``: limb_rk4's where it does not depend on l_CE;
+    a pulsed muscle's with its channels' activations at that stage
+    (:func:`~hill_muscle_ros.model.muscle.ding.ding_stages`, rows W_L1..W_L4
+    being its stages 0..3)."""
     if length_free(I, i):
         return W[W_F0A + (stage + 1) // 2, i]   # stages 1, 2, 3, 4: start, mid, mid, end
+    if pulsed(I, i):
+        return ding_f_iso(F, I, i, l, t, stage - W_L1)
     return eff_f_iso(F, I, i, l, t)
 
 
@@ -197,7 +219,14 @@ def limb_rk4(F, I, L, W, nm, s0, s1, have_f0):
         fs = hdr(I, i, H_FS)
         l = F[fs + S_L]
         W[W_L1, i] = l
-        if length_free(I, i):
+        if pulsed(I, i):
+            # The channels' a at the four stages of this step (and its end),
+            # their fitness clocks over it: ding_rk4's coupling, in the joint's RK4.
+            ding_stages(F, I, i, h)
+            ding_clocks(F, I, i, s0)
+            free = (ding_f_iso(F, I, i, l, s0, 0) == 0.0
+                    and ding_f_iso(F, I, i, l, s1, 3) == 0.0)
+        elif length_free(I, i):
             if not have_f0:
                 stage_f0s(F, I, W, i, l, s0, mid, s1)
             free = W[W_F0A, i] == 0.0 and W[W_F0B, i] == 0.0
@@ -234,7 +263,11 @@ def limb_rk4(F, I, L, W, nm, s0, s1, have_f0):
         dl = dl_mt(L, i, theta)
         l = rk4_update(W[W_L1, i], h, W[W_V1, i], W[W_V2, i], W[W_V3, i], W[W_V4, i])
         fp = hdr(I, i, H_FP)
-        f0 = stage_f0(F, I, W, i, l, W_L4, s1)
+        if pulsed(I, i):
+            ding_commit(F, I, i, h)
+            f0 = ding_f_iso(F, I, i, l, s1, -1)   # a at the step's end
+        else:
+            f0 = stage_f0(F, I, W, i, l, W_L4, s1)
         if W[W_FREE, i] != 0.0 or f0 == 0.0:
             l = F[fp + P_L_REST] + dl
         elif W[W_QUASI, i] != 0.0:
@@ -266,7 +299,11 @@ def limb_integrate(F, I, L, W, nm, s0, s1):
             W[W_F0B, i] = 0.0
             W[W_QUASI, i] = 0.0
             continue
-        if length_free(I, i):
+        if pulsed(I, i):
+            # ding_integrate's bound: the activations now and a = 1 (a < 1 always).
+            rate = max(rate_at(F, I, i, l, dl, ding_f_iso(F, I, i, l, s0, -1)),
+                       rate_at(F, I, i, l, dl, ding_f_iso(F, I, i, l, s0, 4)))
+        elif length_free(I, i):
             # peak_rate's three instants are those of a single RK4 step over [s0, s1].
             stage_f0s(F, I, W, i, l, s0, mid, s1)
             rate = max(rate_at(F, I, i, l, dl, W[W_F0A, i]),
@@ -286,9 +323,24 @@ def limb_integrate(F, I, L, W, nm, s0, s1):
         end_interval(F, I, i, s1)
 
 
-def limb_step(F, I, L, W, TT, TI, nm, us, tau, dt, dl_limit, give):
+def pulses_due(PT, j, t1):
+    """The index past the pulses from ``j`` on that act before ``t1`` (within
+    TIME_TOL_S of it: the next step's), as :func:`~hill_muscle_ros.model.muscle.kernels.ding_run`
+    takes a step's pulses."""
+    while j < PT.shape[0] and PT[j] < t1 - TIME_TOL_S:
+        j += 1
+    return j
+
+
+def limb_step(F, I, L, W, TT, TI, nm, us, tau, dt, dl_limit, give, PT, PI, PU, j0, j1):
     """One step with each muscle's command ``us[i]`` and the external torque held
-    (:meth:`.limb.Limb.step`'s work, inputs already checked).
+    (:meth:`.limb.Limb.step`'s work, inputs already checked), and the pulses
+    ``j0 .. j1 - 1`` of the pulsed muscles, each at its own instant.
+
+    The step is cut at every event of a command-driven muscle and at every
+    pulse of a pulsed one, in time order (at an equal instant the events
+    first); between them the joint, every CE and every channel's activation
+    are integrated together (:func:`limb_integrate`).
 
     :param us: [-] each muscle's recruitment command u, in [0, 1]
     :param tau: [N m] the external torque tau_ext
@@ -299,6 +351,10 @@ def limb_step(F, I, L, W, TT, TI, nm, us, tau, dt, dl_limit, give):
     :param TT: [s] timeline instants, room for every muscle's events
     :param TI: (2, len(TT)) int64 timeline muscle and event indices
     :param dl_limit: [m] largest |dl_MT| at the step's end
+    :param PT: [s] pulse instants (when each acts), not decreasing
+    :param PI: (2, len(PT)) int64 each pulse's muscle and 0-based channel
+    :param PU: [-] the fraction u of its channel's territory each pulse recruits
+    :param j0: the step's first pulse; ``j1`` one past its last (:func:`pulses_due`)
     :return: :data:`OK`, :data:`DELAY_FULL`, or :data:`DL_OUT_OF_RANGE` + i
     """
     t0 = L[L_T]
@@ -308,6 +364,9 @@ def limb_step(F, I, L, W, TT, TI, nm, us, tau, dt, dl_limit, give):
     for i in range(nm):
         fs = hdr(I, i, H_FS)
         F[fs + S_T] = t0
+        if pulsed(I, i):
+            W[W_STEADY, i] = 0.0
+            continue
         if give and not give_command(F, I, i, us[i]):
             return DELAY_FULL
         if plan_steady(F, I, W, i, t0, t1):
@@ -330,17 +389,32 @@ def limb_step(F, I, L, W, TT, TI, nm, us, tau, dt, dl_limit, give):
             TI[1, k] = e
             n_events += 1
     s = t0
-    for k in range(n_events):
-        instant = TT[k]
-        i = TI[0, k]
-        limb_integrate(F, I, L, W, nm, s, instant)
-        apply(F, I, i, TI[1, k], instant)
+    k = 0
+    p = j0
+    while k < n_events or p < j1:
+        if p < j1 and (k == n_events or PT[p] < TT[k]):
+            # A pulse, at its own instant (ding_advance's clamp to the step).
+            instant = min(max(PT[p], s), t1)
+            i = PI[0, p]
+            limb_integrate(F, I, L, W, nm, s, instant)
+            ding_pulse(F, I, i, PI[1, p], PU[p], instant)
+            p += 1
+        else:
+            instant = TT[k]
+            i = TI[0, k]
+            limb_integrate(F, I, L, W, nm, s, instant)
+            apply(F, I, i, TI[1, k], instant)
+            k += 1
         settle_ce(F, I, i, instant)   # released: the CE is free now
         s = max(s, instant)
     limb_integrate(F, I, L, W, nm, s, t1)
     L[L_T] = t1
     for i in range(nm):
         fs = hdr(I, i, H_FS)
+        if pulsed(I, i):
+            F[fs + S_T] = t1
+            ding_settle(F, I, i, t1)   # release after a quiet second, fatigue clocks
+            continue
         if W[W_STEADY, i] != 0.0:
             F[fs + S_R] = W[W_A_END, i]   # plan's end of the step (A_END) and what follows it
             settle_ce(F, I, i, t1)
@@ -359,7 +433,7 @@ def limb_give(F, I, nm, us):
     :return: :data:`OK`, or :data:`DELAY_FULL` (the muscles before have their commands)
     """
     for i in range(nm):
-        if us[i] != F[hdr(I, i, H_FS) + S_CMD]:
+        if not pulsed(I, i) and us[i] != F[hdr(I, i, H_FS) + S_CMD]:
             if not give_command(F, I, i, us[i]):
                 return DELAY_FULL
     return OK
@@ -367,7 +441,8 @@ def limb_give(F, I, nm, us):
 
 def limb_record(F, I, L, nm, row):
     """The limb's outputs now into ``row``: t, theta, omega, then per muscle its
-    command, recruitment, dl_MT, l_CE and force (simulate_limb's columns)."""
+    command, recruitment, dl_MT, l_CE and force, then each pulsed muscle's
+    channels' activations a_c (simulate_limb's columns)."""
     row[0] = L[L_T]
     row[1] = L[L_THETA]
     row[2] = L[L_OMEGA]
@@ -382,12 +457,19 @@ def limb_record(F, I, L, nm, row):
         row[base + 2] = dl
         row[base + 3] = l
         row[base + 4] = f
+    base = 3 + 5 * nm
+    for i in range(nm):
+        if pulsed(I, i):
+            for c in range(I[hdr(I, i, H_IP) + I_NCH]):
+                row[base] = F[hdr(I, ding_slot(I, i, c), H_FS) + D_A]
+                base += 1
 
 
-def limb_hold(F, I, L, W, TT, TI, nm, us, tau, dt, dl_limit, n, target, acc, row):
-    """``n`` steps with the commands ``us`` and the torque held, the outputs of the
-    last into ``row``; ``acc[0]`` the sum over the steps of (theta - target)^2
-    at each step's end (a tracking environment's control period).
+def limb_hold(F, I, L, W, TT, TI, nm, us, tau, dt, dl_limit, n, target, acc, row, PT, PI, PU):
+    """``n`` steps with the commands ``us`` and the torque held, the pulses
+    (``PT``, ``PI``, ``PU``, as :func:`limb_step`'s) at their instants, the
+    outputs of the last into ``row``; ``acc[0]`` the sum over the steps of
+    (theta - target)^2 at each step's end (a tracking environment's control period).
 
     :param target: [rad] the angle the squared errors are taken from
     :return: :data:`OK`, or the first failed step's status (``acc`` and ``row``
@@ -395,8 +477,12 @@ def limb_hold(F, I, L, W, TT, TI, nm, us, tau, dt, dl_limit, n, target, acc, row
     """
     sq = 0.0
     status = OK
+    j = 0
     for k in range(n):
-        status = limb_step(F, I, L, W, TT, TI, nm, us, tau, dt, dl_limit, k == 0)
+        j1 = pulses_due(PT, j, L[L_T] + dt)
+        status = limb_step(F, I, L, W, TT, TI, nm, us, tau, dt, dl_limit, k == 0, PT, PI, PU,
+                           j, j1)
+        j = j1
         if status != OK:
             break
         d = L[L_THETA] - target
@@ -406,9 +492,10 @@ def limb_hold(F, I, L, W, TT, TI, nm, us, tau, dt, dl_limit, n, target, acc, row
     return status
 
 
-def limb_run(F, I, L, W, TT, TI, nm, u, tau, dt, dl_limit, rows):
+def limb_run(F, I, L, W, TT, TI, nm, u, tau, dt, dl_limit, rows, PT, PI, PU):
     """simulate_limb's loop: the commands of t_0 given, then per step the step and
-    the next sample's commands; the sample of t_k in ``rows[k]``.
+    the next sample's commands; the sample of t_k in ``rows[k]``. The pulses
+    (``PT``, ``PI``, ``PU``, as :func:`limb_step`'s) act at their instants.
 
     :param u: [-] (steps, nm) commands per sample
     :param tau: [N m] (steps,) external torque per sample
@@ -416,15 +503,19 @@ def limb_run(F, I, L, W, TT, TI, nm, u, tau, dt, dl_limit, rows):
         -(k STATUS_BASE + status)
     """
     for i in range(nm):
-        if not give_command(F, I, i, u[0, i]):
+        if not pulsed(I, i) and not give_command(F, I, i, u[0, i]):
             return -DELAY_FULL
     limb_record(F, I, L, nm, rows[0])
+    j = 0
     for k in range(u.shape[0] - 1):
-        status = limb_step(F, I, L, W, TT, TI, nm, u[k], tau[k], dt, dl_limit, False)
+        j1 = pulses_due(PT, j, L[L_T] + dt)
+        status = limb_step(F, I, L, W, TT, TI, nm, u[k], tau[k], dt, dl_limit, False, PT, PI,
+                           PU, j, j1)
+        j = j1
         if status != OK:
             return -(k * STATUS_BASE + status)
         for i in range(nm):
-            if u[k + 1, i] != F[hdr(I, i, H_FS) + S_CMD]:
+            if not pulsed(I, i) and u[k + 1, i] != F[hdr(I, i, H_FS) + S_CMD]:
                 if not give_command(F, I, i, u[k + 1, i]):
                     return -(k * STATUS_BASE + DELAY_FULL)
         limb_record(F, I, L, nm, rows[k + 1])
@@ -436,7 +527,8 @@ def limb_run(F, I, L, W, TT, TI, nm, u, tau, dt, dl_limit, rows):
 MODE_RUN, MODE_HOLD, MODE_GIVE, MODE_RECORD = range(4)
 
 
-def limb_entry(F, I, L, W, TT, TI, nm, mode, u, tau, dt, dl_limit, n, target, acc, rows):
+def limb_entry(F, I, L, W, TT, TI, nm, mode, u, tau, dt, dl_limit, n, target, acc, rows, PT,
+               PI, PU):
     """The compiled limb's one entry point: ``mode`` (MODE_*) chooses the work.
 
     One entry rather than one per kind of call, because numba links the whole
@@ -447,13 +539,15 @@ def limb_entry(F, I, L, W, TT, TI, nm, mode, u, tau, dt, dl_limit, n, target, ac
     :param tau: [N m] external torque per sample; MODE_HOLD takes entry 0
     :param rows: outputs (limb_record's columns); all but MODE_RUN write row 0
     :param n: MODE_HOLD's steps; ``target``, ``acc`` as :func:`limb_hold`'s
+    :param PT: pulses of the pulsed muscles (MODE_RUN and MODE_HOLD), with ``PI``
+        and ``PU`` as :func:`limb_step`'s; all of them act within the run
     :return: as the function the mode runs; MODE_RECORD :data:`OK`
     """
     if mode == MODE_RUN:
-        return limb_run(F, I, L, W, TT, TI, nm, u, tau, dt, dl_limit, rows)
+        return limb_run(F, I, L, W, TT, TI, nm, u, tau, dt, dl_limit, rows, PT, PI, PU)
     if mode == MODE_HOLD:
         return limb_hold(F, I, L, W, TT, TI, nm, u[0], tau[0], dt, dl_limit, n, target, acc,
-                         rows[0])
+                         rows[0], PT, PI, PU)
     status = OK
     if mode == MODE_GIVE:
         status = limb_give(F, I, nm, u[0])
@@ -466,7 +560,8 @@ def limb_entry(F, I, L, W, TT, TI, nm, mode, u, tau, dt, dl_limit, n, target, ac
 #: The joint's equations (:mod:`~hill_muscle_ros.model.equations`), compiled over
 #: this module's scope.
 _EQUATIONS = ('mtu_length_change', 'joint_acceleration_sin', 'sine_near')
-_KERNELS = ('muscle_slot', 'dl_mt', 'length_free', 'plan_steady', 'resting', 'settle_ce',
+_KERNELS = ('muscle_slot', 'dl_mt', 'pulsed', 'length_free', 'pulses_due', 'plan_steady',
+            'resting', 'settle_ce',
             'stage_f0', 'stage_f0s', 'forces', 'limb_rk4', 'limb_integrate', 'limb_step',
             'limb_give', 'limb_record', 'limb_hold', 'limb_run', 'limb_entry')
 #: Compiled into their one caller by numba's own inlining: :func:`forces` into
@@ -492,7 +587,8 @@ _INTO_STEP = ('forces', 'limb_rk4')
 #: holding the muscle's code again.
 _INTO_ENTRY = ('limb_give', 'limb_record', 'limb_hold', 'limb_run')
 #: The modules whose code the kernels inline: their digest names the cache entries.
-_DIGEST_OF = (equations, stimulus, memory, units, muscle_state, muscle_pool, muscle_kernels)
+_DIGEST_OF = (equations, stimulus, memory, units, muscle_state, muscle_pool, muscle_ding,
+              muscle_kernels)
 _compiled = None
 
 
@@ -516,11 +612,14 @@ def compiled() -> types.SimpleNamespace:
                     'set_piece', 'tau_for', 'recruited_units', 'activation_at',
                     'hdr', 'plan', 'settle_now', 'peak_rate', 'quasi_force', 'rate_at',
                     'substep_count',
-                    'velocity', 'series_force', 'parallel_force', 'rk4_update'))
+                    'velocity', 'series_force', 'parallel_force', 'rk4_update',
+                    'ding_clocks', 'ding_commit', 'ding_f_iso', 'ding_pulse', 'ding_settle',
+                    'ding_slot', 'ding_stages'))
     leaf = {'error_model': 'numpy', 'inline': 'always'}
     body = {'error_model': 'numpy'}
     options = {name: body for name in _KERNELS}
-    options.update({name: leaf for name in _EQUATIONS + ('muscle_slot', 'dl_mt', 'length_free',
+    options.update({name: leaf for name in _EQUATIONS + ('muscle_slot', 'dl_mt', 'pulsed',
+                                                         'length_free', 'pulses_due',
                                                          'plan_steady', 'resting', 'settle_ce',
                                                          'stage_f0', 'stage_f0s')
                     + _INTO_STEP + _INTO_ENTRY})
@@ -530,14 +629,16 @@ def compiled() -> types.SimpleNamespace:
     def entry_signature(numba):
         f8, i8 = numba.float64, numba.int64
         c1, c2 = f8[::1], f8[:, ::1]
-        return i8(c1, i8[::1], c1, c2, c1, i8[:, ::1], i8, i8, c2, c1, f8, f8, i8, f8, c1, c2)
+        return i8(c1, i8[::1], c1, c2, c1, i8[:, ::1], i8, i8, c2, c1, f8, f8, i8, f8, c1, c2,
+                  c1, i8[:, ::1], c1)
 
     # limb_step is called with a constant ``give`` (limb_run) and a computed one
     # (limb_hold): without a signature numba would compile it for each.
     def step_signature(numba):
         f8, i8 = numba.float64, numba.int64
         c1, c2 = f8[::1], f8[:, ::1]
-        return i8(c1, i8[::1], c1, c2, c1, i8[:, ::1], i8, c1, f8, f8, f8, numba.boolean)
+        return i8(c1, i8[::1], c1, c2, c1, i8[:, ::1], i8, c1, f8, f8, f8, numba.boolean, c1,
+                  i8[:, ::1], c1, i8, i8)
 
     _compiled = engine.compile_functions(
         scope, _EQUATIONS + _KERNELS, digest_of=_DIGEST_OF + (sys.modules[__name__],),

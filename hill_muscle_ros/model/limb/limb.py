@@ -19,11 +19,15 @@ from typing import Sequence
 import numpy as np
 
 from .. import engine as engines
+from ..muscle.state import TIME_TOL_S
+from ..stimulator import ChannelCommand, check_channel_command, stimulator_profile
+from ..stimulus import pulse_command
 from ..substeps import MAX_SUBSTEP_S, substeps_for
+from ..trains import ChannelTrain, PulseTrain
 from . import kernels
-from .arrays import ROW_JOINT, LimbArrays, row_length
+from .arrays import ROW_JOINT, LimbArrays, no_pulses, pulse_arrays, row_length
 from .kernels import L_OMEGA, L_T, L_TAU, L_THETA, MODE_GIVE, MODE_HOLD, MODE_RECORD, OK
-from .plant import MUSCLE_COLUMNS, LimbOutputs, LimbPlant, check_step_inputs
+from .plant import MUSCLE_COLUMNS, PULSED_MODEL, LimbOutputs, LimbPlant, check_step_inputs
 
 #: [s] The step the delay lines of a :class:`Limb` are first sized for (the
 #: 1 kHz of the presets); a shorter step resizes them, keeping the state.
@@ -56,7 +60,12 @@ class Limb:
     :param plant: the joint and its muscles
     :param row: where the outputs are written (:func:`~.arrays.row_length`
         entries: t, theta, omega, then per muscle command, recruitment, dl_MT,
-        l_CE, force), e.g. a row of a batch's array; default an array of its own
+        l_CE, force, then each ``ding2003`` muscle's channels' activations),
+        e.g. a row of a batch's array; default an array of its own
+
+    A muscle with ``activation_model: ding2003`` is driven by pulse trains per
+    channel (:meth:`stimulate`), each pulse acting at its own instant inside
+    the steps; its entry of a step's ``commands`` is not used.
     :param build: :data:`~hill_muscle_ros.model.engine.COMPILED` or
         :data:`~hill_muscle_ros.model.engine.PYTHON`, or None (the default) for
         what ``HILL_MUSCLE_ENGINE`` chooses; :attr:`build` says which runs
@@ -73,18 +82,28 @@ class Limb:
         self.arrays = LimbArrays(plant, FIRST_DT_S)
         self._dt = FIRST_DT_S
         nm = len(plant.muscles)
+        width = row_length(nm, self.arrays.n_activations)
         if row is None:
-            row = np.zeros(row_length(nm))
-        elif not (isinstance(row, np.ndarray) and row.shape == (row_length(nm),)
+            row = np.zeros(width)
+        elif not (isinstance(row, np.ndarray) and row.shape == (width,)
                   and row.dtype == np.float64 and row.flags.c_contiguous):
             raise ValueError(f'`row` must be a contiguous float64 array of '
-                             f'{row_length(nm)} entries, got {row!r}')
+                             f'{width} entries, got {row!r}')
         #: The outputs of the last step, reset or command (see ``row`` above).
         self.row = row
         self._us = np.zeros(nm)
         self._tau = np.zeros(1)
         self._acc = np.zeros(1)
         self._s_r = [m.sign * m.moment_arm_m for m in plant.muscles]
+        self._pulsed = [m.params.activation_model == PULSED_MODEL for m in plant.muscles]
+        self._profiles = [stimulator_profile(m.params.stimulator, m.params.pw_max_s)
+                          if p else None for m, p in zip(plant.muscles, self._pulsed)]
+        # Where each pulsed muscle's activations start in the row.
+        self._act_at = []
+        at = row_length(nm)
+        for m, p in zip(plant.muscles, self._pulsed):
+            self._act_at.append(at if p else None)
+            at += m.params.n_channels if p else 0
         self._views()
         self.reset()
 
@@ -100,6 +119,8 @@ class Limb:
         twin.arrays = copy.deepcopy(self.arrays, memo)
         for name in ('row', '_us', '_tau', '_acc'):
             setattr(twin, name, getattr(self, name).copy())
+        twin._trains = copy.deepcopy(self._trains, memo)
+        twin._pending = list(self._pending)
         twin._views()
         return twin
 
@@ -111,8 +132,11 @@ class Limb:
 
     def reset(self) -> None:
         """theta = theta_0, omega = 0, each CE at l_rest + dl_MT(theta_0), nothing
-        recruited, no command given, t = 0."""
+        recruited, no command given, t = 0; the pulsed muscles' trains stopped."""
         self.arrays.reset()
+        self._trains = [[None] * m.params.n_channels for m in self.plant.muscles]
+        self._pending = []   # (instant it acts [s], muscle, 0-based channel, u)
+        self.arrays.pulses = no_pulses()
         self._entry(MODE_RECORD, 0.0, 0, 0.0)
 
     @property
@@ -152,6 +176,99 @@ class Limb:
             self.arrays.ensure_delay(dt_s)
             self._dt = dt_s
 
+    # -- pulses (activation_model ding2003) -----------------------------------
+
+    def muscle_index(self, muscle: int | str) -> int:
+        """The index of ``muscle`` (its index or its name) in the plant.
+
+        :raises ValueError: for a muscle the plant lacks
+        """
+        names = [m.name for m in self.plant.muscles]
+        if isinstance(muscle, str):
+            if muscle not in names:
+                raise ValueError(f'muscle {muscle!r} is not in the plant (muscles: '
+                                 f'{", ".join(names)})')
+            return names.index(muscle)
+        if isinstance(muscle, bool) or not isinstance(muscle, (int, np.integer)) or not (
+                0 <= muscle < len(names)):
+            raise ValueError(f'`muscle` must be a name ({", ".join(names)}) or an index in '
+                             f'[0, {len(names) - 1}], got {muscle!r}')
+        return int(muscle)
+
+    def stimulate(self, muscle: int | str, commands: Sequence[ChannelCommand]) -> None:
+        """Command channels of a ``ding2003`` muscle from now, as
+        :meth:`~hill_muscle_ros.model.muscle.Muscle.stimulate` does: each
+        channel named gets a new train (a running train's schedule carries
+        over), the others keep theirs; every command is checked against the
+        muscle's ``stimulator`` first, and nothing changes if one fails. The
+        pulses act at their own instants in the following steps (sent + ``emd_s``).
+
+        :param muscle: the muscle's index or name
+        :param commands: :class:`~hill_muscle_ros.model.stimulator.ChannelCommand` s
+        :raises ValueError: naming the muscle, and the field, channel and value
+            of a bad command (a channel beyond the muscle's, or out of the
+            stimulator's range), or a muscle that is not ``ding2003``
+        """
+        i = self.muscle_index(muscle)
+        m = self.plant.muscles[i]
+        if not self._pulsed[i]:
+            raise ValueError(f'muscle `{m.name}`: `stimulate` needs `activation_model: '
+                             f'{PULSED_MODEL}`, got {m.params.activation_model!r}')
+        trains = list(self._trains[i])
+        t = self.t_s
+        for cmd in commands:
+            try:
+                c = check_channel_command(self._profiles[i], cmd.channel, cmd.frequency_hz,
+                                          cmd.pulse_width_s, cmd.current_a, cmd.mode,
+                                          m.params.burst_interval_s)
+            except ValueError as err:
+                raise ValueError(f'muscle `{m.name}`: {err}') from None
+            if c.channel > m.params.n_channels:
+                raise ValueError(f'muscle `{m.name}`: `channel` must be in [1, '
+                                 f'{m.params.n_channels}] (the muscle\'s channels), got '
+                                 f'{cmd.channel!r}')
+            train = PulseTrain(ChannelTrain(c.frequency_hz, c.pulse_width_s, c.current_a,
+                                            c.mode, m.params.burst_interval_s, c.channel), t)
+            old = trains[c.channel - 1]
+            if old is not None:
+                train.state = old.state
+            trains[c.channel - 1] = train
+        self._trains[i] = trains
+
+    def activation(self, muscle: int | str) -> np.ndarray:
+        """[-] each channel's activation a_c now (C,) of a ``ding2003`` muscle (its
+        index or name): Ding's force over its limit A (tau1 + tau2).
+
+        :raises ValueError: for a muscle that is not ``ding2003``
+        """
+        i = self.muscle_index(muscle)
+        if not self._pulsed[i]:
+            raise ValueError(f'muscle `{self.plant.muscles[i].name}` has no channels\' '
+                             f'activation: it is not `activation_model: {PULSED_MODEL}`')
+        at = self._act_at[i]
+        return self.row[at:at + self.plant.muscles[i].params.n_channels].copy()
+
+    def _pulses_until(self, t1_s: float) -> None:
+        """The pulses that act before ``t1_s`` into the kernels' pulse arrays (those
+        sent up to then first taken into the pending ones)."""
+        if not any(self._pulsed):
+            return
+        for i, trains in enumerate(self._trains):
+            params = self.plant.muscles[i].params
+            for c, train in enumerate(trains):
+                if train is None:
+                    continue
+                for pulse in train.pulses(train.state.time_s, t1_s):
+                    self._pending.append((pulse.time_s + params.emd_s, i, c,
+                                          pulse_command(pulse.pulse_width_s, pulse.current_a,
+                                                        params)))
+        self._pending.sort(key=lambda p: p[0])
+        due = 0
+        while due < len(self._pending) and self._pending[due][0] < t1_s - TIME_TOL_S:
+            due += 1
+        self.arrays.pulses = pulse_arrays(self._pending[:due])
+        del self._pending[:due]
+
     def give_commands(self, us: Sequence[float]) -> None:
         """Give each muscle its command now where it differs from its last one, as a
         sample of :func:`~.simulate.simulate_limb` does (the outputs into :attr:`row`).
@@ -174,6 +291,7 @@ class Limb:
         self._size_for(h)
         self._us[:] = us
         self._tau[0] = tau
+        self._pulses_until(self.t_s + n * h)
         self._entry(MODE_HOLD, h, n, 0.0)
 
     def hold(self, us: Sequence[float], tau: float, dt_s: float, n_steps: int,
@@ -195,6 +313,7 @@ class Limb:
         self._size_for(dt_s)
         self._us[:] = us
         self._tau[0] = tau
+        self._pulses_until(self.t_s + n_steps * dt_s)
         self._entry(MODE_HOLD, dt_s, n_steps, target_rad)
         return float(self._acc[0])
 
@@ -220,7 +339,7 @@ class Limb:
 
     def outputs(self) -> LimbOutputs:
         """The outputs at the current instant (read off :attr:`row`)."""
-        row = self.row.tolist()
+        row = self.row[:row_length(len(self.plant.muscles))].tolist()
         width = len(MUSCLE_COLUMNS)
         per_muscle = [row[ROW_JOINT + j::width] for j in range(width)]
         torque = 0.0

@@ -30,8 +30,8 @@ import numpy as np
 
 from ..muscle import DL_MT_LIMIT_M, check_recruitment
 from ..params import _FLOAT_MAX, MuscleParams, _float, _spec, finite_float
-from ..protocol import (Knots, ProtocolError, _parse_knots, check_protocol_keys,
-                        commands_from_pulse_widths, safe_load_yaml)
+from ..protocol import (Knots, ProtocolError, PulseProtocol, _parse_channel, _parse_knots,
+                        check_protocol_keys, commands_from_pulse_widths, safe_load_yaml)
 
 #: [-] s of each action: +1 for an extensor, -1 for a flexor.
 ACTIONS = {'extensor': 1.0, 'flexor': -1.0}
@@ -287,16 +287,24 @@ def check_step_inputs(plant: LimbPlant, commands: Sequence[float],
 # -- protocols and offline results -------------------------------------------------
 
 LIMB_PROTOCOL_KEYS = ('name', 'duration_s', 'muscles', 'external_torque_n_m')
+#: What a muscle's entry of a limb protocol gives: a level (pulse width or
+#: recruitment) or, for a ``ding2003`` muscle, pulse trains per channel.
+LIMB_STIMULATION_KEYS = ('pulse_width_s', 'recruitment', 'channels')
+#: The model whose muscles take ``channels``.
+PULSED_MODEL = 'ding2003'
 
 
 @dataclass(frozen=True)
 class LimbProtocol:
-    """Inputs per muscle (pulse width or recruitment) and an external torque.
+    """Inputs per muscle (pulse width, recruitment or pulse trains per channel)
+    and an external torque.
 
     :param name: human-readable name
     :param duration_s: [s] length of the protocol
     :param stimulation: per muscle name, ``(key, knots)`` with key
-        ``pulse_width_s`` or ``recruitment``
+        ``pulse_width_s`` or ``recruitment``, or ``('channels', trains)``: a
+        tuple of :class:`~hill_muscle_ros.model.trains.ChannelTrain`, channel 1
+        first (a ``ding2003`` muscle's, as a muscle's pulse protocol gives them)
     :param external_torque_n_m: [N m] knots of the external torque
     """
 
@@ -322,12 +330,23 @@ class LimbProtocol:
             where = f'muscles.{name}'
             if not isinstance(inputs, dict):
                 raise ProtocolError(f'{source}: `{where}` must be a mapping, got {inputs!r}')
-            given = [k for k in ('pulse_width_s', 'recruitment') if k in inputs]
-            extra = [k for k in inputs if k not in ('pulse_width_s', 'recruitment')]
+            given = [k for k in LIMB_STIMULATION_KEYS if k in inputs]
+            extra = [k for k in inputs if k not in LIMB_STIMULATION_KEYS]
             if len(given) != 1 or extra:
                 raise ProtocolError(f'{source}: `{where}` must give exactly one of '
-                                    f'`pulse_width_s` or `recruitment`, got {sorted(inputs)}')
+                                    f'`pulse_width_s`, `recruitment` or `channels`, got '
+                                    f'{sorted(inputs)}')
             key = given[0]
+            if key == 'channels':
+                raw = inputs[key]
+                if not isinstance(raw, list) or not raw:
+                    raise ProtocolError(f'{source}: `{where}.channels` must be a non-empty list '
+                                        f'of channels (mappings with keys frequency_hz, '
+                                        f'pulse_width_s, ...), got {raw!r}')
+                trains = tuple(_parse_channel(entry, f'{source}: muscle `{name}`', c)
+                               for c, entry in enumerate(raw, 1))
+                stimulation[str(name)] = (key, trains)
+                continue
             if key == 'recruitment':
                 knots = _parse_knots(inputs[key], source, f'{where}.{key}', 0.0, 1.0,
                                      'in [0, 1]')
@@ -352,28 +371,84 @@ class LimbProtocol:
             raise ProtocolError(f'{path}: not valid YAML: {err}') from None
         return cls.from_mapping(data, source=str(path))
 
-    def commands(self, t_s: np.ndarray, plant: LimbPlant) -> np.ndarray:
-        """[-] commands u, shape (len(t_s), muscles): each muscle's pulse widths
-        through its own recruitment curve; a muscle the protocol omits gets 0.
+    def check_plant(self, plant: LimbPlant) -> None:
+        """Check that every muscle the protocol names is in ``plant`` and takes
+        its kind of input: ``channels`` a ``ding2003`` muscle, a level any other.
 
-        :raises ProtocolError: if the protocol names a muscle the plant lacks
+        :raises ProtocolError: naming the protocol, the muscle and the model
         """
         names = [m.name for m in plant.muscles]
         missing = [n for n in self.stimulation if n not in names]
         if missing:
             raise ProtocolError(f'protocol `{self.name}`: muscle `{missing[0]}` is not in '
                                 f'the plant (muscles: {", ".join(names)})')
-        out = np.zeros((len(t_s), len(names)))
+        for m in plant.muscles:
+            if m.name not in self.stimulation:
+                continue
+            key = self.stimulation[m.name][0]
+            pulsed = m.params.activation_model == PULSED_MODEL
+            if key == 'channels' and not pulsed:
+                raise ProtocolError(f'protocol `{self.name}`: muscle `{m.name}` is given '
+                                    f'`channels` (pulse trains): it needs `activation_model: '
+                                    f'{PULSED_MODEL}`, got {m.params.activation_model!r}')
+            if key != 'channels' and pulsed:
+                raise ProtocolError(f'protocol `{self.name}`: muscle `{m.name}` has '
+                                    f'`activation_model: {PULSED_MODEL}`: it is driven by '
+                                    f'pulse trains, give it `channels`, not `{key}`')
+
+    def commands(self, t_s: np.ndarray, plant: LimbPlant) -> np.ndarray:
+        """[-] commands u, shape (len(t_s), muscles): each muscle's pulse widths
+        through its own recruitment curve; a muscle the protocol omits, or one
+        driven by ``channels`` (:meth:`pulses`), gets 0.
+
+        :raises ProtocolError: as :meth:`check_plant`
+        """
+        self.check_plant(plant)
+        out = np.zeros((len(t_s), len(plant.muscles)))
         for i, m in enumerate(plant.muscles):
             if m.name not in self.stimulation:
                 continue
             key, knots = self.stimulation[m.name]
+            if key == 'channels':
+                continue
             values = np.asarray(knots(t_s), dtype=float)
             if key == 'recruitment':
                 out[:, i] = values
             else:
                 out[:, i] = commands_from_pulse_widths(values, m.params)
         return out
+
+
+    def pulses(self, plant: LimbPlant) -> list[tuple[float, int, int, float]]:
+        """Every pulse of the muscles driven by ``channels``, as the limb takes
+        them, each checked against its muscle's ``stimulator`` (as
+        :func:`~hill_muscle_ros.model.simulate.protocol_pulses` checks a
+        muscle's).
+
+        :return: ``(instant [s] (sent + emd_s), muscle index, 0-based channel,
+            u)`` rows in time order (a stable sort: muscle by muscle, each in
+            its own order, at an equal instant)
+        :raises ProtocolError: as :meth:`check_plant`, or naming the muscle,
+            the channel, the field and the value of a pulse its stimulator
+            would refuse, or more channels than the muscle has
+        """
+        from ..simulate import protocol_pulses   # model.simulate imports the muscle
+        self.check_plant(plant)
+        rows = []
+        for i, m in enumerate(plant.muscles):
+            entry = self.stimulation.get(m.name)
+            if entry is None or entry[0] != 'channels':
+                continue
+            one = PulseProtocol(f'protocol `{self.name}`: muscle `{m.name}`', self.duration_s,
+                                entry[1], Knots(np.zeros(1), np.zeros(1)))
+            try:
+                times, channels, commands = protocol_pulses(one, m.params)
+            except ValueError as err:
+                raise ProtocolError(str(err)) from None
+            rows += [(float(t), i, int(c), float(u))
+                     for t, c, u in zip(times, channels, commands)]
+        rows.sort(key=lambda r: r[0])
+        return rows
 
 
 @dataclass(frozen=True)
@@ -396,8 +471,13 @@ MUSCLE_COLUMNS = ('command', 'recruitment', 'dl_mt_m', 'l_ce_m', 'force_n')
 
 def limb_columns(plant: LimbPlant) -> list[str]:
     """CSV columns: ``t_s, theta_rad, omega_rad_per_s``, then per muscle
-    ``<name>_command, <name>_recruitment, <name>_dl_mt_m, <name>_l_ce_m, <name>_force_n``."""
+    ``<name>_command, <name>_recruitment, <name>_dl_mt_m, <name>_l_ce_m, <name>_force_n``,
+    then per ``ding2003`` muscle ``a_<name>_<c>`` for each of its channels c = 1, 2, ...
+    (the channel's activation a_c)."""
     cols = ['t_s', 'theta_rad', 'omega_rad_per_s']
     for m in plant.muscles:
         cols += [f'{m.name}_{c}' for c in MUSCLE_COLUMNS]
+    for m in plant.muscles:
+        if m.params.activation_model == PULSED_MODEL:
+            cols += [f'a_{m.name}_{c}' for c in range(1, m.params.n_channels + 1)]
     return cols

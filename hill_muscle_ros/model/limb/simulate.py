@@ -16,7 +16,7 @@ from .. import engine
 from ..simulate import sample_times
 from ..substeps import repeat_rows, substeps_for
 from . import kernels
-from .arrays import SCRATCH, LimbArrays, row_length
+from .arrays import SCRATCH, LimbArrays, pulse_arrays, row_length
 from .kernels import DELAY_FULL, MODE_RUN, STATUS_BASE
 from .plant import (TORQUE_LIMIT_N_M, LimbPlant, LimbProtocol, LimbResult, check_step_inputs,
                     limb_columns)
@@ -61,7 +61,7 @@ def run_rows(arrays: LimbArrays, u: np.ndarray, tau: np.ndarray, dt_s: float,
     tau = np.ascontiguousarray(tau, dtype=float)
     # Every row is written (limb_record's every column) unless the run fails,
     # and the rows of a failed run are not read.
-    rows = np.empty((len(tau), row_length(arrays.nm)))
+    rows = np.empty((len(tau), row_length(arrays.nm, arrays.n_activations)))
     done = arrays.entry(build, MODE_RUN, u, tau, float(dt_s), 0, 0.0, np.zeros(1), rows)
     if done >= 0:
         return rows, None
@@ -92,6 +92,11 @@ def simulate_limb(plant: LimbPlant, protocol: LimbProtocol,
     substeps of at most 1 ms. The whole run is one call of the kernels, on the
     build :func:`~hill_muscle_ros.model.engine.kernels` chooses.
 
+    A ``ding2003`` muscle is driven by its ``channels``' pulse trains: every
+    pulse is checked against its ``stimulator`` and acts at its own instant,
+    the step cut there (:func:`.kernels.limb_step`); the result gains
+    ``a_<muscle>_<c>``, each channel's activation.
+
     :param plant: the joint and its muscles
     :param protocol: the stimulation of each muscle and the external torque
     :param rate_hz: [Hz] sample rate, 1 / dt
@@ -103,6 +108,7 @@ def simulate_limb(plant: LimbPlant, protocol: LimbProtocol,
     """
     t = sample_times(protocol.duration_s, rate_hz)
     u = np.asarray(protocol.commands(t, plant), dtype=float)
+    pulses = protocol.pulses(plant)
     tau = np.asarray(protocol.external_torque_n_m(t), dtype=float)
     dt = 1.0 / rate_hz
     # The protocol validated its knots, and interpolation keeps them in range:
@@ -113,6 +119,7 @@ def simulate_limb(plant: LimbPlant, protocol: LimbProtocol,
         check_step_inputs(plant, u[k].tolist(), float(tau[k]), dt)   # raises, naming it
     u, tau, h, n = substep_rows(u, tau, dt)
     arrays = LimbArrays(plant, h, SCRATCH)
+    arrays.pulses = pulse_arrays(pulses)
     try:
         rows = run_limb(arrays, u, tau, h)[::n]
     finally:
