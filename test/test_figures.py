@@ -13,7 +13,7 @@ from matplotlib.image import imread
 
 from hill_muscle_ros.model import Protocol
 from hill_muscle_ros.tools import cli
-from hill_muscle_ros.tools.figures import fes, paper, plotting
+from hill_muscle_ros.tools.figures import fes, paper, plotting, pulses
 
 HILL_MUSCLE = Path(sys.executable).with_name('hill-muscle')
 PNG_SIGNATURE = b'\x89PNG\r\n\x1a\n'
@@ -21,6 +21,8 @@ FIGURE_FILES = ('fig08_protocol_I_initial.png', 'fig09_protocol_II_initial.png',
                 'fig10_protocol_I_all.png', 'fig11_protocol_II_all.png')
 FES_FILES = ('fes_recruitment_curves.png', 'fes_activation.png', 'fes_fatigue.png',
              'fes_fibre_types.png', 'fes_fv_scaling.png')
+PULSE_FILES = ('pulse_force_frequency.png', 'pulse_catchlike.png', 'pulse_kesar_fatigue.png',
+               'pulse_sdss.png')
 #: [s] generous: the machine is shared with other test runs.
 SUBPROCESS_TIMEOUT_S = 120
 #: [Hz] step rate of the ``figures`` run whose files are checked.
@@ -75,18 +77,25 @@ def figure_dir(tmp_path_factory):
     return out
 
 
-def test_figures_command_writes_the_papers_four_the_five_fes_and_the_limb_figures(figure_dir):
+def test_figures_command_writes_the_papers_four_the_five_fes_the_limb_and_the_pulse_figures(
+        figure_dir):
     assert sorted(p.name for p in figure_dir.iterdir()) == \
-        sorted(FIGURE_FILES + FES_FILES + ('limb_knee.png',))
+        sorted(FIGURE_FILES + FES_FILES + ('limb_knee.png',) + PULSE_FILES)
+
+
+def test_pulse_figure_files_are_the_modules_own():
+    assert pulses.PULSE_FIGURE_FILES == PULSE_FILES
 
 
 def _declared_size_in(name):
     if name == 'fes_fatigue.png':
         return fes.FATIGUE_FIGSIZE_IN
+    if name.startswith('pulse_'):
+        return pulses.PULSE_FIGSIZE_IN
     return fes.FES_FIGSIZE_IN if name.startswith('fes_') else paper.FIGSIZE_IN
 
 
-@pytest.mark.parametrize('name', FIGURE_FILES + FES_FILES)
+@pytest.mark.parametrize('name', FIGURE_FILES + FES_FILES + PULSE_FILES)
 def test_each_figure_is_a_valid_png_of_the_declared_size(figure_dir, name):
     path = figure_dir / name
     assert path.read_bytes()[:len(PNG_SIGNATURE)] == PNG_SIGNATURE
@@ -95,7 +104,7 @@ def test_each_figure_is_a_valid_png_of_the_declared_size(figure_dir, name):
     assert image.shape[:2] == (round(height_in * plotting.DPI), round(width_in * plotting.DPI))
 
 
-@pytest.mark.parametrize('name', FIGURE_FILES + FES_FILES)
+@pytest.mark.parametrize('name', FIGURE_FILES + FES_FILES + PULSE_FILES)
 def test_each_figure_is_not_blank(figure_dir, name):
     image = imread(figure_dir / name)
     pixels = np.ascontiguousarray(image.reshape(-1, image.shape[-1]))

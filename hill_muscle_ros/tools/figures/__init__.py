@@ -11,7 +11,9 @@ simulation behind it, which the tests check), a plot function and a function
 that writes the PNG and returns its path.
 
 One module per family: :mod:`.paper` (Figures 8-11), :mod:`.fes` (the five
-FES figures) and :mod:`.limb` (the knee in the four variants), with what they
+FES figures), :mod:`.limb` (the knee in the four variants) and :mod:`.pulses`
+(the pulse model against published results: force-frequency, catch-like
+trains, Kesar 2006's fatigue protocols, four channels in turn), with what they
 share (sizes, units, the variants' styles, saving) in :mod:`.plotting`;
 :func:`write_figures` writes them all.
 
@@ -27,20 +29,22 @@ from ...model import MuscleParams, Protocol
 from .fes import write_fes_figures
 from .limb import write_limb_figure
 from .paper import FIGURES, plot_figure, simulate_variants
+from .pulses import write_pulse_figures
 from .plotting import DPI, RATE_HZ, VARIANTS
 
 
 def write_figures(out_dir: str | Path, params: MuscleParams | None = None,
                   rate_hz: float = RATE_HZ) -> list[Path]:
-    """Write the PNGs of Figures 8-11 and of the FES extensions into ``out_dir``.
+    """Write the PNGs of Figures 8-11, of the FES extensions, the limb and the
+    pulse model into ``out_dir``.
 
     The directory is created if missing.
 
     :param params: muscle parameters of Figures 8-11 other than the variant
         (the paper's if omitted); the FES figures bring their own
     :param rate_hz: [Hz] step rate of the simulations
-    :return: the paths written: Figures 8-11 in order, then the FES figures and the
-        limb figure
+    :return: the paths written: Figures 8-11 in order, then the FES figures, the
+        limb figure and the pulse figures
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -56,4 +60,5 @@ def write_figures(out_dir: str | Path, params: MuscleParams | None = None,
         paths.append(path)
     paths.extend(write_fes_figures(out, rate_hz))
     paths.append(write_limb_figure(out, rate_hz))
+    paths.extend(write_pulse_figures(out, rate_hz))
     return paths
