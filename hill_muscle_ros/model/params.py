@@ -396,18 +396,25 @@ class MuscleParams:
         return all(getattr(self, n) == f.default for n, f in _FES_FIELDS.items()
                    if n not in CURVE_FIELDS and n not in STIMULATOR_FIELDS)
 
+    def _check_shares(self, name: str, most: int) -> None:
+        """Shares of the units (fibre types, channels): at most ``most`` entries
+        with a positive sum.
+
+        :raises ValueError: naming the field and its value
+        """
+        shares = getattr(self, name)
+        if len(shares) > most:
+            raise ValueError(f'`{name}` must have at most {most} entries, got {len(shares)}')
+        if not sum(shares) > 0.0:
+            raise ValueError(f'`{name}` must have a positive sum, got {list(shares)!r}')
+
     def _check_fes_combinations(self) -> None:
         """Checks across fields of the FES extensions (doc/model.md section 7).
 
         :raises ValueError: naming the fields and their values
         """
         k = self.n_fibre_types
-        if k > N_FIBRE_TYPES_MAX:
-            raise ValueError(f'`fibre_fractions` must have at most {N_FIBRE_TYPES_MAX} '
-                             f'entries, got {k}')
-        if not sum(self.fibre_fractions) > 0.0:
-            raise ValueError('`fibre_fractions` must have a positive sum, got '
-                             f'{list(self.fibre_fractions)!r}')
+        self._check_shares('fibre_fractions', N_FIBRE_TYPES_MAX)
         for name in ('fibre_force_weights', 'fatigue_min', 'tau_fatigue_s',
                      'tau_recovery_s'):
             n = len(getattr(self, name))
@@ -442,12 +449,7 @@ class MuscleParams:
         :raises ValueError: naming the fields and their values
         """
         c = self.n_channels
-        if c > N_CHANNELS_MAX:
-            raise ValueError(f'`channel_fractions` must have at most {N_CHANNELS_MAX} '
-                             f'entries, got {c}')
-        if not sum(self.channel_fractions) > 0.0:
-            raise ValueError('`channel_fractions` must have a positive sum, got '
-                             f'{list(self.channel_fractions)!r}')
+        self._check_shares('channel_fractions', N_CHANNELS_MAX)
         if self.activation_model == 'first_order':
             if c != 1:
                 raise ValueError(

@@ -135,6 +135,12 @@ def simulate(protocol: Protocol | PulseProtocol, params: MuscleParams | None = N
     n = substeps_for(dt)
     r_start, dl_end, r_end = substep_inputs(r, dl, n)
     out = muscle.run_array(r_start, dl_end, dt / n, r_end)[output_rows(n, n_steps)]
+    return _result(t, first, out)
+
+
+def _result(t: np.ndarray, first, out: np.ndarray, **extra) -> SimulationResult:
+    """A result from the outputs at t = 0 (``first``, MuscleOutputs) and after
+    each step (``out``, one row per later sample); ``extra`` fields as given."""
     fields = {'t_s': t}   # the sample times are the inputs themselves
     for name, value, column in zip(first._fields, first, out.T):
         if name not in fields:
@@ -142,7 +148,7 @@ def simulate(protocol: Protocol | PulseProtocol, params: MuscleParams | None = N
             array[0] = value
             array[1:] = column
             fields[name] = array
-    return SimulationResult(**fields)
+    return SimulationResult(**fields, **extra)
 
 
 def protocol_pulses(protocol: PulseProtocol, params: MuscleParams) -> tuple:
@@ -204,13 +210,5 @@ def simulate_pulses(protocol: PulseProtocol, params: MuscleParams | None = None,
     out, act, _ = muscle.run_pulses(times[now:], channels[now:], commands[now:], dl_end,
                                     dt / n)
     rows = output_rows(n, n_steps)
-    out, act = out[rows], act[rows]
-    fields = {'t_s': t}
-    for name, value, column in zip(first._fields, first, out.T):
-        if name not in fields:
-            array = np.empty(len(t), dtype=type(value))
-            array[0] = value
-            array[1:] = column
-            fields[name] = array
-    fields['activation'] = np.vstack([first_activation[None, :], act])
-    return SimulationResult(**fields)
+    return _result(t, first, out[rows],
+                   activation=np.vstack([first_activation[None, :], act[rows]]))
