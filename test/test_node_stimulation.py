@@ -1,14 +1,15 @@
-"""The simulator's ``stimulation`` input (hill_muscle_interfaces/msg/Stimulation)
-and its ``activation`` output.
+"""The ``stimulation`` input (hill_muscle_interfaces/msg/Stimulation) and the
+``activation`` output of the simulator and limb nodes.
 
 Three layers, cheapest first:
 
 - the checks of a message (hill_muscle_ros.nodes._stimulation), no ROS;
-- the node's callbacks and steps in this process (a Simulator made in
-  rclpy's default context, its callbacks called as the executor would call
-  them, no DDS traffic);
-- one ding2003 simulator with two channels on a RehaStim 2 over real DDS
-  (``/stim``, 200 Hz, watchdog off), shared by the module.
+- the nodes' callbacks and steps in this process (a Simulator or LimbNode
+  made in rclpy's default context, its callbacks called as the executor would
+  call them, no DDS traffic), against the model stepped offline;
+- over real DDS: one ding2003 simulator with two channels on a RehaStim 2
+  (``/stim``, 200 Hz, watchdog off), shared by the module, and a limb node
+  whose quadriceps has two channels.
 """
 import math
 import os
@@ -16,16 +17,20 @@ import os
 import pytest
 import rclpy
 import yaml
+from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, Float64MultiArray
 from std_srvs.srv import Trigger
 
+from conftest import REPO
 from hill_muscle_interfaces.msg import Stimulation
 from hill_muscle_ros.model import Muscle, MuscleParams
 from hill_muscle_ros.model.equations import equivalent_pulse_width
+from hill_muscle_ros.model.limb import Limb
 from hill_muscle_ros.model.stimulator import ChannelCommand
 from hill_muscle_ros.model.stimulus import command_from_pulse_width
 from hill_muscle_ros.nodes import _stimulation
 from hill_muscle_ros.nodes._inputs import BadInputWarner
+from hill_muscle_ros.nodes.limb import LimbNode
 from hill_muscle_ros.nodes.simulator import Simulator
 from hill_muscle_ros.supervisor import param_text
 from ros_helpers import Probe, ProcessGroup, RecordingLogger, node_command
@@ -430,3 +435,146 @@ def test_a_rejected_message_is_one_clear_line_and_the_force_keeps_the_last_good_
     low, high = stimulated['band']
     assert low * (1.0 - BAND_TOL) <= min(after) and max(after) <= high * (1.0 + BAND_TOL), \
         (min(after), max(after), stimulated['band'])
+
+
+# -- the limb node: a ding2003 quadriceps with two channels -----------------------
+
+KNEE_YAML = REPO / 'config' / 'knee.yaml'
+
+
+def _ding_knee(path):
+    """config/knee.yaml with the quadriceps on Ding's pulse model, two channels
+    on a RehaStim 2 (no first-order time constants); the hamstrings as they are."""
+    text = yaml.safe_load(KNEE_YAML.read_text())
+    section = text['/**']['ros__parameters']
+    section['quadriceps'].update(activation_model='ding2003', channel_fractions=[0.5, 0.5],
+                                 stimulator='rehastim2', tau_act_s=0.0, tau_deact_s=0.0)
+    path.write_text(yaml.safe_dump(text))
+    return path
+
+
+@pytest.fixture
+def make_limb(tmp_path):
+    """``make_limb(**params)``: a LimbNode on the ding2003 knee in rclpy's default
+    context (unique namespace, watchdog off unless given); destroyed after."""
+    nodes = []
+    plant = _ding_knee(tmp_path / 'ding_knee.yaml')
+
+    def make(**params):
+        params.setdefault('input_timeout_s', 0.0)
+        args = ['--ros-args', '--params-file', str(plant),
+                '-r', f'__ns:=/stim_{os.getpid()}_{next(_RUNS)}']
+        for name, value in params.items():
+            args += ['-p', f'{name}:={param_text(value)}']
+        rclpy.init(args=args)
+        node = LimbNode()
+        node._bad_input = BadInputWarner(RecordingLogger())
+        nodes.append(node)
+        return node
+
+    yield make
+    for node in nodes:
+        node.destroy_node()
+    rclpy.try_shutdown()
+
+
+def _limb_angles(node, n):
+    angles = []
+    for _ in range(n):
+        assert node._run_steps(1)
+        angles.append(node._joint_msg.position[0])
+    return angles
+
+
+def _offline_limb_angles(node, commands, n, off_after=None):
+    """[rad] ``n`` steps of the node's plant, offline, the quadriceps given
+    ``commands`` at t = 0 (and every channel off after ``off_after`` steps)."""
+    limb = Limb(node._plant, build=node._limb.build)
+    limb.stimulate('quadriceps', commands)
+    angles = []
+    for k in range(n):
+        if k == off_after:
+            limb.stimulate('quadriceps', [ChannelCommand(c, 'single', 0.0, None, GOOD_F_HZ)
+                                          for c in (1, 2)])
+        angles.append(limb.step([0.0, 0.0], 0.0, node._dt_s).theta_rad)
+    return angles
+
+
+def test_a_limb_nodes_ding2003_muscle_is_driven_by_its_channels_trains(make_limb):
+    node = make_limb()
+    msg = stimulation()
+    node._on_stimulation(0, msg)
+    angles = _limb_angles(node, 500)
+    quad = node._plant.muscles[0].params
+    assert angles == _offline_limb_angles(node, _stimulation.check_message(msg, quad, 2), 500)
+    assert angles[-1] > math.radians(5.0)   # the knee extends
+    assert len(node._activation_msgs[0].data) == 2 and min(node._activation_msgs[0].data) > 0
+    assert node._pub_activation[1] is None   # the first_order hamstrings have no channels
+
+
+def test_a_limb_nodes_rejected_message_leaves_the_trains_as_they_were(make_limb):
+    node = make_limb()
+    good = stimulation()
+    node._on_stimulation(0, good)
+    angles = _limb_angles(node, 100)
+    for bad, reason in BAD_MESSAGES.values():
+        node._on_stimulation(0, bad)
+    angles += _limb_angles(node, 200)
+    quad = node._plant.muscles[0].params
+    assert angles == _offline_limb_angles(node, _stimulation.check_message(good, quad, 2), 300)
+    topic = node._sub_stim[0].topic_name
+    assert _warnings(node) == [
+        f'ignoring {topic} = {_stimulation.message_text(BAD_MESSAGES["unequal arrays"][0])}: '
+        f'{BAD_MESSAGES["unequal arrays"][1]}; keeping channel 1: single 0.0003 s at 30 Hz, '
+        'channel 2: single 0.0003 s at 30 Hz']   # the other two within the throttle second
+
+
+def test_a_limb_nodes_pulse_width_is_channel_1_of_a_ding2003_muscle(make_limb):
+    node = make_limb()
+    node._on_pulse_width(0, Float64(data=GOOD_PW_S))
+    quad = node._plant.muscles[0].params
+    assert node._held[0] == {1: ChannelCommand(1, 'single', GOOD_PW_S, None, quad.frequency_hz)}
+    node._on_recruitment(0, Float64(data=0.5))
+    assert 'does not take' in _warnings(node)[0]
+
+
+def test_a_limb_nodes_first_order_muscle_takes_stimulation_as_pulse_width(make_limb):
+    node = make_limb()
+    node._on_pulse_width(1, Float64(data=GOOD_PW_S))
+    from_pulse_width = node._commands[1]
+    node._on_pulse_width(1, Float64(data=0.0))
+    node._on_stimulation(1, stimulation(channel=(1,), pulse_width_s=[GOOD_PW_S]))
+    assert node._commands[1] == from_pulse_width > 0.0
+
+
+def test_a_limb_nodes_watchdog_turns_a_quiet_muscles_channels_off(make_limb):
+    node = make_limb(input_timeout_s=0.05)
+    msg = stimulation()
+    node._on_stimulation(0, msg)
+    angles = _limb_angles(node, 300)   # trips before the 52nd step
+    assert node._watchdog_tripped == [True, False]
+    assert [c.pulse_width_s for c in node._held[0].values()] == [0.0, 0.0]
+    quad = node._plant.muscles[0].params
+    assert angles == _offline_limb_angles(node, _stimulation.check_message(msg, quad, 2), 300,
+                                          off_after=51)
+
+
+def test_over_dds_a_limb_muscles_stimulation_extends_the_knee_with_two_activations(
+        shared, tmp_path):
+    probe = shared['probe']
+    ns = '/stim_knee'
+    overrides = tmp_path / 'overrides.yaml'
+    overrides.write_text(yaml.safe_dump({'/**': {'ros__parameters': {
+        'rate_hz': RATE_HZ, 'input_timeout_s': 0.0}}}))
+    joint = probe.record(f'{ns}/joint_states', JointState)
+    activation = probe.record(f'{ns}/quadriceps/activation', Float64MultiArray)
+    with ProcessGroup(tmp_path) as procs:
+        node = procs.start('knee', node_command('limb_simulator', ns=ns, params_files=[
+            _ding_knee(tmp_path / 'ding_knee.yaml'), overrides]))
+        probe.wait_for_messages(joint, procs=[node])
+        probe.publish_when_matched(f'{ns}/quadriceps/stimulation', stimulation(), procs=[node])
+        probe.spin_until(lambda: any(m.position[0] > math.radians(5.0) for m in joint.messages),
+                         'the knee extended past 5 deg', procs=[node])
+        msgs = probe.wait_for_messages(activation, BAND_STEPS, procs=[node])
+    assert all(len(m.data) == 2 for m in msgs)
+    assert min(msgs[-1].data) > 0.0

@@ -10,7 +10,13 @@ the offline CLI's. A bad plant stops start-up with a message naming the key
 
 For each muscle ``<m>`` of the plant it subscribes ``<m>/pulse_width`` [s]
 (through that muscle's recruitment curve) and ``<m>/recruitment`` [-], and it
-subscribes ``external_torque`` [N m] (all std_msgs/Float64, zero-order hold).
+subscribes ``external_torque`` [N m] (all std_msgs/Float64, zero-order hold),
+and ``<m>/stimulation`` (hill_muscle_interfaces/msg/Stimulation, checked
+against that muscle's ``stimulator`` and channels as the simulator checks it,
+._stimulation). A muscle with ``activation_model: ding2003`` is driven by its
+channels' pulse trains (``Limb.stimulate``; ``<m>/pulse_width`` is channel 1
+at its ``frequency_hz``, ``<m>/recruitment`` is refused) and publishes each
+channel's activation on ``<m>/activation`` (std_msgs/Float64MultiArray).
 It steps the limb (see Engine below) at dt = 1 / ``rate_hz``
 against the steady clock and, for every step, publishes ``joint_states``
 (sensor_msgs/JointState: the joint's name, theta [rad], omega [rad/s], and
@@ -18,8 +24,8 @@ the net muscle torque [N m] as the effort), and each muscle's ``<m>/force``
 [N] (Float64) and ``<m>/wrench`` (geometry_msgs/WrenchStamped, force along +x,
 frame_id the muscle's name), stamped with the step's simulated time as the
 simulator stamps; optionally ``/clock``. The watchdog drops a muscle's command
-to 0 after ``input_timeout_s`` of simulated time without a message on its
-inputs. A ``reset`` service (std_srvs/Trigger) returns the limb to its initial
+to 0 (every channel's pulse width to 0) after ``input_timeout_s`` of
+simulated time without a message on its inputs. A ``reset`` service (std_srvs/Trigger) returns the limb to its initial
 state with every held input at 0.
 
 Engine: the node steps a :class:`~hill_muscle_ros.model.limb.Limb` on the
@@ -57,12 +63,13 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64
+from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension
 from std_srvs.srv import Trigger
 
 from ..model import engine as engines
 from ..model.limb import TORQUE_LIMIT_N_M, Limb, LimbPlant, kernels as limb_kernels
 from ..model.muscle import check_recruitment
+from ..model.stimulator import ChannelCommand
 from ..qos import OUTPUT_QOS, RELIABLE_QOS
 from ..timebase import NS_PER_S
 from ..watchdog import DEFAULT_INPUT_TIMEOUT_S, INPUT_TIMEOUT_RANGE_S, watchdog_trips
@@ -75,6 +82,8 @@ from ._process import StartupError, process_entry, run_node
 from ._stepping import (DEFAULT_RATE_HZ, DEFAULT_REAL_TIME_FACTOR, ERROR_BEHIND_S,
                         MAX_CATCH_UP_S, MIN_TICK_PERIOD_S, RATE_HZ_RANGE, RATE_WARN_FRACTION,
                         REAL_TIME_FACTOR_RANGE, STEPS_PER_TICK_ROUNDING, StepSchedule)
+from ._stimulation import (Stimulation, check_message, commands_text, level_command,
+                           message_text, off_commands, pulse_width_channel, pulsed, stimulating)
 from ._topics import (QOS_OVERRIDES_PREFIX, check_qos_overrides, overridable_publisher,
                       overridable_subscription)
 
@@ -111,8 +120,9 @@ class LimbNode(Node):
                                                 *REAL_TIME_FACTOR_RANGE, read_only=True))
         self._input_timeout_s = declare_checked(
             self, 'input_timeout_s', DEFAULT_INPUT_TIMEOUT_S, number_descriptor(
-                "stimulation watchdog: a muscle's command drops to 0 after this long "
-                'without a pulse_width or recruitment message for it; 0 disables', 's',
+                "stimulation watchdog: a muscle's command (every channel's pulse width) drops "
+                'to 0 after this long without a pulse_width, recruitment or stimulation '
+                'message for it; 0 disables', 's',
                 *INPUT_TIMEOUT_RANGE_S))
         self._publish_clock = declare_checked(self, 'publish_clock', False, ParameterDescriptor(
             description='publish /clock (sim time from 0) and stamp outputs with it',
@@ -133,7 +143,8 @@ class LimbNode(Node):
         names = [m.name for m in self._plant.muscles]
         topics = ['external_torque', 'joint_states']
         for n in names:
-            topics += [f'{n}/pulse_width', f'{n}/recruitment', f'{n}/force', f'{n}/wrench']
+            topics += [f'{n}/pulse_width', f'{n}/recruitment', f'{n}/stimulation', f'{n}/force',
+                       f'{n}/wrench', f'{n}/activation']
         check_qos_overrides(self, [n for n in overrides if n.startswith(QOS_OVERRIDES_PREFIX)],
                             {self.resolve_topic_name(t) for t in topics})
 
@@ -146,6 +157,11 @@ class LimbNode(Node):
         # Held inputs (zero-order hold): each muscle's recruitment command u
         # [-] (a pulse width through its curve) and the external torque [N m].
         self._commands = [0.0] * len(names)
+        # ding2003 muscles: each channel's last good command (the limb's trains
+        # hold it); their entry of _commands stays 0 (the limb does not read it).
+        self._params = [m.params for m in self._plant.muscles]
+        self._pulsed = [pulsed(p) for p in self._params]
+        self._held: list[dict[int, ChannelCommand]] = [{} for _ in names]
         self._external_torque_n_m = 0.0
         self._last_stim_t_s = [0.0] * len(names)   # [s] sim time of each muscle's last input
         self._watchdog_tripped = [False] * len(names)
@@ -167,7 +183,15 @@ class LimbNode(Node):
         self._clock_msg = ClockMsg()
         self._pub_clock = (overridable_publisher(self, ClockMsg, '/clock', OUTPUT_QOS)
                            if self._publish_clock else None)
-        self._sub_pw, self._sub_r = [], []
+        # Each channel's activation of the ding2003 muscles, every step.
+        self._pub_activation = [
+            overridable_publisher(self, Float64MultiArray, f'{n}/activation', OUTPUT_QOS)
+            if p else None for n, p in zip(names, self._pulsed)]
+        self._activation_msgs = [Float64MultiArray() for _ in names]
+        for msg, params in zip(self._activation_msgs, self._params):
+            c = params.n_channels
+            msg.layout.dim = [MultiArrayDimension(label='channel', size=c, stride=c)]
+        self._sub_pw, self._sub_r, self._sub_stim = [], [], []
         for i, n in enumerate(names):
             self._sub_pw.append(overridable_subscription(
                 self, Float64, f'{n}/pulse_width',
@@ -175,6 +199,14 @@ class LimbNode(Node):
             self._sub_r.append(overridable_subscription(
                 self, Float64, f'{n}/recruitment',
                 lambda msg, i=i: self._on_recruitment(i, msg), RELIABLE_QOS))
+            if Stimulation is not None:
+                self._sub_stim.append(overridable_subscription(
+                    self, Stimulation, f'{n}/stimulation',
+                    lambda msg, i=i: self._on_stimulation(i, msg), RELIABLE_QOS))
+        if Stimulation is None:   # pragma: no cover - the test venv has the interface package
+            self.get_logger().warning(
+                'hill_muscle_interfaces is not installed: no `<muscle>/stimulation` input '
+                '(build it with `make interfaces` or colcon; pulse_width and recruitment work)')
         self._sub_tau = overridable_subscription(self, Float64, 'external_torque',
                                                  self._on_external_torque, RELIABLE_QOS)
         self.create_service(Trigger, 'reset', self._on_reset)
@@ -215,6 +247,13 @@ class LimbNode(Node):
                 f'{due} steps due after a stall or overload: running {n} now and the rest '
                 f'on the next ticks; if this repeats, lower rate_hz ({self._rate_hz:g}) or '
                 'real_time_factor', throttle_duration_sec=1.0)
+        self._run_steps(n)
+
+    def _run_steps(self, n: int) -> bool:
+        """Run ``n`` steps with the held inputs, publishing each one.
+
+        :return: ``False`` if a step failed (the limb was reset and the rest dropped)
+        """
         step = self._limb.step
         for _ in range(n):
             self._watchdog()
@@ -228,7 +267,7 @@ class LimbNode(Node):
                 self.get_logger().error(f'{err}: resetting the limb to its initial state '
                                         'with every input at 0', throttle_duration_sec=1.0)
                 self._reset_to_rest()
-                return
+                return False
             self._schedule.steps_done += 1
             if not (math.isfinite(out.theta_rad) and math.isfinite(out.omega_rad_per_s)):
                 self._resets_on_error += 1
@@ -236,8 +275,9 @@ class LimbNode(Node):
                     f'non-finite state (theta {out.theta_rad!r} rad, omega '
                     f'{out.omega_rad_per_s!r} rad/s): resetting', throttle_duration_sec=1.0)
                 self._reset_to_rest()
-                return
+                return False
             self._publish(out)
+        return True
 
     def _publish(self, out) -> None:
         """Publish the outputs of the step just run, stamped with its end time."""
@@ -262,50 +302,106 @@ class LimbNode(Node):
             wrench.header.stamp = stamp
             wrench.wrench.force.x = force_n
             self._pub_wrench[i].publish(wrench)
+            if self._pulsed[i]:
+                activation = self._activation_msgs[i]
+                activation.data = self._limb.activation(i).tolist()
+                self._pub_activation[i].publish(activation)
 
     def _watchdog(self) -> None:
-        """Stimulation watchdog, per muscle: u -> 0 when its inputs have gone quiet."""
+        """Stimulation watchdog, per muscle: u (every channel's pulse width) -> 0
+        when its inputs have gone quiet."""
         now_s = self.sim_time_s
         for i, u in enumerate(self._commands):
-            if watchdog_trips(now_s, self._last_stim_t_s[i], self._input_timeout_s, u > 0.0):
+            on = stimulating(self._held[i]) if self._pulsed[i] else u > 0.0
+            if watchdog_trips(now_s, self._last_stim_t_s[i], self._input_timeout_s, on):
+                if self._pulsed[i]:
+                    what = f'{commands_text(self._held[i])} -> every channel\'s pulse width 0'
+                    off = off_commands(self._held[i], self._params[i].n_channels,
+                                       self._params[i])
+                    self._limb.stimulate(i, off)
+                    self._held[i] = {c.channel: c for c in off}
+                else:
+                    what = f'command {u:g} -> 0'
+                    self._commands[i] = 0.0
                 self.get_logger().warning(
                     f'no {self._names[i]}/pulse_width or recruitment message for '
-                    f'{self._input_timeout_s:g} s (input_timeout_s): command {u:g} -> 0 '
+                    f'{self._input_timeout_s:g} s (nor stimulation; input_timeout_s): {what} '
                     'until the next one')
-                self._commands[i] = 0.0
                 self._watchdog_tripped[i] = True
 
     # -- inputs -----------------------------------------------------------------
 
-    def _set_command(self, i: int, u: float) -> None:
-        self._commands[i] = u
+    def _taken(self, i: int, what: str) -> None:
+        """Count a good stimulation message of muscle ``i`` for its watchdog."""
         self._stim_messages += 1
         self._last_stim_t_s[i] = self.sim_time_s
         if self._watchdog_tripped[i]:
             self._watchdog_tripped[i] = False
-            self.get_logger().info(f'{self._names[i]} stimulation back: command {u:g}')
+            self.get_logger().info(f'{self._names[i]} stimulation back: {what}')
 
-    def _reject(self, topic: str, value: float, err: Exception, kept: str) -> None:
-        """Warn (throttled per topic) that ``value`` on ``topic`` was ignored."""
-        self._bad_input.warn(topic, f'ignoring {topic} = {value!r}: {err}; keeping {kept}')
+    def _set_command(self, i: int, u: float) -> None:
+        self._commands[i] = u
+        self._taken(i, f'command {u:g}')
+
+    def _stimulate(self, i: int, commands) -> None:
+        """A ding2003 muscle's channels' new commands to the limb's trains."""
+        self._limb.stimulate(i, commands)
+        self._held[i].update((c.channel, c) for c in commands)
+        self._taken(i, commands_text(self._held[i]))
+
+    def _kept(self, i: int) -> str:
+        """Muscle ``i``'s stimulation a rejected message leaves, for its warning."""
+        return (commands_text(self._held[i]) if self._pulsed[i]
+                else f'command {self._commands[i]:g}')
+
+    def _reject(self, topic: str, value, err: Exception, kept: str) -> None:
+        """Warn (throttled per topic) that ``value`` on ``topic`` was ignored
+        (``value`` quoted as it is if a ``str``)."""
+        shown = value if isinstance(value, str) else repr(value)
+        self._bad_input.warn(topic, f'ignoring {topic} = {shown}: {err}; keeping {kept}')
 
     def _on_pulse_width(self, i: int, msg: Float64) -> None:
         topic = self._sub_pw[i].topic_name
+        params = self._params[i]
         try:
-            u = pulse_width_command(msg.data, self._plant.muscles[i].params, topic)
+            u = pulse_width_command(msg.data, params, topic)
+            command = pulse_width_channel(msg.data, params) if self._pulsed[i] else None
         except ValueError as err:
-            self._reject(topic, msg.data, err, f'command {self._commands[i]:g}')
+            self._reject(topic, msg.data, err, self._kept(i))
             return
-        self._set_command(i, u)
+        if command is None:
+            self._set_command(i, u)
+        else:   # channel 1, single pulses at the muscle's frequency_hz
+            self._stimulate(i, (command,))
 
     def _on_recruitment(self, i: int, msg: Float64) -> None:
         topic = self._sub_r[i].topic_name
         try:
             u = check_recruitment(msg.data, topic)
+            if self._pulsed[i]:
+                raise ValueError(f'`{topic}` is a level command, which a muscle with '
+                                 '`activation_model: ding2003` does not take: send '
+                                 'pulse_width (channel 1 at frequency_hz) or stimulation')
         except ValueError as err:
-            self._reject(topic, msg.data, err, f'command {self._commands[i]:g}')
+            self._reject(topic, msg.data, err, self._kept(i))
             return
         self._set_command(i, u)
+
+    def _on_stimulation(self, i: int, msg) -> None:
+        """A stimulator's command for some of muscle ``i``'s channels, checked as
+        a whole (._stimulation.check_message): a rejected message changes nothing."""
+        topic = self._sub_stim[i].topic_name
+        params = self._params[i]
+        try:
+            commands = check_message(msg, params, params.n_channels, self._held[i])
+        except ValueError as err:
+            self._reject(topic, message_text(msg), err, self._kept(i))
+            return
+        if self._pulsed[i]:
+            self._stimulate(i, commands)
+            return
+        u = level_command(commands, params)
+        self._set_command(i, self._commands[i] if u is None else u)
 
     def _on_external_torque(self, msg: Float64) -> None:
         topic = self._sub_tau.topic_name
@@ -323,6 +419,7 @@ class LimbNode(Node):
         """Initial state, and every held input back to 0; simulated time runs on."""
         self._limb.reset()
         self._commands = [0.0] * len(self._names)
+        self._held = [{} for _ in self._names]
         self._external_torque_n_m = 0.0
         self._watchdog_tripped = [False] * len(self._names)
 
@@ -368,8 +465,10 @@ class LimbNode(Node):
         report.add('input_timeout_s', self._input_timeout_s)
         report.add('theta_rad', self._limb.theta_rad)
         report.add('external_torque_n_m', self._external_torque_n_m)
-        for name, u, tripped in zip(self._names, self._commands, self._watchdog_tripped):
-            report.add(f'command[{name}]', u)
+        for i, (name, u, tripped) in enumerate(zip(self._names, self._commands,
+                                                   self._watchdog_tripped)):
+            report.add(f'command[{name}]', commands_text(self._held[i]) if self._pulsed[i]
+                       else u)
             report.add(f'watchdog_tripped[{name}]', tripped)
         report.add('resets_on_error_total', self._resets_on_error)
         report.add('bad_inputs_total', self._bad_input.total)
@@ -383,7 +482,8 @@ class LimbNode(Node):
                         f'{RATE_WARN_FRACTION:.0%} of {target_hz:g}')
         if any(self._watchdog_tripped):
             tripped = [n for n, t in zip(self._names, self._watchdog_tripped) if t]
-            report.warn(f'stimulation watchdog tripped for {", ".join(tripped)}: command 0')
+            report.warn(f'stimulation watchdog tripped for {", ".join(tripped)}: command 0 '
+                        '(every channel off)')
         if bad:
             report.warn(f'{bad} input message(s) rejected in the last {report.period_s:.2f} s')
         report.ok(f'stepping at {achieved_hz:.1f} steps/s of {target_hz:g}')

@@ -432,8 +432,8 @@ class Simulator(Node):
                 what = f'recruitment {self._recruitment:g} -> 0'
                 self._recruitment = 0.0
             self.get_logger().warning(
-                f'no pulse_width or recruitment message, nor stimulation, for '
-                f'{self._input_timeout_s:g} s (input_timeout_s): {what} until the next one')
+                f'no pulse_width or recruitment message for {self._input_timeout_s:g} s '
+                f'(nor stimulation; input_timeout_s): {what} until the next one')
             self._watchdog_tripped = True
 
     # -- inputs -----------------------------------------------------------------
