@@ -154,7 +154,12 @@ class Muscle:
         self._pulsed = self.params.activation_model == 'ding2003'
         self._profile = stimulator_profile(self.params.stimulator, self.params.pw_max_s)
         self._trains: list = [None] * self.params.n_channels
+        # [s] The earliest instant each channel may send its next pulse (a
+        # train from a command has constant tracks): a step before it skips
+        # the channel's train (the node's 1 kHz step, most of whose steps send nothing).
+        self._due: list = [math.inf] * self.params.n_channels
         self._pending: list = []   # (instant it acts [s], channel, u), emd_s after sending
+        self._no_pulse = (np.empty(0), np.empty(0, dtype=np.int64), np.empty(0))
 
     def _views(self) -> None:
         """Views of the state (taken anew whenever the bundle's arrays move)."""
@@ -169,6 +174,7 @@ class Muscle:
         the motor-unit memory erased; a ding2003 muscle's trains stopped."""
         self._bundle.reset(0)
         self._trains = [None] * self.params.n_channels
+        self._due = [math.inf] * self.params.n_channels
         self._pending = []
 
     @property
@@ -295,26 +301,35 @@ class Muscle:
                                  f'channels), got {cmd.channel!r}')
             train = ChannelTrain(c.frequency_hz, c.pulse_width_s, c.current_a, c.mode,
                                  self.params.burst_interval_s, c.channel)
-            old = trains[c.channel - 1]
-            if old is None:
-                trains[c.channel - 1] = PulseTrain(train, self.t_s)
-            else:
-                replaced = PulseTrain(train, self.t_s)
-                replaced.state = old.state
-                trains[c.channel - 1] = replaced
+            trains[c.channel - 1] = PulseTrain(train, self.t_s)
+        for c, (old, new) in enumerate(zip(self._trains, trains)):
+            if new is not old:
+                if old is not None:   # the schedule carries over, brought to now
+                    self._take(c, old.pulses(old.state.time_s, self.t_s))
+                    new.state = old.state
+                self._due[c] = -math.inf
         self._trains = trains
+
+    def _take(self, c: int, pulses) -> None:
+        """Queue channel ``c``'s sent ``pulses`` to act ``emd_s`` later."""
+        for pulse in pulses:
+            self._pending.append((pulse.time_s + self.params.emd_s, c,
+                                  pulse_command(pulse.pulse_width_s, pulse.current_a,
+                                                self.params)))
 
     def _sent_until(self, t1_s: float) -> None:
         """Take every channel's pulses sent up to ``t1_s`` into the pending ones."""
-        emd, params = self.params.emd_s, self.params
+        taken = False
         for c, train in enumerate(self._trains):
-            if train is None:
+            if train is None or self._due[c] >= t1_s:
                 continue
-            for pulse in train.pulses(train.state.time_s, t1_s):
-                self._pending.append((pulse.time_s + emd, c,
-                                      pulse_command(pulse.pulse_width_s, pulse.current_a,
-                                                    params)))
-        self._pending.sort()
+            self._take(c, train.pulses(train.state.time_s, t1_s))
+            state = train.state
+            self._due[c] = (state.pending[0].time_s if state.pending
+                            else state.next_burst_s if state.running else math.inf)
+            taken = True
+        if taken:
+            self._pending.sort()
 
     def run_pulses(self, times_s, channels, commands, dl_mt_end_m, dt_s: float) -> tuple:
         """Advance ``len(dl_mt_end_m)`` steps of ``dt_s`` with the pulses given
@@ -372,10 +387,13 @@ class Muscle:
         due = 0
         while due < len(pending) and pending[due][0] < t1 - TIME_TOL_S:
             due += 1
-        times = [p[0] for p in pending[:due]]
-        channels = [p[1] for p in pending[:due]]
-        commands = [p[2] for p in pending[:due]]
-        out, act, used = self.run_pulses(times, channels, commands, dl, dt_s)
+        if due:
+            times = [p[0] for p in pending[:due]]
+            channels = [p[1] for p in pending[:due]]
+            commands = [p[2] for p in pending[:due]]
+            out, act, used = self.run_pulses(times, channels, commands, dl, dt_s)
+        else:
+            out, act, used = self.run_pulses(*self._no_pulse, dl, dt_s)
         del pending[:used]
         return out, act
 
