@@ -201,3 +201,9 @@ def test_simulate_writes_one_activation_column_per_channel_to_the_csv(tmp_path):
     with out.open(encoding='utf-8') as f:
         header = next(csv.reader(f))
     assert header[-4:] == ['a_1', 'a_2', 'a_3', 'a_4']
+
+
+def test_a_batch_of_muscles_refuses_a_pulse_driven_muscle_by_index():
+    from hill_muscle_ros.model.muscle.batch import MuscleBatch
+    with pytest.raises(ValueError, match='`params\\[1\\]` must have `activation_model: first_order`'):
+        MuscleBatch([MuscleParams(), MuscleParams(**DING)])

@@ -152,6 +152,13 @@ class LimbBatch:
 
     def __init__(self, plants: Sequence[LimbPlant], build: str | None = None) -> None:
         self.plants, names = check_plants(plants)
+        for k, plant in enumerate(self.plants):
+            for mu in plant.muscles:
+                if mu.params.activation_model != 'first_order':
+                    raise ValueError(f'`plants[{k}]`: muscle {mu.name!r} must have '
+                                     '`activation_model: first_order` in a batch of limbs (its '
+                                     'rows carry level commands; a ding2003 muscle takes pulses: '
+                                     f'run it with Limb), got {mu.params.activation_model!r}')
         self.size = len(self.plants)
         #: The muscles' names, the columns of every (K, M) array.
         self.muscle_names = names

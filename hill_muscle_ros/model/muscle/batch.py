@@ -62,13 +62,18 @@ class MuscleBatch:
     :param build: :data:`.engine.COMPILED` or :data:`.engine.PYTHON`, or None
         (the default) for what ``HILL_MUSCLE_ENGINE`` chooses; :attr:`build`
         tells which runs
-    :raises ValueError: if ``params`` is empty or holds something else, or
-        ``build`` is unknown
+    :raises ValueError: if ``params`` is empty or holds something else, or a
+        ``ding2003`` muscle, or ``build`` is unknown
     :raises ImportError: if the compiled build is asked for and numba cannot be imported
     """
 
     def __init__(self, params: Sequence[MuscleParams], build: str | None = None) -> None:
         params = check_instances(MuscleParams, params, 'params')
+        for i, p in enumerate(params):
+            if p.activation_model != 'first_order':
+                raise ValueError(f'`params[{i}]` must have `activation_model: first_order` (a '
+                                 'batch steps level commands; a ding2003 muscle takes pulses: '
+                                 f'run it with Muscle), got {p.activation_model!r}')
         self.params = params
         self.size = len(params)
         self._kernels = engine.kernels(batch_kernels, build)
