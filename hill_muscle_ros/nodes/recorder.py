@@ -9,8 +9,10 @@ so ``ros2 bag info``, Foxglove, PlotJuggler and rosbags open it as it is.
   never overwritten). Each entry of ``topics`` is a topic name (resolved in
   the node's namespace), optionally followed by ``:`` and its type:
   ``force_target:std_msgs/msg/Float64`` (:func:`parse_topic_entry`; a ``:``
-  cannot occur in a ROS name). Default: every topic of the simulator and
-  the protocol player.
+  cannot occur in a ROS name). Default: the simulator's inputs and
+  outputs, ``stimulation`` included, without its 1 kHz state streams
+  (``recruitment_state``, ``fitness``, ``activation``: give them to record
+  them).
 - A topic with a type (given, or one of the package's own topics,
   :data:`KNOWN_TYPES`) is subscribed at start-up, before any publisher
   exists, reliable and volatile, so a publisher that waits until the
@@ -71,13 +73,20 @@ from ._topics import (DIAGNOSTICS_TOPIC, check_qos_overrides, overridable_subscr
                       qos_overrides_of)
 
 NODE_NAME = 'recorder'
+#: The stimulator command (hill_muscle_interfaces, built by ``make interfaces``).
+STIMULATION_TOPIC = 'stimulation'
+STIMULATION_TYPE = 'hill_muscle_interfaces/msg/Stimulation'
 
 #: Every topic the simulator and the protocol player use (relative names are
 #: resolved in the recorder's namespace; /clock is global by ROS convention),
 #: and /diagnostics, so that a bag says whether the run was healthy (steps
 #: behind, watchdog trips, losses) at the cost of a few messages a second.
-DEFAULT_TOPICS = ('pulse_width', 'recruitment', 'length_command', 'length_command_stamped',
-                  'force', 'ce_length', 'wrench', '/clock', DIAGNOSTICS_TOPIC)
+#: ``stimulation`` is a command stream like ``pulse_width`` (a player's knots,
+#: a controller's period): few messages, and a bag without it cannot be
+#: replayed or fitted.
+DEFAULT_TOPICS = ('pulse_width', 'recruitment', 'stimulation', 'length_command',
+                  'length_command_stamped', 'force', 'ce_length', 'wrench', '/clock',
+                  DIAGNOSTICS_TOPIC)
 #: Types of this package's own topics. These are subscribed at start-up,
 #: before any publisher exists, so that a player or simulator started after
 #: the recorder loses no message to discovery; other topics (and /clock, whose
@@ -85,15 +94,20 @@ DEFAULT_TOPICS = ('pulse_width', 'recruitment', 'length_command', 'length_comman
 KNOWN_TYPES = {
     'pulse_width': 'std_msgs/msg/Float64',
     'recruitment': 'std_msgs/msg/Float64',
+    # Needs the interface package (make interfaces, colcon); without it this
+    # topic is left out of the defaults with a warning (Recorder.__init__).
+    STIMULATION_TOPIC: STIMULATION_TYPE,
     'length_command': 'std_msgs/msg/Float64',
     'length_command_stamped': 'geometry_msgs/msg/PointStamped',
     'force': 'std_msgs/msg/Float64',
     'ce_length': 'std_msgs/msg/Float64',
     'wrench': 'geometry_msgs/msg/WrenchStamped',
-    # The FES muscle's state (not in DEFAULT_TOPICS: two more 1 kHz streams
-    # for every run; add them to `topics` to record them).
+    # The FES muscle's state (not in DEFAULT_TOPICS: more 1 kHz streams for
+    # every run; add them to `topics` to record them). activation: each
+    # channel's a, one entry per channel.
     'recruitment_state': 'std_msgs/msg/Float64',
     'fitness': 'std_msgs/msg/Float64',
+    'activation': 'std_msgs/msg/Float64MultiArray',
     # The limb node's joint state (its muscles' topics sit under <muscle>/, so give their types).
     'joint_states': 'sensor_msgs/msg/JointState',
     DIAGNOSTICS_TOPIC: 'diagnostic_msgs/msg/DiagnosticArray',
@@ -310,11 +324,14 @@ class Recorder(Node):
             except (ValueError, ImportError, AttributeError,
                     rclpy.exceptions.InvalidTopicNameException) as err:
                 raise StartupError(f'parameter `topics`: {err}') from None
-            if resolved not in self._wanted:
-                self._wanted.append(resolved)
-                type_name = type_name or KNOWN_TYPES.get(topic)
-                if type_name is not None:
-                    known[resolved] = type_name
+            if resolved in self._wanted:
+                continue
+            if type_name is None and not self._importable(topic):
+                continue
+            self._wanted.append(resolved)
+            type_name = type_name or KNOWN_TYPES.get(topic)
+            if type_name is not None:
+                known[resolved] = type_name
         # QoS overrides of the subscriptions (and of /diagnostics): checked
         # before the bag exists; applied on the reader node, which has no
         # arguments of its own.
@@ -355,6 +372,27 @@ class Recorder(Node):
         self._discover()
         # Logged once the known topics are subscribed: a launcher may wait for it.
         self.get_logger().info(f'{READY_MESSAGE} {", ".join(self._wanted)} to {self.output}')
+
+    def _importable(self, topic: str) -> bool:
+        """Whether the type of one of the package's own topics can be imported.
+
+        Not so for ``stimulation`` after a plain ``pip install .``, which
+        cannot build the interface package: that topic is left out with one
+        warning, as the simulator leaves out its input, rather than making
+        every default recording an error. A topic given with its type is
+        checked as given (an unknown type is a start-up error).
+        """
+        type_name = KNOWN_TYPES.get(topic)
+        if type_name is None:
+            return True
+        try:
+            message_class(type_name)
+        except (ImportError, AttributeError) as err:
+            self.get_logger().warning(
+                f'{topic}: not recording it: its type {type_name} is not installed ({err}); '
+                f'build it with `make interfaces` or colcon')
+            return False
+        return True
 
     # -- discovery ----------------------------------------------------------------
 
