@@ -66,6 +66,11 @@ class Pulse(NamedTuple):
     current_a: float | None
 
 
+#: The knot time of a held number's track (never written to).
+_ZERO_TIME = np.zeros(1)
+_ZERO_TIME.flags.writeable = False
+
+
 def _track(value: Any, name: str, channel: int) -> tuple[np.ndarray, np.ndarray]:
     """(times, values) of a track given as a number or as knots."""
     times = getattr(value, 'times_s', None)
@@ -74,6 +79,10 @@ def _track(value: Any, name: str, channel: int) -> tuple[np.ndarray, np.ndarray]
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ValueError(f'`{name}` of channel {channel} must be a number or knots '
                              f'(times_s, values), got {value!r}')
+        if math.isfinite(value) and value >= 0.0:
+            # A held number (a stimulator's command): the checks below hold
+            # already; a node builds one per channel for each message it takes.
+            return _ZERO_TIME, np.array((float(value),))
         times, values = (0.0,), (value,)
     times = np.asarray(times, dtype=float).ravel()
     values = np.asarray(values, dtype=float).ravel()
@@ -150,8 +159,11 @@ class ChannelTrain:
         object.__setattr__(self, '_f', _track(self.frequency_hz, 'frequency_hz', c))
         object.__setattr__(self, '_pw', pw)
         object.__setattr__(self, '_i', current)
-        knots = pw[0] if current is None else np.concatenate((pw[0], current[0]))
-        object.__setattr__(self, '_knot_times', np.unique(knots))
+        if pw[0] is _ZERO_TIME and (current is None or current[0] is _ZERO_TIME):
+            knots = _ZERO_TIME
+        else:
+            knots = np.unique(pw[0] if current is None else np.concatenate((pw[0], current[0])))
+        object.__setattr__(self, '_knot_times', knots)
 
     @property
     def pulses_per_burst(self) -> int:

@@ -160,6 +160,7 @@ class Muscle:
         self._due: list = [math.inf] * self.params.n_channels
         self._pending: list = []   # (instant it acts [s], channel, u), emd_s after sending
         self._no_pulse = (np.empty(0), np.empty(0, dtype=np.int64), np.empty(0))
+        self._commands: list = [None] * self.params.n_channels   # each channel's, in force
 
     def _views(self) -> None:
         """Views of the state (taken anew whenever the bundle's arrays move)."""
@@ -175,6 +176,7 @@ class Muscle:
         self._bundle.reset(0)
         self._trains = [None] * self.params.n_channels
         self._due = [math.inf] * self.params.n_channels
+        self._commands = [None] * self.params.n_channels
         self._pending = []
 
     @property
@@ -292,6 +294,7 @@ class Muscle:
         """
         self._need_pulses('stimulate')
         trains = list(self._trains)
+        given = list(self._commands)
         for cmd in commands:
             c = check_channel_command(self._profile, cmd.channel, cmd.frequency_hz,
                                       cmd.pulse_width_s, cmd.current_a, cmd.mode,
@@ -299,6 +302,9 @@ class Muscle:
             if c.channel > self.n_channels:
                 raise ValueError(f'`channel` must be in [1, {self.n_channels}] (the muscle\'s '
                                  f'channels), got {cmd.channel!r}')
+            if c == given[c.channel - 1]:
+                continue   # the train in force already: nothing changes
+            given[c.channel - 1] = c
             train = ChannelTrain(c.frequency_hz, c.pulse_width_s, c.current_a, c.mode,
                                  self.params.burst_interval_s, c.channel)
             trains[c.channel - 1] = PulseTrain(train, self.t_s)
@@ -309,6 +315,7 @@ class Muscle:
                     new.state = old.state
                 self._due[c] = -math.inf
         self._trains = trains
+        self._commands = given
 
     def _take(self, c: int, pulses) -> None:
         """Queue channel ``c``'s sent ``pulses`` to act ``emd_s`` later."""
