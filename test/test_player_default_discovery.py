@@ -1,21 +1,26 @@
 """The simulator and the protocol player started by hand, as the README and
 doc/nodes.md's "Running them" say, in ROS's default environment: ``ROS_AUTOMATIC_DISCOVERY_RANGE``
-unset (every other test sets ``LOCALHOST``), the test run's private
-``ROS_DOMAIN_ID`` kept.
+unset (every other test sets ``LOCALHOST``), a private ``ROS_DOMAIN_ID``
+kept (the test run's, or a second one locked as conftest locks it).
 
 Before the heartbeat fix, the writers' heartbeat was Fast DDS's 3 s, every
 acknowledgement waited for one, the first sample acted 3 s before the
 protocol's second, the simulator's watchdog fired, and the 6 s protocol took
 11.6 s, ending with "zero stimulation sent (not acknowledged by every subscriber)".
-Both start orders, from the nodes' own log lines (no probe here: this test
-process's participant is set up for ``LOCALHOST``).
+Both start orders, at the same time, each pair of nodes in a DDS domain of
+its own, from the nodes' own log lines (no probe here: this test process's
+participant is set up for ``LOCALHOST``).
 """
 from __future__ import annotations
 
+import os
+import random
 import re
 
 import pytest
 
+from conftest import _DOMAIN_HIGH, _DOMAIN_LOW, _LOCK_PATTERN
+from hill_muscle_ros.domain_lock import lock_free_domain
 from hill_muscle_ros.model import Protocol
 from hill_muscle_ros.resources import protocol_path
 from hill_muscle_ros.timebase import NS_PER_S
@@ -56,29 +61,61 @@ def _log_time_ns(log: str, text: str) -> int:
     raise AssertionError(f'no log line with {text!r}:\n{log}')
 
 
-@pytest.fixture(scope='module', params=['simulator_first', 'player_first'])
-def hand_started_run(request, tmp_path_factory):
-    """Protocol II played by hand to the simulator; (player log, simulator log)."""
-    env = _new_users_env()
+#: The start orders, each run in a DDS domain of its own at the same time.
+ORDERS = ('simulator_first', 'player_first')
+
+
+@pytest.fixture(scope='module')
+def second_domain():
+    """A second ROS_DOMAIN_ID, locked as conftest locks the run's, for the run
+    that goes on beside the one in the run's domain."""
+    candidates = [d for d in range(_DOMAIN_LOW, _DOMAIN_HIGH + 1)
+                  if d != int(os.environ['ROS_DOMAIN_ID'])]
+    random.Random(os.getpid()).shuffle(candidates)
+    claimed = lock_free_domain(candidates, _LOCK_PATTERN)
+    assert claimed is not None, 'no free ROS_DOMAIN_ID for the second run'
+    domain, lock = claimed
+    try:
+        yield domain
+    finally:
+        lock.close()
+
+
+@pytest.fixture(scope='module')
+def hand_started_runs(tmp_path_factory, second_domain):
+    """Protocol II played by hand to the simulator in both start orders at once,
+    each pair in a domain of its own: order -> (player log, simulator log)."""
+    envs = {'simulator_first': _new_users_env(),
+            'player_first': {**_new_users_env(), 'ROS_DOMAIN_ID': str(second_domain)}}
     simulator = node_command('simulator')
     player = node_command('protocol_player', params={'protocol': 'II'})
-    with ProcessGroup(tmp_path_factory.mktemp(request.param)) as procs:
-        if request.param == 'simulator_first':
-            sim = procs.start('simulator', simulator, env=env)
-            procs.wait_until(lambda: 'watchdog' in sim.output(), 'the simulator to run',
-                             DEFAULT_TIMEOUT_S)
-            play = procs.start('player', player, env=env)
-        else:
-            play = procs.start('player', player, env=env)
-            procs.wait_until(lambda: 'waiting up to' in play.output(),
-                             'the player to wait for subscribers', DEFAULT_TIMEOUT_S)
-            sim = procs.start('simulator', simulator, env=env)
-        procs.wait_until(lambda: play.returncode is not None, 'the player to finish',
-                         PLAYER_TIMEOUT_S, watch=[sim])
-        assert play.returncode == 0, play.describe()
-        # Its transport line: the range in force is the default one.
-        assert 'discovery range SUBNET' in sim.output()
-        return play.output(), sim.output()
+    with ProcessGroup(tmp_path_factory.mktemp('hand_started')) as procs:
+        first = {'simulator_first': procs.start('simulator_1', simulator,
+                                                env=envs['simulator_first']),
+                 'player_first': procs.start('player_2', player, env=envs['player_first'])}
+        procs.wait_until(lambda: 'watchdog' in first['simulator_first'].output(),
+                         'the simulator to run', DEFAULT_TIMEOUT_S)
+        sim_first = (first['simulator_first'],
+                     procs.start('player_1', player, env=envs['simulator_first']))
+        procs.wait_until(lambda: 'waiting up to' in first['player_first'].output(),
+                         'the player to wait for subscribers', DEFAULT_TIMEOUT_S)
+        play_first = (procs.start('simulator_2', simulator, env=envs['player_first']),
+                      first['player_first'])
+        runs = {'simulator_first': sim_first, 'player_first': play_first}
+        procs.wait_until(lambda: all(play.returncode is not None for _, play in runs.values()),
+                         'both players to finish', PLAYER_TIMEOUT_S,
+                         watch=[sim for sim, _ in runs.values()])
+        for sim, play in runs.values():
+            assert play.returncode == 0, play.describe()
+            # Its transport line: the range in force is the default one.
+            assert 'discovery range SUBNET' in sim.output()
+        return {order: (play.output(), sim.output()) for order, (sim, play) in runs.items()}
+
+
+@pytest.fixture(params=ORDERS)
+def hand_started_run(request, hand_started_runs):
+    """One start order's run: (player log, simulator log)."""
+    return hand_started_runs[request.param]
 
 
 def test_simulator_watchdog_does_not_fire_with_the_default_discovery_range(hand_started_run):
