@@ -91,11 +91,41 @@ def test_fes_features_match_the_python_run(kernels, monkeypatch, params, protoco
     _compare(monkeypatch, protocol, params, rate_hz)
 
 
-@pytest.mark.parametrize('name', ['protocol_I.yaml', 'protocol_II.yaml'])
-def test_quadriceps_preset_matches_the_python_run(kernels, monkeypatch, name):
-    """config/fes_quadriceps.yaml (every feature, 1000 units) on a whole paper protocol."""
+@pytest.fixture(scope='module')
+def preset_python_runs():
+    """The FES preset simulated on the Python engine, once per paper protocol,
+    and how often each run asked for the compiled build (the kernels'
+    ``compiled()`` spied on): the reference of the preset's comparison and
+    the object of test_python_engine_never_loads_the_compiled_build, which
+    ran Protocol I on the Python engine a second time."""
     params, _ = load_muscle_params(PRESET)
-    _compare(monkeypatch, Protocol.from_yaml(PROTOCOLS / name), params)
+    runs = {}
+
+    def run(name):
+        if name not in runs:
+            asked = []
+
+            def spy():
+                asked.append(name)
+                return original()
+            with pytest.MonkeyPatch.context() as mp:
+                original = muscle_kernels.compiled
+                mp.setattr(muscle_kernels, 'compiled', spy)
+                mp.setenv(engine.ENV_VAR, engine.PYTHON)
+                result = simulate(Protocol.from_yaml(PROTOCOLS / name), params)
+            runs[name] = (params, result, asked)
+        return runs[name]
+    return run
+
+
+@pytest.mark.parametrize('name', ['protocol_I.yaml', 'protocol_II.yaml'])
+def test_quadriceps_preset_matches_the_python_run(kernels, monkeypatch, preset_python_runs,
+                                                   name):
+    """config/fes_quadriceps.yaml (every feature, 1000 units) on a whole paper protocol."""
+    params, ref, _ = preset_python_runs(name)
+    got = _run(monkeypatch, engine.COMPILED, Protocol.from_yaml(PROTOCOLS / name), params,
+               1000.0)
+    _assert_same(got, ref)
 
 
 def test_auto_takes_the_compiled_build_where_numba_is(kernels, monkeypatch):
@@ -103,12 +133,7 @@ def test_auto_takes_the_compiled_build_where_numba_is(kernels, monkeypatch):
     assert engine.kernels(muscle_kernels) is kernels
 
 
-def test_python_engine_never_loads_the_compiled_build(monkeypatch):
-    params, _ = load_muscle_params(PRESET)
-    protocol = Protocol.from_yaml(PROTOCOLS / 'protocol_I.yaml')
-
-    def refuse():
-        raise AssertionError('the compiled build was asked for')
-    monkeypatch.setattr(muscle_kernels, 'compiled', refuse)
-    monkeypatch.setenv(engine.ENV_VAR, 'python')
-    assert simulate(protocol, params).force_n.max() > 0.0
+def test_python_engine_never_loads_the_compiled_build(preset_python_runs):
+    _, result, asked = preset_python_runs('protocol_I.yaml')
+    assert not asked, 'the compiled build was asked for'
+    assert result.force_n.max() > 0.0
