@@ -72,12 +72,19 @@ BAD = {
 
 def wait_sim_time(probe, wrench, duration_s: float, proc) -> None:
     """Spin until ``duration_s`` more of simulated time (wrench stamps) has passed."""
+    sim_time_after(probe, wrench, duration_s, proc)()
+
+
+def sim_time_after(probe, wrench, duration_s: float, proc):
+    """A wait, for later, until ``duration_s`` of simulated time (wrench stamps)
+    has passed from now."""
     def now_s():
         stamp = wrench.messages[-1].header.stamp
         return stamp.sec + stamp.nanosec * 1e-9
     probe.wait_for_messages(wrench, procs=[proc])
     end = now_s() + duration_s
-    probe.spin_until(lambda: now_s() >= end, f'{duration_s} s of simulated time', procs=[proc])
+    return lambda: probe.spin_until(lambda: now_s() >= end, f'{duration_s} s of simulated time',
+                                    procs=[proc])
 
 
 def offline_steady_force() -> float:
@@ -170,30 +177,80 @@ def assert_every_bad_value_accounted(run: dict, realtime_claim) -> None:
         assert accounted(lines) == sent, lines
 
 
+#: [s] the controller's ``feedback_timeout_s`` in its garbage test: the
+#: probe's 20 ms force timer runs only while the test process gets a CPU, and a
+#: stall past the default 0.5 s would rightly make the controller hold zero.
+#: This test is about garbage, not the timeout (test_controller_node has those).
+CONTROLLER_FEEDBACK_TIMEOUT_S = 30.0
+
+
 @pytest.fixture(scope='module')
-def simulator_run(tmp_path_factory) -> dict:
-    """The simulator fed garbage on every input (checked as it runs), and its log."""
-    tmp_path = tmp_path_factory.mktemp('garbage_simulator')
+def garbage_runs(tmp_path_factory) -> dict:
+    """The simulator and the controller, each fed garbage on every input (checked
+    as it runs), and their logs: ``{'simulator': ..., 'controller': ...}``.
+
+    Both nodes start together. The controller takes its garbage while the
+    simulator settles at its first pulse width (the pacing is per node: one
+    node's messages are :data:`PACE_S` apart), then the simulator takes its own.
+    """
+    tmp_path = tmp_path_factory.mktemp('garbage')
     ns = f'/garbage_{os.getpid()}_{next(_RUNS)}'
+    ctrl_ns = f'/garbage_ctrl_{os.getpid()}_{next(_RUNS)}'
+    target_n = 10.0
+    # The controller's defaults: model feedforward with the default muscle.
+    expected_pw = ForceController(ControllerParams(), MuscleParams()).feedforward(
+        target_n, target_n, STRETCH_M, 0.0)
     with ProcessGroup(tmp_path) as procs, Probe('garbage_probe') as probe:
         sim = procs.start('simulator', node_command('simulator', ns=ns, params={
             'rate_hz': RATE_HZ, 'input_timeout_s': 0.0}))
+        ctrl = procs.start('controller', node_command(
+            'force_controller', ns=ctrl_ns,
+            params={'feedback_timeout_s': CONTROLLER_FEEDBACK_TIMEOUT_S}))
         force = probe.record(f'{ns}/force', Float64)
         ce_length = probe.record(f'{ns}/ce_length', Float64)
         wrench = probe.record(f'{ns}/wrench', WrenchStamped)
         pubs = {t: probe.publisher(f'{ns}/{t}', Float64)
                 for t in ('pulse_width', 'recruitment', 'length_command')}
+        pw = probe.record(f'{ctrl_ns}/pulse_width', Float64)
+        ctrl_pubs = {t: probe.publisher(f'{ctrl_ns}/{t}', Float64)
+                     for t in ('force_target', 'force', 'length_command')}
         probe.spin_until(lambda: all(p.get_subscription_count() for p in pubs.values()),
-                         'the simulator to subscribe', procs=[sim])
+                         'the simulator to subscribe', procs=[sim, ctrl])
         # Stretch first, at R = 0, so that the units are recruited at a known length.
         pubs['length_command'].publish(Float64(data=STRETCH_M))
         l_stretched = MuscleParams().l_rest_m + STRETCH_M
         probe.wait_for_value(ce_length, lambda v: abs(v - l_stretched) < 1e-12, 'stretch',
-                             procs=[sim])
+                             procs=[sim, ctrl])
         pubs['pulse_width'].publish(Float64(data=PW_FIRST_S))
         probe.wait_for_value(force, lambda v: v > MuscleParams().k_pe_n_per_m * STRETCH_M + 1.0,
-                             'stimulation', mark=force.mark(), procs=[sim])
-        wait_sim_time(probe, wrench, 2 * SETTLE_S, sim)  # steady before the garbage
+                             'stimulation', mark=force.mark(), procs=[sim, ctrl])
+        settled = sim_time_after(probe, wrench, 2 * SETTLE_S, sim)  # steady before the garbage
+
+        # The controller's garbage, while the simulator settles.
+        probe.spin_until(lambda: all(p.get_subscription_count() for p in ctrl_pubs.values()),
+                         'the controller to subscribe', procs=[sim, ctrl])
+        # The probe plays a muscle that holds exactly the target: zero error.
+        feedback = probe.node.create_timer(0.02, lambda: ctrl_pubs['force'].publish(
+            Float64(data=target_n)))
+        ctrl_pubs['force_target'].publish(Float64(data=target_n))
+        probe.wait_for_value(pw, lambda v: v > 0.0, 'stimulation', procs=[sim, ctrl])
+        start = time.monotonic()
+        good = {'force_target': target_n, 'force': target_n, 'length_command': STRETCH_M}
+        ctrl_sent = {topic: send_garbage(probe, pub, BAD[topic], good[topic])
+                     for topic, pub in ctrl_pubs.items()}
+        for topic, n in flush_throttled_counts(probe, ctrl, ctrl_pubs, BAD).items():
+            ctrl_sent[topic] += n
+        mark = pw.mark()
+        probe.wait_for_messages(pw, 50, mark=mark, procs=[sim, ctrl])
+        feedback.cancel()
+        ctrl_elapsed = time.monotonic() - start
+        ctrl_log = ctrl.output()
+        assert ctrl.returncode is None
+        stimulating = [v for v in pw.data_since(0) if v > 0.0]
+        after = pw.data_since(mark)
+
+        # The simulator's garbage, once it has settled.
+        settled()
         start = time.monotonic()
         good = {'pulse_width': PW_LAST_S, 'recruitment': PW_LAST_S / PW_MAX_S,
                 'length_command': STRETCH_M}
@@ -216,8 +273,28 @@ def simulator_run(tmp_path_factory) -> dict:
                       f'{sent[t]} bad values' for t in pubs))
     for topic in pubs:
         assert_logged_throttled(log, f'{ns}/{topic}', BAD[topic][0], sent[topic], elapsed)
-    return {'node': 'simulator', 'ns': ns, 'log': log, 'sent': sent, 'final': final,
-            'expected': expected}
+    assert all(math.isfinite(v) and 0.0 <= v <= PW_MAX_S for v in pw.data_since(0))
+    print(f'\nMEASURED garbage (controller, {ctrl_elapsed:.1f} s): {len(stimulating)} pulse '
+          f'widths while stimulating, all {set(stimulating)} s; feedforward {expected_pw} s; '
+          + ', '.join(f'{t}: {len(warnings_for(ctrl_log, f"{ctrl_ns}/{t}"))} warning line(s) '
+                      f'for {ctrl_sent[t]} bad values' for t in ctrl_pubs))
+    for topic in ctrl_pubs:
+        assert_logged_throttled(ctrl_log, f'{ctrl_ns}/{topic}', BAD[topic][0], ctrl_sent[topic],
+                                ctrl_elapsed)
+    return {'simulator': {'node': 'simulator', 'ns': ns, 'log': log, 'sent': sent,
+                          'final': final, 'expected': expected},
+            'controller': {'node': 'force controller', 'ns': ctrl_ns, 'log': ctrl_log,
+                           'sent': ctrl_sent, 'after': after, 'expected_pw': expected_pw}}
+
+
+@pytest.fixture(scope='module')
+def simulator_run(garbage_runs) -> dict:
+    return garbage_runs['simulator']
+
+
+@pytest.fixture(scope='module')
+def controller_run(garbage_runs) -> dict:
+    return garbage_runs['controller']
 
 
 def test_simulator_ignores_garbage_on_every_input_and_keeps_the_last_good_value(simulator_run):
@@ -228,61 +305,6 @@ def test_simulator_ignores_garbage_on_every_input_and_keeps_the_last_good_value(
 def test_simulator_warns_or_counts_every_paced_bad_value(simulator_run, realtime_claim):
     assert_every_bad_value_accounted(simulator_run, realtime_claim)
 
-
-#: [s] the controller's ``feedback_timeout_s`` in its garbage test: the
-#: probe's 20 ms force timer runs only while the test process gets a CPU, and a
-#: stall past the default 0.5 s would rightly make the controller hold zero.
-#: This test is about garbage, not the timeout (test_controller_node has those).
-CONTROLLER_FEEDBACK_TIMEOUT_S = 30.0
-
-
-@pytest.fixture(scope='module')
-def controller_run(tmp_path_factory) -> dict:
-    """The controller fed garbage on every input (checked as it runs), and its log."""
-    tmp_path = tmp_path_factory.mktemp('garbage_controller')
-    ns = f'/garbage_ctrl_{os.getpid()}_{next(_RUNS)}'
-    target_n = 10.0
-    # The controller's defaults: model feedforward with the default muscle.
-    expected_pw = ForceController(ControllerParams(), MuscleParams()).feedforward(
-        target_n, target_n, STRETCH_M, 0.0)
-    with ProcessGroup(tmp_path) as procs, Probe('garbage_ctrl_probe') as probe:
-        ctrl = procs.start('controller', node_command(
-            'force_controller', ns=ns,
-            params={'feedback_timeout_s': CONTROLLER_FEEDBACK_TIMEOUT_S}))
-        pw = probe.record(f'{ns}/pulse_width', Float64)
-        pubs = {t: probe.publisher(f'{ns}/{t}', Float64)
-                for t in ('force_target', 'force', 'length_command')}
-        probe.spin_until(lambda: all(p.get_subscription_count() for p in pubs.values()),
-                         'the controller to subscribe', procs=[ctrl])
-        # The probe plays a muscle that holds exactly the target: zero error.
-        feedback = probe.node.create_timer(0.02, lambda: pubs['force'].publish(
-            Float64(data=target_n)))
-        pubs['force_target'].publish(Float64(data=target_n))
-        probe.wait_for_value(pw, lambda v: v > 0.0, 'stimulation', procs=[ctrl])
-        start = time.monotonic()
-        good = {'force_target': target_n, 'force': target_n, 'length_command': STRETCH_M}
-        sent = {topic: send_garbage(probe, pub, BAD[topic], good[topic])
-                for topic, pub in pubs.items()}
-        for topic, n in flush_throttled_counts(probe, ctrl, pubs, BAD).items():
-            sent[topic] += n
-        mark = pw.mark()
-        probe.wait_for_messages(pw, 50, mark=mark, procs=[ctrl])
-        feedback.cancel()
-        elapsed = time.monotonic() - start
-        log = ctrl.output()
-        assert ctrl.returncode is None
-        stimulating = [v for v in pw.data_since(0) if v > 0.0]
-        after = pw.data_since(mark)
-
-    assert all(math.isfinite(v) and 0.0 <= v <= PW_MAX_S for v in pw.data_since(0))
-    print(f'\nMEASURED garbage (controller, {elapsed:.1f} s): {len(stimulating)} pulse widths '
-          f'while stimulating, all {set(stimulating)} s; feedforward {expected_pw} s; '
-          + ', '.join(f'{t}: {len(warnings_for(log, f"{ns}/{t}"))} warning line(s) for '
-                      f'{sent[t]} bad values' for t in pubs))
-    for topic in pubs:
-        assert_logged_throttled(log, f'{ns}/{topic}', BAD[topic][0], sent[topic], elapsed)
-    return {'node': 'force controller', 'ns': ns, 'log': log, 'sent': sent, 'after': after,
-            'expected_pw': expected_pw}
 
 
 def test_controller_ignores_garbage_on_every_input_and_keeps_the_last_good_value(
