@@ -45,6 +45,8 @@ What DDS timing does to the fit's inputs, and so its tolerances:
   that to deliver it, and the fit sees the length the simulator ran. The
   simulator's exit line (late knots, longest tick gap) is quoted on failure.
 """
+import contextlib
+import io
 import os
 import signal
 import time
@@ -153,23 +155,75 @@ def _disturbance(run) -> str:
     return ''
 
 
+def offline_force_misses(run, protocol_file) -> list[tuple[float, float, float]]:
+    """(t [s], live [N], offline [N]) at each end of a second where the recorded
+    force is :data:`FORCE_TOLERANCE_N` or more off the offline core's."""
+    protocol = Protocol.from_yaml(protocol_file)
+    offline = simulate(protocol, MuscleParams().replace(**TRUTH), 1000.0)
+    times = summary_times(protocol.duration_s)
+    live = live_force_at(read_bag(run['bag']), times)
+    expected = [float(offline.force_n[offline.at(t)]) for t in times]
+    print(f'live - offline at {times} s: {np.subtract(live, expected)} N')  # measured
+    return [(t, f, e) for t, f, e in zip(times, live, expected)
+            if not abs(f - e) < FORCE_TOLERANCE_N]
+
+
+def fit_of(run) -> dict:
+    """``hill-muscle fit --edge-search`` of the run's bag, once per run: ``status``,
+    ``out``, ``err`` and ``fitted`` (the parameters, or None)."""
+    if 'fit' not in run:
+        out_file = run['bag'].parent / 'fitted.yaml'
+        out, err = io.StringIO(), io.StringIO()
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            status = cli.main(['fit', '--bag', str(run['bag']), '--fit', ','.join(TRUTH),
+                               '--edge-search', str(EDGE_SEARCH_S), '--out', str(out_file)])
+        run['fit'] = {'status': status, 'out': out.getvalue(), 'err': err.getvalue(),
+                      'fitted': load_muscle_params(out_file)[0] if status == 0 else None}
+    return run['fit']
+
+
+def fit_misses(run) -> list[str]:
+    """The fitted parameters outside :data:`FIT_TOLERANCE` (all, if the fit failed)."""
+    fit = fit_of(run)
+    if fit['fitted'] is None:
+        return list(TRUTH)
+    return [name for name, truth in TRUTH.items()
+            if getattr(fit['fitted'], name) != pytest.approx(truth, rel=FIT_TOLERANCE[name])]
+
+
 @pytest.fixture(scope='module')
 def live_run(tmp_path_factory, protocol_paths, stall_watcher):
     """Protocol II over DDS to the :data:`TRUTH` muscle, recorded; a probe in the
     test records the wrench too.
 
     A disturbed run (see :func:`_disturbance`) is repeated only when the stall
-    watcher measured the machine leaving it unscheduled during that run.
+    watcher measured the machine leaving it unscheduled during that run, and
+    only if the disturbance shows: a run that the machine demonstrably
+    disturbed but whose force still matches the offline core's at every end
+    of a second, and whose fit still recovers every parameter, is kept. A
+    disturbance with no stall measured fails, as before.
     """
     attempts = iter(range(MAX_ATTEMPTS))
 
     def one_run():
         attempt = next(attempts)
         tmp = tmp_path_factory.mktemp(f'live{attempt}')
-        return _one_live_run(tmp, f'/live{os.getpid()}_{attempt}', protocol_paths['II'])
+        started_s = time.monotonic()
+        run = _one_live_run(tmp, f'/live{os.getpid()}_{attempt}', protocol_paths['II'])
+        run['stalled'] = bool(stall_watcher.stalls(started_s, time.monotonic()))
+        return run
 
-    return repeat_only_on_external_stall(one_run, lambda run: _disturbance(run) or None,
-                                         stall_watcher, MAX_ATTEMPTS)
+    def judge(run):
+        disturbance = _disturbance(run)
+        if (disturbance and run['stalled']
+                and not offline_force_misses(run, protocol_paths['II'])
+                and not fit_misses(run)):
+            print(f'\nkept a live run disturbed by a measured stall ({disturbance}): '
+                  f'every timing claim holds on it')
+            return None
+        return disturbance or None
+
+    return repeat_only_on_external_stall(one_run, judge, stall_watcher, MAX_ATTEMPTS)
 
 
 def test_recorder_stops_cleanly_after_a_live_run(live_run):
@@ -251,30 +305,20 @@ def test_readers_agree_on_the_live_bag(live_run):
 
 
 def test_recorded_force_matches_offline_at_the_end_of_each_second(live_run, protocol_paths):
-    protocol = Protocol.from_yaml(protocol_paths['II'])
-    offline = simulate(protocol, MuscleParams().replace(**TRUTH), 1000.0)
-    bag = read_bag(live_run['bag'])
-    times = summary_times(protocol.duration_s)
-    live = live_force_at(bag, times)
-    expected = [float(offline.force_n[offline.at(t)]) for t in times]
-    print(f'live - offline at {times} s: {np.subtract(live, expected)} N')  # measured
-    assert np.max(np.abs(np.subtract(live, expected))) < FORCE_TOLERANCE_N, \
-        list(zip(times, live, expected))
+    misses = offline_force_misses(live_run, protocol_paths['II'])
+    assert not misses, misses
 
 
-def test_fit_recovers_the_simulator_parameters_from_a_live_bag(live_run, tmp_path, capsys):
+def test_fit_recovers_the_simulator_parameters_from_a_live_bag(live_run):
     assert live_run['status'] == 0, live_run['log']
-    status = cli.main(['fit', '--bag', str(live_run['bag']), '--fit', ','.join(TRUTH),
-                       '--edge-search', str(EDGE_SEARCH_S),
-                       '--out', str(tmp_path / 'fitted.yaml')])
-    out, err = capsys.readouterr()
-    assert status == 0, err
-    moves = next(line for line in out.splitlines() if 'stimulation changes moved by' in line)
-    fitted, _ = load_muscle_params(tmp_path / 'fitted.yaml')
+    fit = fit_of(live_run)
+    assert fit['status'] == 0, fit['err']
+    moves = next(line for line in fit['out'].splitlines()
+                 if 'stimulation changes moved by' in line)
     statistics = simulator_statistics(live_run['sim_log'])
     for name, truth in TRUTH.items():
-        assert getattr(fitted, name) == pytest.approx(truth, rel=FIT_TOLERANCE[name]), (
-            name, moves, statistics, out)
+        assert getattr(fit['fitted'], name) == pytest.approx(truth, rel=FIT_TOLERANCE[name]), (
+            name, moves, statistics, fit['out'])
 
 
 def test_sim_time_run_logs_in_sim_time(tmp_path):
