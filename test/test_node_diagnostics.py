@@ -407,33 +407,54 @@ def test_report_delta_is_the_change_since_the_previous_report():
     assert DiagnosticReport(1.0, previous).delta('n', 7) == 2
 
 
-@pytest.mark.parametrize('recorder_override', [False, True],
-                         ids=['reliable-recorder', 'best-effort-recorder'])
-def test_recorder_of_a_best_effort_force_needs_the_matching_override(tmp_path,
-                                                                     recorder_override):
+#: The recorders of the best-effort force: without and with the subscription's override.
+RECORDER_OVERRIDES = {'reliable-recorder': False, 'best-effort-recorder': True}
+
+
+@pytest.fixture(scope='module')
+def best_effort_force_runs(tmp_path_factory):
+    """A simulator whose force is best effort (a publisher QoS override), recorded
+    by a recorder without and by one with the matching subscription override:
+    both pairs at once, each in a namespace of its own. Each recorder's status
+    once the simulator's wrench is recorded and either the force too or an
+    error: name -> (force topic, status)."""
+    tmp_path = tmp_path_factory.mktemp('best_effort_force')
+    runs = {}
+    with ProcessGroup(tmp_path) as procs, Probe('diag_probe') as probe:
+        for name, recorder_override in RECORDER_OVERRIDES.items():
+            ns = unique_namespace()
+            force = f'{ns}/force'
+            overrides = {f'qos_overrides.{force}.publisher.reliability': 'best_effort'}
+            if recorder_override:
+                overrides[f'qos_overrides.{force}.subscription.reliability'] = 'best_effort'
+            params = tmp_path / f'{name}.yaml'
+            params.write_text(yaml.safe_dump({'/**': {'ros__parameters': overrides}}))
+            rec = procs.start(f'rec_{name}', node_command(
+                'recorder', ns=ns, params_files=[params],
+                params={'output': str(tmp_path / f'{name}_bag')}))
+            runs[name] = (ns, force, params, rec, Statuses(probe, f'{ns}/recorder: recording'))
+        for name, (ns, _, params, rec, st) in runs.items():
+            wait_status(probe, st, lambda s: True, 'a status', [rec])
+            procs.start(f'sim_{name}', node_command('simulator', ns=ns, params_files=[params],
+                                                    params={'rate_hz': QUIET_RATE_HZ}))
+        statuses = {}
+        for name, (ns, force, _, _, st) in runs.items():
+            # The simulator's wrench is reliable either way: once it is recorded,
+            # so is a matched force.
+            statuses[name] = (force, wait_status(
+                probe, st, lambda s: int(values(s)[f'received[{ns}/wrench]']) > 0
+                and (s.level == ERROR or int(values(s)[f'received[{force}]']) > 0),
+                'wrench and force recorded, or an error', list(procs.processes)))
+    return statuses
+
+
+@pytest.mark.parametrize('recorder', list(RECORDER_OVERRIDES))
+def test_recorder_of_a_best_effort_force_needs_the_matching_override(best_effort_force_runs,
+                                                                     recorder):
     """A best-effort /force never matches the recorder's reliable start-up
     subscription (an ERROR naming it); the subscription override makes it record."""
-    ns = unique_namespace()
-    force = f'{ns}/force'
-    overrides = {f'qos_overrides.{force}.publisher.reliability': 'best_effort'}
-    if recorder_override:
-        overrides[f'qos_overrides.{force}.subscription.reliability'] = 'best_effort'
-    params = tmp_path / 'qos.yaml'
-    params.write_text(yaml.safe_dump({'/**': {'ros__parameters': overrides}}))
-    with ProcessGroup(tmp_path) as procs, Probe('diag_probe') as probe:
-        rec = procs.start('rec', node_command('recorder', ns=ns, params_files=[params],
-                                              params={'output': str(tmp_path / 'bag')}))
-        st = Statuses(probe, f'{ns}/recorder: recording')
-        wait_status(probe, st, lambda s: True, 'a status', [rec])
-        sim = procs.start('sim', node_command('simulator', ns=ns, params_files=[params],
-                                              params={'rate_hz': QUIET_RATE_HZ}))
-        # The simulator's wrench is reliable either way: once it is recorded,
-        # so is a matched force.
-        status = wait_status(
-            probe, st, lambda s: int(values(s)[f'received[{ns}/wrench]']) > 0
-            and (s.level == ERROR or int(values(s)[f'received[{force}]']) > 0),
-            'wrench and force recorded, or an error', [rec, sim])
-    if recorder_override:
+    force, status = best_effort_force_runs[recorder]
+    if RECORDER_OVERRIDES[recorder]:
         # Recorded; best effort may lose some (then a WARN), never an ERROR.
         assert status.level != ERROR, status.message
         assert int(values(status)[f'received[{force}]']) > 0
