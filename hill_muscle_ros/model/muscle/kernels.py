@@ -603,8 +603,12 @@ def compiled() -> types.SimpleNamespace:
     # and the whole-muscle fatigue's interval bounds, asked twice per muscle
     # each RK4 interval, into theirs (the knee extension: 0.944x and 0.980x
     # on either core, alternating, 31 pair ratios; a cold compile 0.7 s more).
+    # The fatigue clocks (fatigue_alpha, fatigue_beta) stay calls: inlined into
+    # every pool function they made a cold compile of the muscle and the limb
+    # 113 s instead of 78 s, for no measurable gain (Protocol II 2.56 against
+    # 2.49 ms, the knee extension 4.12 against 4.01 ms, by hand).
     options.update({name: leaf for name in ('hdr', 'scratch', 'forget_eff_f_iso', 'per_type',
-                                            'fatigue_alpha', 'fatigue_beta', 'ding_slot',
+                                            'ding_slot',
                                             'per_sum', 'moment', 'pool_eff_f_iso_initial',
                                             'pool_eff_f_iso', 'eff_f_iso_inline',
                                             'single_fatigue', 'begin_interval',
