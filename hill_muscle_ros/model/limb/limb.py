@@ -19,11 +19,9 @@ from typing import Sequence
 import numpy as np
 
 from .. import engine as engines
-from ..muscle.state import TIME_TOL_S
-from ..stimulator import ChannelCommand, check_channel_command, stimulator_profile
-from ..stimulus import pulse_command
+from ..channels import ChannelTrains
+from ..stimulator import ChannelCommand
 from ..substeps import MAX_SUBSTEP_S, substeps_for
-from ..trains import ChannelTrain, PulseTrain
 from . import kernels
 from .arrays import ROW_JOINT, LimbArrays, no_pulses, pulse_arrays, row_length
 from .kernels import L_OMEGA, L_T, L_TAU, L_THETA, MODE_GIVE, MODE_HOLD, MODE_RECORD, OK
@@ -96,8 +94,9 @@ class Limb:
         self._acc = np.zeros(1)
         self._s_r = [m.sign * m.moment_arm_m for m in plant.muscles]
         self._pulsed = [m.params.activation_model == PULSED_MODEL for m in plant.muscles]
-        self._profiles = [stimulator_profile(m.params.stimulator, m.params.pw_max_s)
-                          if p else None for m, p in zip(plant.muscles, self._pulsed)]
+        # Each pulsed muscle's channels: commands, trains and pending pulses.
+        self._channels = [ChannelTrains(m.params) if p else None
+                          for m, p in zip(plant.muscles, self._pulsed)]
         # Where each pulsed muscle's activations start in the row.
         self._act_at = []
         at = row_length(nm)
@@ -119,8 +118,7 @@ class Limb:
         twin.arrays = copy.deepcopy(self.arrays, memo)
         for name in ('row', '_us', '_tau', '_acc'):
             setattr(twin, name, getattr(self, name).copy())
-        twin._trains = copy.deepcopy(self._trains, memo)
-        twin._pending = list(self._pending)
+        twin._channels = copy.deepcopy(self._channels, memo)
         twin._views()
         return twin
 
@@ -134,8 +132,9 @@ class Limb:
         """theta = theta_0, omega = 0, each CE at l_rest + dl_MT(theta_0), nothing
         recruited, no command given, t = 0; the pulsed muscles' trains stopped."""
         self.arrays.reset()
-        self._trains = [[None] * m.params.n_channels for m in self.plant.muscles]
-        self._pending = []   # (instant it acts [s], muscle, 0-based channel, u)
+        for channels in self._channels:
+            if channels is not None:
+                channels.reset()
         self.arrays.pulses = no_pulses()
         self._entry(MODE_RECORD, 0.0, 0, 0.0)
 
@@ -214,26 +213,10 @@ class Limb:
         if not self._pulsed[i]:
             raise ValueError(f'muscle `{m.name}`: `stimulate` needs `activation_model: '
                              f'{PULSED_MODEL}`, got {m.params.activation_model!r}')
-        trains = list(self._trains[i])
-        t = self.t_s
-        for cmd in commands:
-            try:
-                c = check_channel_command(self._profiles[i], cmd.channel, cmd.frequency_hz,
-                                          cmd.pulse_width_s, cmd.current_a, cmd.mode,
-                                          m.params.burst_interval_s)
-            except ValueError as err:
-                raise ValueError(f'muscle `{m.name}`: {err}') from None
-            if c.channel > m.params.n_channels:
-                raise ValueError(f'muscle `{m.name}`: `channel` must be in [1, '
-                                 f'{m.params.n_channels}] (the muscle\'s channels), got '
-                                 f'{cmd.channel!r}')
-            train = PulseTrain(ChannelTrain(c.frequency_hz, c.pulse_width_s, c.current_a,
-                                            c.mode, m.params.burst_interval_s, c.channel), t)
-            old = trains[c.channel - 1]
-            if old is not None:
-                train.state = old.state
-            trains[c.channel - 1] = train
-        self._trains[i] = trains
+        try:
+            self._channels[i].stimulate(commands, self.t_s)
+        except ValueError as err:
+            raise ValueError(f'muscle `{m.name}`: {err}') from None
 
     def activation(self, muscle: int | str) -> np.ndarray:
         """[-] each channel's activation a_c now (C,) of a ``ding2003`` muscle (its
@@ -253,21 +236,10 @@ class Limb:
         sent up to then first taken into the pending ones)."""
         if not any(self._pulsed):
             return
-        for i, trains in enumerate(self._trains):
-            params = self.plant.muscles[i].params
-            for c, train in enumerate(trains):
-                if train is None:
-                    continue
-                for pulse in train.pulses(train.state.time_s, t1_s):
-                    self._pending.append((pulse.time_s + params.emd_s, i, c,
-                                          pulse_command(pulse.pulse_width_s, pulse.current_a,
-                                                        params)))
-        self._pending.sort(key=lambda p: p[0])
-        due = 0
-        while due < len(self._pending) and self._pending[due][0] < t1_s - TIME_TOL_S:
-            due += 1
-        self.arrays.pulses = pulse_arrays(self._pending[:due])
-        del self._pending[:due]
+        due = [(t, i, c, u) for i, channels in enumerate(self._channels) if channels is not None
+               for t, c, u in channels.due(t1_s)]
+        due.sort(key=lambda p: p[0])
+        self.arrays.pulses = pulse_arrays(due)
 
     def give_commands(self, us: Sequence[float]) -> None:
         """Give each muscle its command now where it differs from its last one, as a

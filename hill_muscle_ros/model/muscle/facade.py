@@ -25,9 +25,9 @@ import numpy as np
 
 from .. import engine
 from ..params import MuscleParams
-from ..stimulator import ChannelCommand, check_channel_command, stimulator_profile
-from ..stimulus import command_from_pulse_width, pulse_command
-from ..trains import ChannelTrain, PulseTrain
+from ..channels import ChannelTrains
+from ..stimulator import ChannelCommand
+from ..stimulus import command_from_pulse_width
 from ..substeps import length_ramp, substeps_for
 from . import kernels
 from .state import (I_MULTI, J_NREC, J_RTOP, N_OUT, S_CMD, S_DL, S_L, S_R, S_T, TIME_TOL_S,
@@ -152,15 +152,9 @@ class Muscle:
         self._row = np.zeros(N_OUT)
         self._views()
         self._pulsed = self.params.activation_model == 'ding2003'
-        self._profile = stimulator_profile(self.params.stimulator, self.params.pw_max_s)
-        self._trains: list = [None] * self.params.n_channels
-        # [s] The earliest instant each channel may send its next pulse (a
-        # train from a command has constant tracks): a step before it skips
-        # the channel's train (the node's 1 kHz step, most of whose steps send nothing).
-        self._due: list = [math.inf] * self.params.n_channels
-        self._pending: list = []   # (instant it acts [s], channel, u), emd_s after sending
+        # The channels' commands, trains and pending pulses (ding2003 only).
+        self._channels = ChannelTrains(self.params) if self._pulsed else None
         self._no_pulse = (np.empty(0), np.empty(0, dtype=np.int64), np.empty(0))
-        self._commands: list = [None] * self.params.n_channels   # each channel's, in force
 
     def _views(self) -> None:
         """Views of the state (taken anew whenever the bundle's arrays move)."""
@@ -174,10 +168,8 @@ class Muscle:
         """Return to rest: no command, a = 0, every unit fresh and unrecruited,
         the motor-unit memory erased; a ding2003 muscle's trains stopped."""
         self._bundle.reset(0)
-        self._trains = [None] * self.params.n_channels
-        self._due = [math.inf] * self.params.n_channels
-        self._commands = [None] * self.params.n_channels
-        self._pending = []
+        if self._channels is not None:
+            self._channels.reset()
 
     @property
     def build(self) -> str:
@@ -293,50 +285,7 @@ class Muscle:
             beyond the muscle's or a command out of the stimulator's range
         """
         self._need_pulses('stimulate')
-        trains = list(self._trains)
-        given = list(self._commands)
-        for cmd in commands:
-            c = check_channel_command(self._profile, cmd.channel, cmd.frequency_hz,
-                                      cmd.pulse_width_s, cmd.current_a, cmd.mode,
-                                      self.params.burst_interval_s)
-            if c.channel > self.n_channels:
-                raise ValueError(f'`channel` must be in [1, {self.n_channels}] (the muscle\'s '
-                                 f'channels), got {cmd.channel!r}')
-            if c == given[c.channel - 1]:
-                continue   # the train in force already: nothing changes
-            given[c.channel - 1] = c
-            train = ChannelTrain(c.frequency_hz, c.pulse_width_s, c.current_a, c.mode,
-                                 self.params.burst_interval_s, c.channel)
-            trains[c.channel - 1] = PulseTrain(train, self.t_s)
-        for c, (old, new) in enumerate(zip(self._trains, trains)):
-            if new is not old:
-                if old is not None:   # the schedule carries over, brought to now
-                    self._take(c, old.pulses(old.state.time_s, self.t_s))
-                    new.state = old.state
-                self._due[c] = -math.inf
-        self._trains = trains
-        self._commands = given
-
-    def _take(self, c: int, pulses) -> None:
-        """Queue channel ``c``'s sent ``pulses`` to act ``emd_s`` later."""
-        for pulse in pulses:
-            self._pending.append((pulse.time_s + self.params.emd_s, c,
-                                  pulse_command(pulse.pulse_width_s, pulse.current_a,
-                                                self.params)))
-
-    def _sent_until(self, t1_s: float) -> None:
-        """Take every channel's pulses sent up to ``t1_s`` into the pending ones."""
-        taken = False
-        for c, train in enumerate(self._trains):
-            if train is None or self._due[c] >= t1_s:
-                continue
-            self._take(c, train.pulses(train.state.time_s, t1_s))
-            state = train.state
-            self._due[c] = (state.pending[0].time_s if state.pending
-                            else state.next_burst_s if state.running else math.inf)
-            taken = True
-        if taken:
-            self._pending.sort()
+        self._channels.stimulate(commands, self.t_s)
 
     def run_pulses(self, times_s, channels, commands, dl_mt_end_m, dt_s: float) -> tuple:
         """Advance ``len(dl_mt_end_m)`` steps of ``dt_s`` with the pulses given
@@ -388,20 +337,12 @@ class Muscle:
         """
         self._need_pulses('run_trains')
         dl = np.asarray(dl_mt_end_m, dtype=float)
-        t1 = self.t_s + len(dl) * float(dt_s)
-        self._sent_until(t1)
-        pending = self._pending
-        due = 0
-        while due < len(pending) and pending[due][0] < t1 - TIME_TOL_S:
-            due += 1
+        due = self._channels.due(self.t_s + len(dl) * float(dt_s))
         if due:
-            times = [p[0] for p in pending[:due]]
-            channels = [p[1] for p in pending[:due]]
-            commands = [p[2] for p in pending[:due]]
-            out, act, used = self.run_pulses(times, channels, commands, dl, dt_s)
+            out, act, _ = self.run_pulses([p[0] for p in due], [p[1] for p in due],
+                                          [p[2] for p in due], dl, dt_s)
         else:
-            out, act, used = self.run_pulses(*self._no_pulse, dl, dt_s)
-        del pending[:used]
+            out, act, _ = self.run_pulses(*self._no_pulse, dl, dt_s)
         return out, act
 
     def step_trains(self, dl_mt_m: float, dt_s: float) -> MuscleOutputs:
