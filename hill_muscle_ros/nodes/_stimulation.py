@@ -19,14 +19,12 @@ directly. (The nodes that send ``stimulation`` use ._stimulation_send.)
 """
 from __future__ import annotations
 
-import math
 from typing import Any, Iterable, Mapping
 
 from ..model import MuscleParams
-from ..model.equations import equivalent_pulse_width
 from ..model.stimulator import (ChannelCommand, check_channel_command, check_stimulation,
                                 stimulator_profile)
-from ..model.stimulus import command_from_pulse_width
+from ..model.stimulus import pulse_command
 
 try:   # built by `make interfaces` or colcon; absent from a plain `pip install .`
     from hill_muscle_interfaces.msg import Stimulation
@@ -116,19 +114,14 @@ def level_command(commands: Iterable[ChannelCommand], params: MuscleParams) -> f
     Its pulse width goes through the recruitment curve as a ``pulse_width``
     message does; with a current, first to the width that recruits as many
     units at ``current_ref_a`` (the strength-duration law,
-    :func:`~hill_muscle_ros.model.equations.equivalent_pulse_width`). Mode and
+    :func:`~hill_muscle_ros.model.stimulus.pulse_command`). Mode and
     frequency do not act on a level: they are checked, then ignored.
 
     :return: [-] u in [0, 1], or ``None`` if channel 1 is not in the command
     """
     for c in commands:
-        if c.channel != 1:
-            continue
-        pw = c.pulse_width_s
-        if c.current_a is not None:
-            pw = equivalent_pulse_width(pw, c.current_a, params.current_ref_a,
-                                        params.chronaxie_s)
-        return 1.0 if math.isinf(pw) else command_from_pulse_width(pw, params)
+        if c.channel == 1:
+            return pulse_command(c.pulse_width_s, c.current_a, params)
     return None
 
 
