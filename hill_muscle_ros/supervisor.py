@@ -239,13 +239,18 @@ class Process:
             # No stop signal inside Popen (see _deferring_stops); ProcessGroup.start
             # defers it further, until the process is in the group.
             with _deferring_stops():
-                self.popen = subprocess.Popen(
-                    self.cmd, stdout=self._log, stderr=subprocess.STDOUT,
-                    env=env if env is not None else ros_environment(),
-                    start_new_session=True, preexec_fn=_child_setup(preexec_fn))
+                self.popen = self._spawn(env if env is not None else ros_environment(),
+                                         preexec_fn)
         except BaseException:
             self._log.close()
             raise
+
+    def _spawn(self, env: dict[str, str], preexec_fn: Callable[[], None] | None):
+        """Start the child; return its ``subprocess.Popen`` (a subclass may start it
+        otherwise and return an object with the same ``pid``, ``poll``, ``wait`` and
+        ``send_signal``)."""
+        return subprocess.Popen(self.cmd, stdout=self._log, stderr=subprocess.STDOUT, env=env,
+                                start_new_session=True, preexec_fn=_child_setup(preexec_fn))
 
     @property
     def pid(self) -> int:
