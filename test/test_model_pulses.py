@@ -2,11 +2,11 @@
 own instants, the stimulator's limits, and what a first_order muscle refuses.
 Its forces against an independent reference are in test_ding_reference.py."""
 import csv
-import subprocess
-import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from hill_muscle_ros.model import MuscleParams, simulate
 from hill_muscle_ros.model.muscle import Muscle
@@ -15,6 +15,9 @@ from hill_muscle_ros.model.stimulator import ChannelCommand
 from hill_muscle_ros.model.units import channel_positions, order_units
 
 from hill_muscle_ros.model import engine
+from hill_muscle_ros.tools import cli
+
+REPO = Path(__file__).resolve().parents[1]
 
 DING = dict(activation_model='ding2003', f_iso_max_n=333.87)
 
@@ -194,10 +197,18 @@ def test_simulate_writes_one_activation_column_per_channel_to_the_csv(tmp_path):
     params = tmp_path / 'ding.yaml'
     params.write_text('/**:\n  ros__parameters:\n    activation_model: ding2003\n'
                       '    channel_fractions: [1.0, 1.0, 1.0, 1.0]\n', encoding='utf-8')
+    # The shipped four-channel file cut to its first second (its 180 s took
+    # 3 CPU-s): the columns are one per channel whatever the length. The
+    # command's entry function in this process (test_cli.py runs the console
+    # script of `simulate` itself).
+    doc = yaml.safe_load((REPO / 'config' / 'protocols' / 'sdss_four_channels.yaml')
+                         .read_text(encoding='utf-8'))
+    assert len(doc['channels']) == 4
+    protocol = tmp_path / 'sdss_four_channels_1s.yaml'
+    protocol.write_text(yaml.safe_dump({**doc, 'duration_s': 1.0}), encoding='utf-8')
     out = tmp_path / 'run.csv'
-    subprocess.run([sys.executable, '-m', 'hill_muscle_ros.tools.cli', 'simulate', '--protocol',
-                    'config/protocols/sdss_four_channels.yaml', '--params', str(params),
-                    '--csv', str(out)], check=True, capture_output=True, timeout=300)
+    assert cli.main(['simulate', '--protocol', str(protocol), '--params', str(params),
+                     '--csv', str(out)]) == 0
     with out.open(encoding='utf-8') as f:
         header = next(csv.reader(f))
     assert header[-4:] == ['a_1', 'a_2', 'a_3', 'a_4']
