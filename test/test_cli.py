@@ -101,9 +101,12 @@ def test_csv_header_is_exact(tmp_path):
     assert read_csv(out)[0] == CSV_HEADER
 
 
-def test_csv_has_one_row_per_step_from_zero_to_the_end_at_1khz(tmp_path):
+def test_csv_has_one_row_per_step_from_zero_to_the_end_at_1khz(tmp_path, capsys):
+    # In this process: the console script of `simulate` runs in
+    # test_malformed_protocol_file_exits_2_naming_file_and_key (a subprocess
+    # here cost 1.4 CPU-s for the rows that cli.main writes the same).
     out = tmp_path / 'run.csv'
-    proc = run_cli('simulate', '--protocol', 'II', '--csv', out)
+    proc = run_main(capsys, 'simulate', '--protocol', 'II', '--csv', out)
     assert proc.returncode == 0, proc.stderr
     _, data = read_csv(out)
     assert data.shape == (6001, len(COLUMNS))
