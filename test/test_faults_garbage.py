@@ -152,13 +152,20 @@ def accounted(lines: list[str]) -> int:
     return len(lines) + sum(int(m) for line in lines for m in MORE.findall(line))
 
 
-def assert_logged_throttled(log: str, topic: str, first_bad: float, sent: int,
+def assert_logged_throttled(log: str, topic: str, bad_values: list[float], sent: int,
                             elapsed_s: float) -> None:
-    """A warning names the topic and its first bad value, at most one a
-    throttle period, and no more bad values are counted than were sent."""
+    """A warning names the topic and a bad value sent, at most one a throttle
+    period, and no more bad values are counted than were sent.
+
+    Which bad value the first warning names is the first the node took from
+    its keep-last queue: on a loaded machine the queue may have overflowed
+    before (that every value is warned or counted is a real-time claim,
+    :func:`assert_every_bad_value_accounted`)."""
     lines = warnings_for(log, topic)
     assert lines, f'no warning for {topic}'
-    assert repr(first_bad) in lines[0]
+    named = f'ignoring {topic} = '
+    first = lines[0].split(named, 1)[1].split(':', 1)[0]
+    assert first in {repr(v) for v in bad_values}, lines[0]
     assert len(lines) <= elapsed_s / THROTTLE_S + 1, lines
     assert accounted(lines) <= sent, lines
 
@@ -272,14 +279,14 @@ def garbage_runs(tmp_path_factory) -> dict:
           + ', '.join(f'{t}: {len(warnings_for(log, f"{ns}/{t}"))} warning line(s) for '
                       f'{sent[t]} bad values' for t in pubs))
     for topic in pubs:
-        assert_logged_throttled(log, f'{ns}/{topic}', BAD[topic][0], sent[topic], elapsed)
+        assert_logged_throttled(log, f'{ns}/{topic}', BAD[topic], sent[topic], elapsed)
     assert all(math.isfinite(v) and 0.0 <= v <= PW_MAX_S for v in pw.data_since(0))
     print(f'\nMEASURED garbage (controller, {ctrl_elapsed:.1f} s): {len(stimulating)} pulse '
           f'widths while stimulating, all {set(stimulating)} s; feedforward {expected_pw} s; '
           + ', '.join(f'{t}: {len(warnings_for(ctrl_log, f"{ctrl_ns}/{t}"))} warning line(s) '
                       f'for {ctrl_sent[t]} bad values' for t in ctrl_pubs))
     for topic in ctrl_pubs:
-        assert_logged_throttled(ctrl_log, f'{ctrl_ns}/{topic}', BAD[topic][0], ctrl_sent[topic],
+        assert_logged_throttled(ctrl_log, f'{ctrl_ns}/{topic}', BAD[topic], ctrl_sent[topic],
                                 ctrl_elapsed)
     return {'simulator': {'node': 'simulator', 'ns': ns, 'log': log, 'sent': sent,
                           'final': final, 'expected': expected},
