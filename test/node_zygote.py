@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import atexit
 import ctypes
+import gc
 import importlib
 import importlib.metadata
 import io
@@ -84,6 +85,10 @@ def _preload() -> dict[str, str]:
     if engine.choice() == engine.COMPILED:
         for name in NODE_KERNEL_SETS:
             precompile.compile_kernel_set(name)
+    # What is loaded now is every child's, for good: frozen, no child's
+    # collections walk it, nor copy its pages by touching their headers.
+    gc.collect()
+    gc.freeze()
     return scripts
 
 
