@@ -5,6 +5,7 @@ inputs and force apart in time, an unknown name)."""
 import dataclasses
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -37,6 +38,28 @@ def _params_file(path, **values):
     text = yaml.safe_dump({'/**': {'ros__parameters': {'rate_hz': RATE_HZ, **values}}})
     path.write_text(text)
     return path
+
+
+@pytest.fixture(scope='module', autouse=True)
+def each_bag_read_once():
+    """The package's ``read_bag`` remembers each bag it read for the module:
+    the tests run the fit on a few bags (Protocol II, 6001 samples a topic), and
+    each command re-read its bag (0.37 CPU-s a read, 3 CPU-s in all). What is
+    read is the reader's claim (test_recording_*); what is fitted from it is
+    these tests'. The console script, in its own process, reads for itself."""
+    from hill_muscle_ros.recording import reader
+    original = reader.read_bag
+    memo = {}
+
+    def once(path, *args, **kwargs):
+        key = (str(Path(path).resolve()), args, tuple(sorted(kwargs.items())))
+        if key not in memo:
+            memo[key] = original(path, *args, **kwargs)
+        return memo[key]
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(reader, 'read_bag', once)
+        yield
 
 
 @pytest.fixture(scope='module')
