@@ -200,8 +200,7 @@ def test_protocol_naming_an_unknown_muscle_exits_2_naming_it(tmp_path):
                       str(protocol), '`vastus`')
 
 
-# The console script itself exits 2 in the test above (and for ``animate``
-# below); the other plant errors go through its entry function in this process
+# The console script itself exits 2 in the test above; the other plant errors go through its entry function in this process
 # (a subprocess each re-imported numpy and the package, 0.2-0.4 s apiece).
 
 def test_plant_without_a_moment_arm_exits_2_naming_the_key(tmp_path, short_protocol, capsys):
@@ -261,11 +260,13 @@ def test_animate_bad_fps_exits_2(tmp_path, short_protocol, capsys, fps):
     assert '--fps' in capsys.readouterr().err
 
 
-def test_animate_with_a_bad_plant_exits_2_naming_the_key(tmp_path, short_protocol):
+def test_animate_with_a_bad_plant_exits_2_naming_the_key(tmp_path, short_protocol, capsys):
+    # The entry function in this process: `animate`'s console script runs in
+    # test_animate_help_exits_zero (a second one here cost 0.8 CPU-s).
     plant = write_plant(tmp_path, PLANT_BODY.format(inertia=-1.0,
                                                     arm='  moment_arm_m: 0.04\n'))
-    assert_user_error(run_cli('animate', '--plant', plant, '--protocol', short_protocol,
-                              '--out', tmp_path / 'x.gif'), 'joint.inertia_kg_m2')
+    assert_user_error(run_main(capsys, 'animate', '--plant', plant, '--protocol', short_protocol,
+                               '--out', tmp_path / 'x.gif'), 'joint.inertia_kg_m2')
 
 
 # --------------------------------------------------------------------------- figure
