@@ -313,56 +313,13 @@ def group_gone(pgid: int) -> bool:
 
 
 @pytest.mark.slow
-def test_scheduler_and_workers_started_as_processes_compute_the_sweep(tmp_path, capsys):
-    from distributed import Client
-
-    scheduler_file = tmp_path / 'scheduler.json'
-    logs = [open(tmp_path / f'{name}.log', 'wb') for name in ('scheduler', 'w1', 'w2')]
-    procs = []
-    try:
-        procs.append(subprocess.Popen(
-            [str(VENV_BIN / 'dask'), 'scheduler', '--port', '0', '--no-dashboard',
-             '--scheduler-file', str(scheduler_file)],
-            stdout=logs[0], stderr=subprocess.STDOUT, start_new_session=True))
-        address = wait_for(lambda: scheduler_file.exists() and scheduler_file.stat().st_size
-                           and json.loads(scheduler_file.read_text())['address'],
-                           'the scheduler file')
-        for log in logs[1:]:
-            procs.append(subprocess.Popen(
-                [str(VENV_BIN / 'dask'), 'worker', address, '--nthreads', '1',
-                 '--no-dashboard'],
-                stdout=log, stderr=subprocess.STDOUT, start_new_session=True, cwd=tmp_path))
-        with Client(address, timeout='30s') as client:
-            client.wait_for_workers(2, timeout=DEADLINE_S)
-            registered = set(client.scheduler_info(n_workers=-1)['workers'])
-        assert len(registered) == 2
-
-        out = tmp_path / 'out.parquet'
-        args = ['sweep', str(write_spec(tmp_path, TIMED)), '--out', str(out),
-                '--scheduler', address, '--chunk', str(TIMED_CHUNK)]
-        assert cli.main(args) == 0
-        spec = parse_spec(TIMED)
-        table = pq.read_table(out)
-        np.testing.assert_allclose(forces_of(table, spec), reference_forces(spec),
-                                   rtol=0, atol=ATOL_N)
-        assert set(table.column('worker').to_pylist()) <= registered
-        line = capsys.readouterr().out.strip().splitlines()[-1]
-        with capsys.disabled():
-            print(f'\nsweep throughput, dask scheduler + 2 dask workers: {line}')
-    finally:
-        for proc in reversed(procs):
-            stop_group(proc)
-        for log in logs:
-            log.close()
-    for proc in procs:
-        wait_for(lambda: group_gone(proc.pid), f'process group {proc.pid} to exit')
-
-
-@pytest.mark.slow
 def test_ctrl_c_stops_the_sweep_and_keeps_the_finished_sets(tmp_path):
     # Enough sets that the sweep is still running when the signal lands: with
     # the compiled muscle 40 sets took 2.1 s, and at idle priority beside the
     # ROS tests the test saw the second set done only after the last (exit 0).
+    # One worker process: the Ctrl-C reaches it as it reaches each of several
+    # (its process group), and a second one's start cost 2 CPU-s; two workers
+    # computing one sweep are test_local_cluster_of_two_worker_processes...'s.
     n_sets = 400
     doc = {'protocol': 'II', 'sample_times_s': [1.0, 6.0],
            'vary': {'f_iso_max_n': {'low': 30.0, 'high': 60.0, 'n': n_sets}}}
@@ -370,7 +327,7 @@ def test_ctrl_c_stops_the_sweep_and_keeps_the_finished_sets(tmp_path):
     # As a user would: its own session, and Ctrl-C to the whole process group.
     proc = subprocess.Popen(
         [str(VENV_BIN / 'hill-muscle'), 'sweep', str(write_spec(tmp_path, doc)),
-         '--out', str(out), '--workers', '2', '--chunk', '1'],
+         '--out', str(out), '--workers', '1', '--chunk', '1'],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True,
         preexec_fn=as_from_a_terminal)
     try:
@@ -612,77 +569,6 @@ def test_limb_driven_out_of_range_stops_the_sweep_naming_the_set(tmp_path, capsy
 KNEE_CLUSTER = {**KNEE, 'sample_times_s': [0.3, 0.6]}
 
 
-@pytest.mark.slow
-def test_limb_sweep_on_a_local_cluster_of_two_workers_gives_the_local_numbers(
-        tmp_path, two_worker_cluster):
-    # The command sends the sets to the shared two-worker LocalCluster
-    # (--scheduler); a cluster the command starts itself (--workers 2) is
-    # test_local_cluster_of_two_worker_processes_gives_the_local_numbers' claim.
-    doc = {**KNEE_CLUSTER, 'plant': str(CONFIG / 'knee.yaml'),
-           'protocol': str(CONFIG / 'protocols' / 'knee_extension.yaml')}
-    spec = parse_spec(doc)
-    local = run_sweep(spec, workers=0, chunk=2)
-    out = tmp_path / 'out.parquet'
-    assert cli.main(['sweep', str(write_spec(tmp_path, doc)), '--out', str(out),
-                     '--scheduler', two_worker_cluster.scheduler_address,
-                     '--chunk', '2']) == 0
-    table = pq.read_table(out)
-    assert table.column_names == KNEE_COLUMNS
-    theta, force = limb_columns_of(table, spec)
-    want_theta = np.empty_like(theta)
-    want_force = np.empty_like(force)
-    for res in local.results:
-        want_theta[res['set_ids']] = res['theta_rad']
-        want_force[res['set_ids']] = res['force_n']
-    np.testing.assert_allclose(theta, want_theta, rtol=0, atol=ATOL_RAD)
-    np.testing.assert_allclose(force, want_force, rtol=0, atol=ATOL_N)
-    workers = set(table.column('worker').to_pylist())
-    assert 1 <= len(workers) <= 2 and all(w.startswith('tcp://127.0.0.1:') for w in workers)
-
-
-# The tests on the shared cluster last but the README's: the cluster's idle workers
-# cost about 0.1 CPU-s a second until the module ends.
-
-@pytest.fixture(scope='module')
-def two_worker_cluster():
-    """A LocalCluster of two worker processes, as ``--workers 2`` starts, shared
-    by the tests that need a cluster but not its start by the command (each
-    start costs about 2.5 CPU-s); test_local_cluster_of_two_worker_processes...
-    keeps ``--workers 2`` starting its own. Its workers are fresh: nothing but
-    test_the_sweep_plugin_puts_the_filter_in_every_worker_process registers the
-    sweep's plugin on them."""
-    from distributed import LocalCluster
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                      dashboard_address=None, silence_logs=logging.ERROR) as cluster:
-        yield cluster
-
-
-@pytest.mark.slow
-def test_sweeps_back_to_back_on_one_cluster_all_complete(two_worker_cluster):
-    # The second sweep's copy of the same protocol must not share a key with
-    # the first's, which the scheduler is releasing (its tasks were cancelled).
-    from distributed import Client
-
-    spec = parse_spec({**TIMED, 'sample_times_s': [0.2]})
-    with Client(two_worker_cluster) as client:
-        for _ in range(3):
-            result = run_on_client(spec, client, chunk=TIMED_CHUNK)
-            assert result.complete and result.n_sets == len(spec.sets)
-
-
-def test_the_sweep_plugin_puts_the_filter_in_every_worker_process(two_worker_cluster):
-    from distributed import Client
-
-    def filters():
-        return [type(f).__name__ for f in logging.getLogger('distributed.worker').filters]
-
-    with Client(two_worker_cluster) as client:
-        client.register_plugin(quiet_heartbeat_on_close(), name=QUIET_HEARTBEAT_PLUGIN)
-        found = client.run(filters)
-    assert len(found) == 2
-    assert all(names.count('HeartbeatOnCloseFilter') == 1 for names in found.values()), found
-
-
 # --------------------------------------------------------------------------- README, limb
 
 def test_readme_knee_spec_is_the_shipped_knee_example_spec():
@@ -731,3 +617,123 @@ def test_the_schedulers_report_to_an_open_client_and_other_records_are_kept():
     assert quiet.filter(_scheduler_record(sweep.CLIENT_GONE + " {'op': 'key-in-memory'}"))
     quiet.client = _FakeClient('closed')
     assert quiet.filter(_scheduler_record('Unexpected worker completed task'))
+
+
+# --------------------------------------------------------------------------- Dask processes
+# Last in the module: the scheduler and workers started once for these tests
+# idle at about 0.1 CPU-s a second each until the module ends.
+
+@pytest.fixture(scope='module')
+def dask_processes(tmp_path_factory):
+    """A scheduler and two workers started as processes, as doc/fit_and_sweep.md
+    shows (``dask scheduler``, ``dask worker ADDRESS``), each in its own
+    session: its address and the workers it registered. Shared by every test
+    that needs a cluster but not its start by the command (each start of a
+    cluster cost 2.5 to 6.5 CPU-s); test_local_cluster_of_two_worker_processes...
+    and test_ctrl_c_... keep ``--workers 2`` starting its own. Nothing but
+    test_the_sweep_plugin_puts_the_filter_in_every_worker_process registers the
+    sweep's plugin on these workers (``--scheduler`` does not). At the end
+    every process group must be gone."""
+    from distributed import Client
+
+    d = tmp_path_factory.mktemp('dask')
+    scheduler_file = d / 'scheduler.json'
+    logs = [open(d / f'{name}.log', 'wb') for name in ('scheduler', 'w1', 'w2')]
+    procs = []
+    try:
+        procs.append(subprocess.Popen(
+            [str(VENV_BIN / 'dask'), 'scheduler', '--port', '0', '--no-dashboard',
+             '--scheduler-file', str(scheduler_file)],
+            stdout=logs[0], stderr=subprocess.STDOUT, start_new_session=True))
+        address = wait_for(lambda: scheduler_file.exists() and scheduler_file.stat().st_size
+                           and json.loads(scheduler_file.read_text())['address'],
+                           'the scheduler file')
+        for log in logs[1:]:
+            procs.append(subprocess.Popen(
+                [str(VENV_BIN / 'dask'), 'worker', address, '--nthreads', '1',
+                 '--no-dashboard'],
+                stdout=log, stderr=subprocess.STDOUT, start_new_session=True, cwd=d))
+        with Client(address, timeout='30s') as client:
+            client.wait_for_workers(2, timeout=DEADLINE_S)
+            registered = set(client.scheduler_info(n_workers=-1)['workers'])
+        yield types.SimpleNamespace(address=address, registered=registered)
+    finally:
+        for proc in reversed(procs):
+            stop_group(proc)
+        for log in logs:
+            log.close()
+    for proc in procs:
+        wait_for(lambda: group_gone(proc.pid), f'process group {proc.pid} to exit')
+
+
+@pytest.mark.slow
+def test_scheduler_and_workers_started_as_processes_compute_the_sweep(tmp_path, capsys,
+                                                                      dask_processes):
+    assert len(dask_processes.registered) == 2
+    out = tmp_path / 'out.parquet'
+    args = ['sweep', str(write_spec(tmp_path, TIMED)), '--out', str(out),
+            '--scheduler', dask_processes.address, '--chunk', str(TIMED_CHUNK)]
+    assert cli.main(args) == 0
+    spec = parse_spec(TIMED)
+    table = pq.read_table(out)
+    np.testing.assert_allclose(forces_of(table, spec), reference_forces(spec),
+                               rtol=0, atol=ATOL_N)
+    assert set(table.column('worker').to_pylist()) <= dask_processes.registered
+    line = capsys.readouterr().out.strip().splitlines()[-1]
+    with capsys.disabled():
+        print(f'\nsweep throughput, dask scheduler + 2 dask workers: {line}')
+
+
+@pytest.mark.slow
+def test_limb_sweep_on_a_local_cluster_of_two_workers_gives_the_local_numbers(
+        tmp_path, dask_processes):
+    # The command sends the sets to the shared scheduler and two workers
+    # (--scheduler); a cluster the command starts itself (--workers 2) is
+    # test_local_cluster_of_two_worker_processes_gives_the_local_numbers' claim.
+    doc = {**KNEE_CLUSTER, 'plant': str(CONFIG / 'knee.yaml'),
+           'protocol': str(CONFIG / 'protocols' / 'knee_extension.yaml')}
+    spec = parse_spec(doc)
+    local = run_sweep(spec, workers=0, chunk=2)
+    out = tmp_path / 'out.parquet'
+    assert cli.main(['sweep', str(write_spec(tmp_path, doc)), '--out', str(out),
+                     '--scheduler', dask_processes.address,
+                     '--chunk', '2']) == 0
+    table = pq.read_table(out)
+    assert table.column_names == KNEE_COLUMNS
+    theta, force = limb_columns_of(table, spec)
+    want_theta = np.empty_like(theta)
+    want_force = np.empty_like(force)
+    for res in local.results:
+        want_theta[res['set_ids']] = res['theta_rad']
+        want_force[res['set_ids']] = res['force_n']
+    np.testing.assert_allclose(theta, want_theta, rtol=0, atol=ATOL_RAD)
+    np.testing.assert_allclose(force, want_force, rtol=0, atol=ATOL_N)
+    workers = set(table.column('worker').to_pylist())
+    # Computed in the worker processes, never in this one.
+    assert 1 <= len(workers) <= 2 and workers <= dask_processes.registered
+
+
+@pytest.mark.slow
+def test_sweeps_back_to_back_on_one_cluster_all_complete(dask_processes):
+    # The second sweep's copy of the same protocol must not share a key with
+    # the first's, which the scheduler is releasing (its tasks were cancelled).
+    from distributed import Client
+
+    spec = parse_spec({**TIMED, 'sample_times_s': [0.2]})
+    with Client(dask_processes.address, timeout='30s') as client:
+        for _ in range(3):
+            result = run_on_client(spec, client, chunk=TIMED_CHUNK)
+            assert result.complete and result.n_sets == len(spec.sets)
+
+
+def test_the_sweep_plugin_puts_the_filter_in_every_worker_process(dask_processes):
+    from distributed import Client
+
+    def filters():
+        return [type(f).__name__ for f in logging.getLogger('distributed.worker').filters]
+
+    with Client(dask_processes.address, timeout='30s') as client:
+        client.register_plugin(quiet_heartbeat_on_close(), name=QUIET_HEARTBEAT_PLUGIN)
+        found = client.run(filters)
+    assert len(found) == 2
+    assert all(names.count('HeartbeatOnCloseFilter') == 1 for names in found.values()), found
