@@ -10,13 +10,14 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, strategies as st
+from hypothesis import example, given, strategies as st
 
 from engines import compiled, plain
 from hill_muscle_ros.model.muscle import DL_MT_LIMIT_M
 from hill_muscle_ros.model.params import MuscleParams
-from test_fes_compiled import (SETTINGS, TOL, delay_activation_params, fatigue_params,
-                               fibre_type_params, protocols, relative_params, spread_params)
+from test_fes_compiled import (PINNED, SETTINGS, TOL, delay_activation_params, fatigue_params,
+                               fibre_type_params, pinned_protocol, protocols, relative_params,
+                               spread_params)
 
 any_fes_params = st.one_of(delay_activation_params(), fatigue_params(), fibre_type_params(),
                            spread_params(), relative_params())
@@ -33,6 +34,7 @@ def _gap(a, b) -> float:
 
 @SETTINGS
 @given(params=any_fes_params, protocol=protocols(), reset_at=st.floats(0.0, 1.0))
+@example(params=PINNED['fatigue'], protocol=pinned_protocol(1e-3), reset_at=0.5)
 def test_each_compiled_step_matches_the_plain_build_across_a_reset(params, protocol, reset_at):
     r_start, _, dl, dt = protocol
     reset_step = int(reset_at * len(dl))
@@ -78,7 +80,7 @@ def test_the_knee_quadriceps_preset_releases_alike_on_both_builds():
     params = load_muscle_params(config_dir() / 'fes_quadriceps.yaml')[0]
     ref, got = plain(params), compiled(params)
     u = [command_from_pulse_width(f * params.pw_max_s, params)
-         for f in np.repeat([0.25, 0.5, 1.0], 200)] + [0.0] * 600
+         for f in np.repeat([0.25, 0.5, 1.0], 100)] + [0.0] * 300
     for k, r in enumerate(u):
         assert _gap(got.step(r, 0.0, 1e-3), ref.step(r, 0.0, 1e-3)) <= TOL, k
     assert ref.n_recruited == 0 and got.outputs().n_recruited == 0   # released
