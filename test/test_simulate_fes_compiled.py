@@ -6,10 +6,10 @@ the result must agree to 1e-9 (N, m, m/s), n_recruited exactly.
 """
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, assume, given, settings, strategies as st
+from hypothesis import HealthCheck, assume, example, given, settings, strategies as st
 
 from hill_muscle_ros import resources
-from hill_muscle_ros.model import Protocol, engine
+from hill_muscle_ros.model import MuscleParams, Protocol, engine
 from hill_muscle_ros.model.muscle import kernels as muscle_kernels
 from hill_muscle_ros.model.simulate import COLUMNS, simulate
 from hill_muscle_ros.params_file import load_muscle_params
@@ -83,10 +83,27 @@ def protocols(draw):
                                   'recruitment': r, 'dl_mt_m': dl})
 
 
-@settings(max_examples=40, deadline=None,
+#: A pinned protocol: recruitment steps up, down to 0 and up to 1, dl_MT ramps
+#: out and back, over 0.2 s.
+PINNED_PROTOCOL = Protocol.from_mapping({
+    'name': 'pinned', 'duration_s': 0.2,
+    'recruitment': [[0.0, 0.3], [0.05, 0.3], [0.05, 1.0], [0.1, 0.0], [0.15, 0.77]],
+    'dl_mt_m': [[0.0, 0.0], [0.05, 0.01], [0.1, -0.01], [0.2, 0.005]]})
+
+
+@settings(max_examples=15, deadline=None,
           suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
 @given(params=fes_params(), protocol=protocols(),
        rate_hz=st.sampled_from([500.0, 1000.0, 5000.0]))
+@example(params=MuscleParams(units='multi', length='instantaneous', n_units=40, emd_s=0.031,
+                             tau_act_s=0.025, tau_deact_s=0.028, fatigue='riener',
+                             fv_scaling='relative', tau_fatigue_s=(0.1, 2.0, 0.1),
+                             fibre_fractions=(0.1, 1.0, 0.5), unit_length_spread=0.3,
+                             recruitment_order='random'),
+         protocol=PINNED_PROTOCOL, rate_hz=5000.0)
+@example(params=MuscleParams(units='single', length='initial', n_units=1, emd_s=0.0123,
+                             fatigue='riener', fv_scaling='relative', tau_fatigue_s=(0.1,)),
+         protocol=PINNED_PROTOCOL, rate_hz=500.0)
 def test_fes_features_match_the_python_run(kernels, monkeypatch, params, protocol, rate_hz):
     _compare(monkeypatch, protocol, params, rate_hz)
 
