@@ -12,7 +12,7 @@ import copy
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings, strategies as st
+from hypothesis import HealthCheck, example, given, settings, strategies as st
 
 from hill_muscle_ros.model import engine
 from hill_muscle_ros.model.limb import Limb, LimbBatch, LimbOutOfRange, kernels
@@ -24,7 +24,7 @@ PYTHON, COMPILED = engine.PYTHON, engine.COMPILED
 #: [s] the presets' step (1 kHz)
 DT_S = 1e-3
 PLANTS = {name: load_plant(config_dir() / f'{name}.yaml')[0] for name in ('knee', 'ankle')}
-SETTINGS = settings(max_examples=10, deadline=None,
+SETTINGS = settings(max_examples=3, deadline=None,
                     suppress_health_check=[HealthCheck.too_slow,
                                            HealthCheck.function_scoped_fixture])
 
@@ -64,13 +64,15 @@ def _inputs(seed, n_muscles, n_steps):
 
 @SETTINGS
 @given(name=st.sampled_from(sorted(PLANTS)), seed=st.integers(0, 2 ** 32 - 1),
-       reset_at=st.integers(50, 200))
+       reset_at=st.integers(30, 120))
+@example(name='knee', seed=1, reset_at=110)
+@example(name='ankle', seed=2, reset_at=40)
 def test_a_limb_steps_alike_on_both_builds(name, seed, reset_at):
     plant = PLANTS[name]
     ref, got = _pair(Limb, plant)
     assert (ref.build, got.build) == (PYTHON, COMPILED)
     _assert_close(ref.outputs(), got.outputs())
-    for k, (u, tau, dt) in enumerate(_inputs(seed, len(plant.muscles), 250)):
+    for k, (u, tau, dt) in enumerate(_inputs(seed, len(plant.muscles), 150)):
         if k == reset_at:
             ref.reset()
             got.reset()
@@ -162,21 +164,23 @@ def test_an_unknown_engine_is_refused_naming_the_value(monkeypatch):
         Limb(PLANTS['ankle'])
 
 
-@settings(SETTINGS, max_examples=6)
+@settings(SETTINGS, max_examples=2)
 @given(name=st.sampled_from(sorted(PLANTS)), seed=st.integers(0, 2 ** 32 - 1))
+@example(name='knee', seed=3)
+@example(name='ankle', seed=4)
 def test_a_limb_batch_steps_alike_on_both_builds(name, seed):
     k_limbs, plant = 3, PLANTS[name]
     ref, got = _pair(LimbBatch, [plant] * k_limbs)
     assert (ref.build, got.build) == (PYTHON, COMPILED)
     rng = np.random.default_rng(seed)
     m = len(plant.muscles)
-    for k in range(160):
-        if k % 40 == 0:   # commands given between steps, as a sample of simulate_limb does
+    for k in range(100):
+        if k % 25 == 0:   # commands given between steps, as a sample of simulate_limb does
             u = rng.uniform(0, 1, (k_limbs, m))
             ref.give_commands(u)
             got.give_commands(u)
             _assert_close(ref.outputs(), got.outputs())
-        if k == 100:
+        if k == 60:
             ref.reset()
             got.reset()
         tau = rng.uniform(-3.0, 3.0, k_limbs)
@@ -217,7 +221,7 @@ def test_hold_commands_is_n_steps_and_their_squared_angle_errors(name):
     m = len(plant.muscles)
     got = run_on(COMPILED, LimbBatch, [plant] * 3)
     refs = [run_on(PYTHON, Limb, plant) for _ in range(3)]
-    for period in range(6):
+    for period in range(4):
         u, target = rng.uniform(0, 1, (3, m)), rng.uniform(0.2, 0.8, 3)
         out, squared = got.hold_commands(u, 0.5, DT_S, n, target)
         for k, ref in enumerate(refs):
@@ -225,7 +229,7 @@ def test_hold_commands_is_n_steps_and_their_squared_angle_errors(name):
             assert squared[k] == pytest.approx(sum((t - target[k]) ** 2 for t in thetas),
                                                abs=TOL)
             assert out.theta_rad[k] == pytest.approx(thetas[-1], abs=TOL)
-    assert out.t_s == pytest.approx(6 * n * DT_S, abs=1e-12)
+    assert out.t_s == pytest.approx(4 * n * DT_S, abs=1e-12)
 
 
 def test_hold_commands_agrees_between_builds_and_names_a_limb_out_of_range():
