@@ -333,10 +333,11 @@ def test_make_vec_with_fatigue_equals_k_single_envs():
 
 @pytest.mark.parametrize('engine', ['compiled', 'python'])
 def test_knee_make_vec_uses_the_native_vector_env_and_equals_k_single_envs_exactly(engine):
-    # Holds of 40-60 ms: the target changes inside the 0.1 s episodes.
+    # Holds of 20-30 ms: the target changes inside the 50 ms episodes of five
+    # 10 ms control periods (the plain build's limbs take ~3 ms a 1 ms step).
     vec = _vector_against_singles(KNEE_ANGLE_ID, KneeAngleEnv, 3, 5, exact=True,
-                                  episode_duration_s=0.1, hold_min_s=0.04, hold_max_s=0.06,
-                                  engine=engine)
+                                  control_period_s=0.01, episode_duration_s=0.05,
+                                  hold_min_s=0.02, hold_max_s=0.03, engine=engine)
     assert type(vec.unwrapped) is KneeAngleVectorEnv
     assert vec.unwrapped.batch.build == engine
 
