@@ -7,8 +7,9 @@ inputs) run at 3, 10, 100 and 1000 Hz must give the force of a 10 kHz run at
 every whole second, on the Python and the compiled engine, for the paper's
 muscle, the FES muscle and the limb, offline and step by step (the nodes'
 entry points). Offline, the Python build runs 3 Hz: 10, 100 and 1000 Hz hand
-its kernels the 1 ms steps of a 1 kHz run (PYTHON_RATES_HZ). Before substepping, 3 Hz gave 193.94 N at 4 s for a 45 N
-muscle and 10 Hz 9.58 N at 1 s instead of 18.595 N.
+its kernels the 1 ms steps of a 1 kHz run (PYTHON_RATES_HZ). Before
+substepping, 3 Hz gave 193.94 N at 4 s for a 45 N muscle and 10 Hz 9.58 N at
+1 s instead of 18.595 N.
 """
 import math
 
