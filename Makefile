@@ -62,12 +62,14 @@ kernels: $(STAMP) bytecode
 # `make test`: the behaviour, every test but the real-time claims, as two
 # pytest runs side by side: the tests marked `ros`, which run nodes in real
 # time, one module after the other (ROS_WORKERS); the others on TEST_WORKERS
-# xdist workers (a module's tests on one worker, --dist loadscope) under
-# `nice -n 19` (any user may lower their own priority), so that they take the
-# CPU the real-time runs leave idle and never hold a node up. With two ROS
-# workers, two modules' nodes held each other up: a service reply lost for
-# 30 s, a recorder's holes, a 10x demo that never stimulated. The offline
-# run's report follows the ROS run's; either failing fails the target.
+# xdist workers (a module's tests on one worker, --dist loadscope), each
+# worker on a ROS domain of its own, under `nice -n 19` (any user may lower
+# their own priority), so that they take the CPU the real-time runs leave
+# idle. Two ROS workers and the offline run together kept the 2 cores busy:
+# a simulator then stalled 0.2-0.7 s, its watchdog fired and a live run
+# missed the offline force, in a run no faster (248 s) than one ROS worker.
+# The offline run's report follows the ROS run's; either failing fails the
+# target.
 # `make test-serial`: the same tests, one after the other, in one run.
 # `make check-realtime`: the claims on milliseconds of wall time (tests marked
 # `realtime`), alone and serially, with a table of claim, measured and limit.
@@ -77,7 +79,7 @@ ROS_WORKERS  ?= 1
 # where PYTHONDONTWRITEBYTECODE is set (as on this machine): each worker then
 # rewrote every test module again, 5.5 CPU-s each.
 PYTEST       := env -u PYTHONDONTWRITEBYTECODE $(BIN)/python -m pytest
-PYTEST_TEST  := $(PYTEST) -q --dist loadscope --durations=10
+PYTEST_TEST  := $(PYTEST) -q --dist loadscope --durations=15
 
 test: $(STAMP) interfaces bytecode kernels
 	@offline_log=$$(mktemp); \
