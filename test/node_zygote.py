@@ -286,17 +286,20 @@ class Zygote:
         script = Path(cmd[0])
         if script.parent != Path(sys.executable).parent or script.name not in self._scripts:
             return False
-        base = self._env or env
+        from hill_muscle_ros.supervisor import ros_environment
+        base = self._env or ros_environment()
         changed = {k for k in set(env) | set(base) if env.get(k) != base.get(k)}
         return not any(k.startswith(IMPORT_TIME_PREFIXES) for k in changed)
 
-    def _ensure(self, env: dict[str, str]) -> None:
+    def _ensure(self) -> None:
         if self._server is not None and self._server.poll() is None:
             return
         self._dir = tempfile.TemporaryDirectory(prefix='hill_muscle_zygote_')
         self._socket = os.path.join(self._dir.name, 'zygote.sock')
-        self._env = dict(env)
-        from hill_muscle_ros.supervisor import _child_setup
+        # The test run's own node environment, whatever the first start asks:
+        # a first start with an unusual variable must not set every later one's.
+        from hill_muscle_ros.supervisor import _child_setup, ros_environment
+        self._env = ros_environment()
         self._server = subprocess.Popen(
             [sys.executable, __file__, self._socket], env=self._env, stdin=subprocess.PIPE,
             stdout=subprocess.PIPE, start_new_session=True, preexec_fn=_child_setup(None))
@@ -311,7 +314,7 @@ class Zygote:
 
     def start(self, cmd: list[str], env: dict[str, str], log_path: Path) -> ForkedPopen:
         """Fork the node ``cmd`` with ``env``, its output appended to ``log_path``."""
-        self._ensure(env)
+        self._ensure()
         conn = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         conn.connect(self._socket)
         conn.sendall(json.dumps({'argv': list(cmd), 'env': env,
