@@ -112,6 +112,20 @@ def test_a_channel_beyond_the_muscles_is_rejected():
         m.stimulate([constant_train(3)])
 
 
+@pytest.mark.parametrize('frequency_hz', [0.0, -5.0])
+def test_a_train_without_a_positive_frequency_is_rejected_at_once_and_the_last_kept(
+        frequency_hz):
+    # Rejected by the command, not later when the train's first burst reads 1/f.
+    m = pulses_muscle(channel_fractions=(1.0, 1.0))
+    m.stimulate([constant_train(1, pw=300e-6, f=25.0)])
+    with pytest.raises(ValueError, match=f'`frequency_hz` of channel 2 must be .*'
+                                         f'got {frequency_hz!r}'):
+        m.stimulate([constant_train(1, pw=200e-6, f=25.0),
+                     constant_train(2, pw=300e-6, f=frequency_hz)])
+    m.run_trains(np.zeros(10), 1e-3)
+    assert m.n_recruited == round(1000 / 2 * 300e-6 / 500e-6)   # the first command's
+
+
 def test_the_plain_pulse_width_is_channel_1_at_frequency_hz():
     m = pulses_muscle(frequency_hz=20.0)
     m.set_pulse_width(250e-6)

@@ -15,6 +15,17 @@ from .stimulator import ChannelCommand, check_channel_command, stimulator_profil
 from .stimulus import pulse_command
 from .trains import ChannelTrain, PulseTrain
 
+def check_train_frequency(command: ChannelCommand) -> None:
+    """A pulse train's bursts are 1/f apart: its frequency must be positive.
+
+    :raises ValueError: naming the channel and the value
+    """
+    if not command.frequency_hz > 0.0:
+        raise ValueError(f'`frequency_hz` of channel {command.channel} must be positive with '
+                         f'`activation_model: ding2003` (its bursts are 1/f apart), '
+                         f'got {command.frequency_hz!r}')
+
+
 class ChannelTrains:
     """The channels of one ``ding2003`` muscle: commands, trains, pending pulses.
 
@@ -46,7 +57,8 @@ class ChannelTrains:
         nothing changes if one fails.
 
         :raises ValueError: naming the field, channel and value, for a channel
-            beyond the muscle's or a command out of the stimulator's range
+            beyond the muscle's, a command out of the stimulator's range or a
+            frequency that is not positive
         """
         n = self.params.n_channels
         trains, given = list(self.trains), list(self.commands)
@@ -57,6 +69,7 @@ class ChannelTrains:
             if c.channel > n:
                 raise ValueError(f'`channel` must be in [1, {n}] (the muscle\'s '
                                  f'channels), got {cmd.channel!r}')
+            check_train_frequency(c)
             if c == given[c.channel - 1]:
                 continue   # the train in force already: nothing changes
             given[c.channel - 1] = c

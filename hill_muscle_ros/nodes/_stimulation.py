@@ -22,6 +22,7 @@ from __future__ import annotations
 from typing import Any, Iterable, Mapping
 
 from ..model import MuscleParams
+from ..model.channels import check_train_frequency
 from ..model.stimulator import (ChannelCommand, check_channel_command, check_stimulation,
                                 stimulator_profile)
 from ..model.stimulus import pulse_command
@@ -77,10 +78,8 @@ def check_message(msg: Any, params: MuscleParams, n_channels: int,
         if c.channel > n_channels:
             raise ValueError(f'`channel` must be in [1, {n_channels}] (the muscle\'s channels, '
                              f'`channel_fractions`), got {c.channel}')
-        if pulsed(params) and not c.frequency_hz > 0.0:
-            raise ValueError(f'`frequency_hz` of channel {c.channel} must be positive with '
-                             f'`activation_model: {PULSED_MODEL}` (its bursts are 1/f apart), '
-                             f'got {c.frequency_hz!r}')
+        if pulsed(params):
+            check_train_frequency(c)
     if profile.shared_frequency and commands and held:
         named = {c.channel for c in commands}
         f = commands[0].frequency_hz
