@@ -376,11 +376,14 @@ def shared(tmp_path_factory):
         yield {'probe': probe, 'sim': sim, 'recs': recs}
 
 
-@pytest.fixture
+@pytest.fixture(scope='module')
 def stimulated(shared):
     """The shared simulator reset, then given the good command on both channels
     (sent once the simulator's subscription is matched), and the band of its
-    settled force: (low, high) [N]."""
+    settled force: (low, high) [N]. Once for the module: the tests after it
+    send only messages that must be rejected, so the good command holds, and
+    each checks the force against this band from its own mark on (a message
+    taken by mistake fails the test that sent it and every one after)."""
     probe, sim, force = shared['probe'], shared['sim'], shared['recs']['force']
     assert probe.call(Trigger, f'{NS}/reset', Trigger.Request(), procs=[sim]).success
     probe.wait_for_value(force, lambda f: f == 0.0, 'zero force at rest', mark=force.mark(),
