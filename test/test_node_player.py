@@ -56,25 +56,48 @@ def _protocol_file(tmp_path, data):
     return path
 
 
-def test_player_without_subscriber_fails_clearly(tmp_path):
-    with ProcessGroup(tmp_path) as procs:
-        player = procs.start('player', node_command(
-            'protocol_player', ns='/lonely', params={'wait_for_subscribers_s': 1.0}))
-        status = player.wait()
+#: The protocol of the bad-protocol-file test: a recruitment above 1.
+BAD_SHORT = dict(SHORT, name='bad', recruitment=[[0.0, 1.5]])
+
+
+@pytest.fixture(scope='module')
+def exiting_players(tmp_path_factory):
+    """The players that must exit non-zero, all started at once when the
+    module's first test asks (each waits out its own time, idle, while the
+    tests before its own run): one without a subscriber, one with a bad
+    protocol file (``bad_path``), and one short of ``min_subscribers`` on each
+    output (the probe of this fixture subscribes once to each). Name -> process."""
+    tmp = tmp_path_factory.mktemp('exiting_players')
+    bad_path = _protocol_file(tmp, BAD_SHORT)
+    with ProcessGroup(tmp) as procs, Probe('exiting_players_probe') as probe:
+        ns = '/one_sub'
+        probe.record(f'{ns}/pulse_width', Float64)
+        probe.record(f'{ns}/length_command_stamped', PointStamped)
+        players = {
+            'lonely': procs.start('lonely', node_command(
+                'protocol_player', ns='/lonely', params={'wait_for_subscribers_s': 0.3})),
+            'bad_protocol': procs.start('bad_protocol', node_command(
+                'protocol_player', params={'protocol': str(bad_path)})),
+            'one_sub': procs.start('one_sub', node_command('protocol_player', ns=ns, params={
+                'min_subscribers': 2, 'wait_for_subscribers_s': 2.0, 'lookahead_s': 0.05})),
+            'bad_path': bad_path,
+        }
+        yield players
+
+
+def test_player_without_subscriber_fails_clearly(exiting_players):
+    player = exiting_players['lonely']
+    status = player.wait()
     assert status != 0
     assert '/lonely/pulse_width has 0' in player.output()
     assert 'min_subscribers 1' in player.output()
 
 
-def test_bad_protocol_file_exits_with_validator_message(tmp_path):
-    bad = dict(SHORT, recruitment=[[0.0, 1.5]])
-    path = _protocol_file(tmp_path, bad)
+def test_bad_protocol_file_exits_with_validator_message(exiting_players):
     with pytest.raises(ProtocolError) as expected:
-        Protocol.from_yaml(path)
-    with ProcessGroup(tmp_path) as procs:
-        player = procs.start('player', node_command('protocol_player',
-                                                    params={'protocol': str(path)}))
-        status = player.wait()
+        Protocol.from_yaml(exiting_players['bad_path'])
+    player = exiting_players['bad_protocol']
+    status = player.wait()
     assert status != 0
     assert str(expected.value) in player.output()
     assert 'Traceback' not in player.output()
@@ -412,16 +435,10 @@ def test_player_waits_for_min_subscribers_on_every_output(tmp_path):
     assert stim.messages and min(stim.times_s) > added_s
 
 
-def test_player_timeout_names_the_topic_and_the_subscriber_counts(tmp_path):
+def test_player_timeout_names_the_topic_and_the_subscriber_counts(exiting_players):
     ns = '/one_sub'
-    with ProcessGroup(tmp_path) as procs, Probe() as probe:
-        probe.record(f'{ns}/pulse_width', Float64)
-        probe.record(f'{ns}/length_command_stamped', PointStamped)
-        player = procs.start('player', node_command('protocol_player', ns=ns, params={
-            'min_subscribers': 2, 'wait_for_subscribers_s': 2.0, 'lookahead_s': 0.05}))
-        probe.spin_until(lambda: player.returncode is not None, 'the player to give up',
-                         timeout_s=60.0)
-    assert player.returncode != 0
+    player = exiting_players['one_sub']
+    assert player.wait(timeout_s=60.0) != 0
     log = player.output()
     assert f'{ns}/pulse_width has 1' in log
     assert f'{ns}/length_command_stamped has 1' in log
