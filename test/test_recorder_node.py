@@ -120,8 +120,48 @@ def stop(proc, sig, timeout_s=DEFAULT_TIMEOUT_S):
 
 
 @pytest.fixture(scope='module')
-def full_run(tmp_path_factory):
-    """3 s of five 1 kHz topics, recorded, then the recorder stopped with SIGINT."""
+def side_runs(tmp_path_factory):
+    """Recorders that wait, idle, while :func:`full_run` records, each in a
+    namespace of its own: one stopped with SIGINT beside a quiet publisher (it
+    waits the drain timeout), and three that must refuse to start (a non-empty
+    output, an unwritable one, a typed topic of an unknown type). The probe
+    keeps the quiet publisher in the graph for the module's life.
+
+    :return: name -> dict of ``proc``, ``ns``, ``bag`` and what the test needs
+    """
+    tmp = tmp_path_factory.mktemp('side_runs')
+    base = f'/rec{os.getpid()}_side'
+    with ProcessGroup(tmp) as procs, Probe('quiet_publisher_probe') as probe:
+        runs = {}
+        non_empty = tmp / 'non_empty_bag'
+        non_empty.mkdir()
+        (non_empty / 'old_run.mcap').write_bytes(b'precious')
+        runs['non_empty'] = {'bag': non_empty, 'proc': procs.start(
+            'non_empty', recorder_cmd(non_empty, f'{base}_non_empty'))}
+        blocker = tmp / 'a_file'
+        blocker.write_text('')
+        runs['unwritable'] = {'proc': procs.start(
+            'unwritable', recorder_cmd(blocker / 'bag', f'{base}_unwritable'))}
+        unknown_bag = tmp / 'unknown_type_bag'
+        runs['unknown_type'] = {'bag': unknown_bag, 'proc': _recorder_with_topics(
+            procs, unknown_bag, f'{base}_unknown_type', ['extra:no_such_msgs/msg/Nothing'],
+            name='unknown_type')}
+        # The quiet publisher: one message acknowledged, then silence, then the stop.
+        ns, bag = f'{base}_quiet', tmp / 'quiet_bag'
+        rec = _recorder_with_topics(procs, bag, ns, ['extra:std_msgs/msg/Float64'],
+                                    name='quiet')
+        probe.publish_when_matched(f'{ns}/extra', Float64(data=7.0), procs=[rec])
+        assert probe.publisher(f'{ns}/extra', Float64).wait_for_all_acked(
+            Duration(seconds=DEFAULT_TIMEOUT_S))
+        rec.popen.send_signal(signal.SIGINT)
+        runs['quiet'] = {'ns': ns, 'bag': bag, 'proc': rec}
+        yield runs
+
+
+@pytest.fixture(scope='module')
+def full_run(tmp_path_factory, side_runs):
+    """3 s of five 1 kHz topics, recorded, then the recorder stopped with SIGINT
+    (while the :func:`side_runs` wait)."""
     tmp = tmp_path_factory.mktemp('full_run')
     n = 3000
     bag = tmp / 'bag'
@@ -198,11 +238,15 @@ def test_live_bag_opens_with_mcap_ros2(full_run):
 
 
 def test_channels_carry_the_publishers_qos(full_run):
-    bag, *_ = full_run
+    bag, _, _, _, ns = full_run
     info = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
     for topic in info['topics_with_message_count']:
         qos = topic['topic_metadata']['offered_qos_profiles']
-        assert len(qos) == 1 and qos[0]['reliability'] == 'reliable'
+        # One profile per publisher: the run's topics have one each; /diagnostics
+        # has every node that reported during the run (the side_runs' recorders too).
+        if topic['topic_metadata']['name'].startswith(f'{ns}/'):
+            assert len(qos) == 1, topic
+        assert qos and all(q['reliability'] == 'reliable' for q in qos), topic
 
 
 @pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM], ids=['SIGINT', 'SIGTERM'])
@@ -245,25 +289,18 @@ def test_sigkill_leaves_the_closed_chunks_readable(tmp_path, ns):
         assert list(values) == [float(k) for k in range(len(values))]
 
 
-def test_non_empty_output_is_refused_and_left_alone(tmp_path, ns):
-    bag = tmp_path / 'bag'
-    bag.mkdir()
-    (bag / 'old_run.mcap').write_bytes(b'precious')
-    with ProcessGroup(tmp_path) as procs:
-        rec = procs.start('recorder', recorder_cmd(bag, ns))
-        status = rec.wait()
+def test_non_empty_output_is_refused_and_left_alone(side_runs):
+    bag, rec = side_runs['non_empty']['bag'], side_runs['non_empty']['proc']
+    status = rec.wait()
     assert status != 0
     assert 'not empty' in rec.output()
     assert [p.name for p in bag.iterdir()] == ['old_run.mcap']
     assert (bag / 'old_run.mcap').read_bytes() == b'precious'
 
 
-def test_unwritable_output_is_a_clear_start_up_error(tmp_path, ns):
-    blocker = tmp_path / 'a_file'
-    blocker.write_text('')
-    with ProcessGroup(tmp_path) as procs:
-        rec = procs.start('recorder', recorder_cmd(blocker / 'bag', ns))
-        status = rec.wait()
+def test_unwritable_output_is_a_clear_start_up_error(side_runs):
+    rec = side_runs['unwritable']['proc']
+    status = rec.wait()
     assert status != 0
     assert 'cannot create bag directory' in rec.output()
     assert 'Traceback' not in rec.output()
@@ -314,8 +351,8 @@ def test_topics_resolve_in_the_namespace_and_unknown_types_are_discovered(tmp_pa
     assert read_bag(bag).counts() == {f'{ns}/left/force': n, elsewhere: n}
 
 
-def _recorder_with_topics(procs, bag, ns, topics):
-    return procs.start('recorder', node_command(
+def _recorder_with_topics(procs, bag, ns, topics, name='recorder'):
+    return procs.start(name, node_command(
         'recorder', ns=ns, params={'output': str(bag), 'topics': topics}))
 
 
@@ -377,18 +414,14 @@ def test_a_stop_signal_while_the_recorder_starts_still_writes_what_it_received(t
     assert list(read_bag(bag).topic(f'{ns}/force').values()) == [3.0], rec.output()
 
 
-def test_a_quiet_publisher_is_waited_for_then_named_as_the_stop_closes_the_bag(tmp_path, ns):
+def test_a_quiet_publisher_is_waited_for_then_named_as_the_stop_closes_the_bag(side_runs):
     """A publisher still in the graph but silent since before the stop may
     have a lost message that DDS repairs on its next heartbeat: the recorder
     waits the drain timeout for it, then closes the bag (exit 0) and names the
     topic and how long before the stop its newest message was sent."""
-    bag = tmp_path / 'bag'
-    with ProcessGroup(tmp_path) as procs, Probe('quiet_publisher_probe') as probe:
-        rec = _recorder_with_topics(procs, bag, ns, ['extra:std_msgs/msg/Float64'])
-        probe.publish_when_matched(f'{ns}/extra', Float64(data=7.0), procs=[rec])
-        assert probe.publisher(f'{ns}/extra', Float64).wait_for_all_acked(
-            Duration(seconds=DEFAULT_TIMEOUT_S))
-        assert stop(rec, signal.SIGINT) == 0, rec.output()
+    run = side_runs['quiet']   # started, its message acknowledged, then SIGINT (side_runs)
+    ns, bag, rec = run['ns'], run['bag'], run['proc']
+    assert rec.wait() == 0, rec.output()
     line = (f'{ns}/extra: nothing its publisher sent after the stop arrived '
             f'(waited {DRAIN_TIMEOUT_S:g} s); the newest message recorded was sent ')
     assert line in rec.output(), rec.output()
@@ -410,12 +443,10 @@ def test_best_effort_publisher_on_a_typed_topic_is_reported_by_name(tmp_path, ns
     assert f'{ns}/extra' in report[0] and 'without its type' in report[0]
 
 
-def test_typed_topic_with_an_unknown_type_is_a_clear_start_up_error(tmp_path, ns):
-    with ProcessGroup(tmp_path) as procs:
-        rec = _recorder_with_topics(procs, tmp_path / 'bag', ns,
-                                    ['extra:no_such_msgs/msg/Nothing'])
-        status = rec.wait()
+def test_typed_topic_with_an_unknown_type_is_a_clear_start_up_error(side_runs):
+    rec = side_runs['unknown_type']['proc']
+    status = rec.wait()
     assert status != 0
     assert 'parameter `topics`' in rec.output() and 'no_such_msgs' in rec.output()
     assert 'Traceback' not in rec.output()
-    assert not (tmp_path / 'bag').exists()
+    assert not side_runs['unknown_type']['bag'].exists()
