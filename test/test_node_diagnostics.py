@@ -6,6 +6,12 @@ tests start each node in its own namespace, read its status from a probe,
 and check the level, the message and the values against what the test made
 happen: no input, a tripped watchdog, rejected messages, a stall (SIGSTOP),
 a missing target or feedback, messages recorded, protocol progress.
+
+Every node of the DDS tests starts at once, when the module's first such
+test asks (:func:`nodes`), each set in a namespace of its own, and one probe
+records every status from then on: the start-ups and the first report
+periods pass together, and each test then takes its own nodes through its
+scenario.
 """
 from __future__ import annotations
 
@@ -18,6 +24,7 @@ import pytest
 import rclpy
 import yaml
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from rclpy.qos import QoSProfile
 from std_msgs.msg import Float64
 
 from hill_muscle_ros.model import Protocol
@@ -56,6 +63,10 @@ STALL_CATCH_UP_FRACTION = 0.4
 #: (states, counts): five reports a second instead of one.
 FAST_PERIOD_S = 0.2
 FAST = {DIAGNOSTICS_PERIOD_PARAMETER: FAST_PERIOD_S}
+#: The probe's reader of /diagnostics: reliable, deep enough for every
+#: status of every node of the module while a test does not spin (a stall
+#: test sleeps 1 s), so that none is lost (a test sums per-period counts).
+DIAGNOSTICS_QOS = QoSProfile(depth=10_000)
 
 
 def unique_namespace() -> str:
@@ -75,7 +86,7 @@ class Statuses:
         self.list: list[DiagnosticStatus] = []
         #: [s] header stamps of the arrays that carried them
         self.stamps: list[float] = []
-        rec = probe.record('/diagnostics', DiagnosticArray)
+        rec = probe.record('/diagnostics', DiagnosticArray, qos=DIAGNOSTICS_QOS)
         for msg in rec.messages:
             self._on_array(msg)
         rec.add_listener(self._on_array)
@@ -95,6 +106,83 @@ def wait_status(probe, statuses, predicate, what, procs, start=0, timeout_s=30.0
                             f'{statuses.name}: {what}', timeout_s=timeout_s, procs=procs)
 
 
+# -- the nodes ---------------------------------------------------------------------
+
+#: A protocol of 1.5 s: long enough for a report while playing.
+SHORT = {'name': 'short', 'duration_s': 1.5,
+         'recruitment': [[0.0, 0.3], [1.5, 0.3]], 'dl_mt_m': [[0.0, 0.0], [1.5, 0.0]]}
+#: Out-of-range report periods: a controller started with each must exit.
+BAD_PERIODS = (0.0, 1e5)
+#: The recorders of the best-effort force: without and with the subscription's override.
+RECORDER_OVERRIDES = {'reliable-recorder': False, 'best-effort-recorder': True}
+
+
+@pytest.fixture(scope='module')
+def nodes(tmp_path_factory):
+    """Every node process of the DDS tests below, started at once, each set in
+    a namespace of its own, and the probe that records /diagnostics from the
+    start. The player's first status is awaited here, and only then are its
+    outputs subscribed, so that it reports waiting for subscribers first; it
+    plays while the other tests run.
+
+    :return: dict of ``procs``, ``probe``, ``tmp`` and, per scenario, its
+        ``ns`` and processes
+    """
+    tmp = tmp_path_factory.mktemp('diagnostics')
+    with ProcessGroup(tmp) as procs, Probe('diag_probe') as probe:
+        probe.record('/diagnostics', DiagnosticArray, qos=DIAGNOSTICS_QOS)
+        w = {'procs': procs, 'probe': probe, 'tmp': tmp}
+
+        def start(key, node, name, params=None, **kwargs):
+            ns = w.setdefault(key, {}).setdefault('ns', unique_namespace())
+            w[key][name] = procs.start(f'{key}_{name}', node_command(
+                node, ns=ns, params=params, **kwargs))
+
+        start('quiet', 'simulator', 'sim', {'rate_hz': QUIET_RATE_HZ})
+        start('watchdog', 'simulator', 'sim', {
+            'rate_hz': QUIET_RATE_HZ, 'input_timeout_s': 0.2, **FAST})
+        start('stall', 'simulator', 'sim', {'rate_hz': SIM_RATE_HZ})
+        start('lone', 'force_controller', 'ctrl', {
+            'feedback_timeout_s': STALE_TIMEOUT_S, **FAST})
+        start('loop', 'simulator', 'sim', {'rate_hz': QUIET_RATE_HZ})
+        start('loop', 'force_controller', 'ctrl', FAST)
+        w['recorder'] = {'bag': tmp / 'recorder_bag'}
+        start('recorder', 'recorder', 'rec', {'output': str(w['recorder']['bag'])})
+        path = tmp / 'short.yaml'
+        path.write_text(yaml.safe_dump(SHORT))
+        w['player'] = {'protocol': path}
+        start('player', 'protocol_player', 'player', {
+            'protocol': str(path), 'rate_hz': 100.0, 'wait_for_subscribers_s': 60.0, **FAST})
+        for i, period in enumerate(BAD_PERIODS):
+            start(f'bad_period_{i}', 'force_controller', 'ctrl',
+                  {DIAGNOSTICS_PERIOD_PARAMETER: period})
+        for name, recorder_override in RECORDER_OVERRIDES.items():
+            ns = w.setdefault(name, {}).setdefault('ns', unique_namespace())
+            force = f'{ns}/force'
+            overrides = {f'qos_overrides.{force}.publisher.reliability': 'best_effort'}
+            if recorder_override:
+                overrides[f'qos_overrides.{force}.subscription.reliability'] = 'best_effort'
+            params = tmp / f'{name}.yaml'
+            params.write_text(yaml.safe_dump({'/**': {'ros__parameters': overrides}}))
+            w[name].update(force=force, params=params)
+            start(name, 'recorder', 'rec', {'output': str(tmp / f'{name}_bag')},
+                  params_files=[params])
+        ns, player = w['player']['ns'], w['player']['player']
+        st = w['player']['statuses'] = Statuses(probe, f'{ns}/protocol_player: protocol playback')
+        w['player']['waiting'] = wait_status(probe, st, lambda s: True, 'a status', [player])
+        probe.record(f'{ns}/pulse_width', Float64)
+        probe.record(f'{ns}/length_command', Float64)
+        yield w
+
+
+def done_with(*procs):
+    """Stop the node processes a scenario is done with (SIGINT; the group
+    reaps them), so that they load the machine no longer."""
+    for proc in procs:
+        if proc.returncode is None:
+            proc.send_signal(signal.SIGINT)
+
+
 # -- simulator -------------------------------------------------------------------
 
 
@@ -103,28 +191,24 @@ N_BAD = 3
 
 
 @pytest.fixture(scope='module')
-def quiet_simulator(tmp_path_factory):
+def quiet_simulator(nodes):
     """One simulator at :data:`QUIET_RATE_HZ` with the default report period:
     its first OK status, with no input yet; then :data:`N_BAD` NaN recruitment
     messages, and every status up to the one that counts them all.
 
     :return: ``ns``, ``ok`` (status), ``statuses`` (all, in order)
     """
-    ns = unique_namespace()
-    with ProcessGroup(tmp_path_factory.mktemp('quiet_simulator')) as procs, \
-            Probe('diag_probe') as probe:
-        sim = procs.start('sim', node_command('simulator', ns=ns,
-                                              params={'rate_hz': QUIET_RATE_HZ}))
-        st = Statuses(probe, f'{ns}/simulator: muscle simulation')
-        ok = wait_status(probe, st, lambda s: s.level == OK, 'an OK status', [sim])
-        for _ in range(N_BAD):
-            probe.publish_when_matched(f'{ns}/recruitment', Float64(data=float('nan')),
-                                       procs=[sim])
-        key = f'bad_inputs[{ns}/recruitment]'
-        wait_status(probe, st, lambda s: values(s).get(key) == str(N_BAD),
-                    f'{N_BAD} rejected', [sim])
-        statuses = list(st.list)
-    return {'ns': ns, 'ok': ok, 'statuses': statuses}
+    probe, ns, sim = nodes['probe'], nodes['quiet']['ns'], nodes['quiet']['sim']
+    st = Statuses(probe, f'{ns}/simulator: muscle simulation')
+    ok = wait_status(probe, st, lambda s: s.level == OK, 'an OK status', [sim])
+    for _ in range(N_BAD):
+        probe.publish_when_matched(f'{ns}/recruitment', Float64(data=float('nan')),
+                                   procs=[sim])
+    key = f'bad_inputs[{ns}/recruitment]'
+    wait_status(probe, st, lambda s: values(s).get(key) == str(N_BAD),
+                f'{N_BAD} rejected', [sim])
+    done_with(sim)
+    return {'ns': ns, 'ok': ok, 'statuses': list(st.list)}
 
 
 def test_simulator_without_input_reports_ok_at_its_step_rate(quiet_simulator):
@@ -140,15 +224,13 @@ def test_simulator_without_input_reports_ok_at_its_step_rate(quiet_simulator):
     assert 'no pulse_width or recruitment received yet' in status.message
 
 
-def test_simulator_watchdog_trip_is_a_warning(tmp_path):
-    ns = unique_namespace()
-    with ProcessGroup(tmp_path) as procs, Probe('diag_probe') as probe:
-        sim = procs.start('sim', node_command('simulator', ns=ns, params={
-            'rate_hz': QUIET_RATE_HZ, 'input_timeout_s': 0.2, **FAST}))
-        st = Statuses(probe, f'{ns}/simulator: muscle simulation')
-        probe.publish_when_matched(f'{ns}/recruitment', Float64(data=0.5), procs=[sim])
-        status = wait_status(probe, st, lambda s: values(s)['watchdog_tripped'] == 'true',
-                             'the watchdog tripped', [sim])
+def test_simulator_watchdog_trip_is_a_warning(nodes):
+    probe, ns, sim = nodes['probe'], nodes['watchdog']['ns'], nodes['watchdog']['sim']
+    st = Statuses(probe, f'{ns}/simulator: muscle simulation')
+    probe.publish_when_matched(f'{ns}/recruitment', Float64(data=0.5), procs=[sim])
+    status = wait_status(probe, st, lambda s: values(s)['watchdog_tripped'] == 'true',
+                         'the watchdog tripped', [sim])
+    done_with(sim)
     assert status.level in (WARN, ERROR)
     assert 'watchdog tripped' in status.message
     v = values(status)
@@ -166,26 +248,73 @@ def test_simulator_counts_rejected_input_per_topic_and_warns_in_that_period(quie
             assert f'{n} input message(s) rejected' in status.message
 
 
-def test_simulator_stall_is_an_error_then_a_catch_up_warning(tmp_path):
-    ns = unique_namespace()
-    with ProcessGroup(tmp_path) as procs, Probe('diag_probe') as probe:
-        sim = procs.start('sim', node_command('simulator', ns=ns,
-                                              params={'rate_hz': SIM_RATE_HZ}))
-        st = Statuses(probe, f'{ns}/simulator: muscle simulation')
-        wait_status(probe, st, lambda s: True, 'a first status', [sim])
-        start = len(st.list)
-        stopped_at = time.monotonic()
-        os.kill(sim.popen.pid, signal.SIGSTOP)
-        try:
-            time.sleep(STALL_S)   # the fault: the process gets no CPU this long
-        finally:
-            os.kill(sim.popen.pid, signal.SIGCONT)
-        stalled_s = time.monotonic() - stopped_at
-        error = wait_status(probe, st, lambda s: s.level == ERROR, 'an ERROR', [sim], start)
-        stall_steps = STALL_CATCH_UP_FRACTION * stalled_s * SIM_RATE_HZ
-        caught_up = wait_status(
-            probe, st, lambda s: int(values(s)['catch_up_steps_last_period']) >= stall_steps,
-            f'the stall caught up (at least {stall_steps:.0f} steps in a period)', [sim], start)
+# -- recorders of a best-effort force (early: their four nodes then stop) -----------
+
+
+@pytest.fixture(scope='module')
+def best_effort_force_runs(nodes):
+    """A simulator whose force is best effort (a publisher QoS override), recorded
+    by a recorder without and by one with the matching subscription override
+    (started with :func:`nodes`): both pairs at once, each in a namespace of its
+    own. Each recorder's status once the simulator's wrench is recorded and
+    either the force too or an error: name -> (force topic, status)."""
+    probe, procs = nodes['probe'], nodes['procs']
+    runs = {}
+    for name in RECORDER_OVERRIDES:
+        ns, rec = nodes[name]['ns'], nodes[name]['rec']
+        runs[name] = (ns, nodes[name]['force'], nodes[name]['params'], rec,
+                      Statuses(probe, f'{ns}/recorder: recording'))
+    sims = {}
+    for name, (ns, _, params, rec, st) in runs.items():
+        wait_status(probe, st, lambda s: True, 'a status', [rec])
+        sims[name] = procs.start(f'sim_{name}', node_command(
+            'simulator', ns=ns, params_files=[params], params={'rate_hz': QUIET_RATE_HZ}))
+    statuses = {}
+    for name, (ns, force, _, rec, st) in runs.items():
+        # The simulator's wrench is reliable either way: once it is recorded,
+        # so is a matched force.
+        statuses[name] = (force, wait_status(
+            probe, st, lambda s: int(values(s)[f'received[{ns}/wrench]']) > 0
+            and (s.level == ERROR or int(values(s)[f'received[{force}]']) > 0),
+            'wrench and force recorded, or an error', [rec, sims[name]]))
+    done_with(*sims.values(), *(nodes[name]['rec'] for name in RECORDER_OVERRIDES))
+    return statuses
+
+
+@pytest.mark.parametrize('recorder', list(RECORDER_OVERRIDES))
+def test_recorder_of_a_best_effort_force_needs_the_matching_override(best_effort_force_runs,
+                                                                     recorder):
+    """A best-effort /force never matches the recorder's reliable start-up
+    subscription (an ERROR naming it); the subscription override makes it record."""
+    force, status = best_effort_force_runs[recorder]
+    if RECORDER_OVERRIDES[recorder]:
+        # Recorded; best effort may lose some (then a WARN), never an ERROR.
+        assert status.level != ERROR, status.message
+        assert int(values(status)[f'received[{force}]']) > 0
+    else:
+        assert status.level == ERROR
+        assert f'not recording (all or some publishers of) {force}' in status.message
+        assert values(status)[f'received[{force}]'] == '0'
+
+
+def test_simulator_stall_is_an_error_then_a_catch_up_warning(nodes):
+    probe, ns, sim = nodes['probe'], nodes['stall']['ns'], nodes['stall']['sim']
+    st = Statuses(probe, f'{ns}/simulator: muscle simulation')
+    wait_status(probe, st, lambda s: True, 'a first status', [sim])
+    start = len(st.list)
+    stopped_at = time.monotonic()
+    os.kill(sim.popen.pid, signal.SIGSTOP)
+    try:
+        time.sleep(STALL_S)   # the fault: the process gets no CPU this long
+    finally:
+        os.kill(sim.popen.pid, signal.SIGCONT)
+    stalled_s = time.monotonic() - stopped_at
+    error = wait_status(probe, st, lambda s: s.level == ERROR, 'an ERROR', [sim], start)
+    stall_steps = STALL_CATCH_UP_FRACTION * stalled_s * SIM_RATE_HZ
+    caught_up = wait_status(
+        probe, st, lambda s: int(values(s)['catch_up_steps_last_period']) >= stall_steps,
+        f'the stall caught up (at least {stall_steps:.0f} steps in a period)', [sim], start)
+    done_with(sim)
     v = values(error)
     assert int(v['steps_behind']) > int(v['steps_behind_error_above']) == 100
     assert 'steps behind the clock' in error.message
@@ -205,7 +334,7 @@ STALE_TIMEOUT_S = 0.2
 
 
 @pytest.fixture(scope='module')
-def lone_controller(tmp_path_factory):
+def lone_controller(nodes):
     """One force controller without a simulator (report period
     :data:`FAST_PERIOD_S`, ``feedback_timeout_s`` :data:`STALE_TIMEOUT_S`),
     taken through its states by the probe, each state's test judging its
@@ -216,21 +345,18 @@ def lone_controller(tmp_path_factory):
     :return: ``ns``, ``first``, ``stamps`` (of the statuses before any input),
         ``no_feedback`` and ``stale`` (statuses)
     """
-    ns = unique_namespace()
-    with ProcessGroup(tmp_path_factory.mktemp('lone_controller')) as procs, \
-            Probe('diag_probe') as probe:
-        ctrl = procs.start('ctrl', node_command('force_controller', ns=ns, params={
-            'feedback_timeout_s': STALE_TIMEOUT_S, **FAST}))
-        st = Statuses(probe, f'{ns}/force_controller: force control')
-        first = wait_status(probe, st, lambda s: True, 'a status', [ctrl])
-        probe.spin_until(lambda: len(st.list) >= 6, '6 statuses', procs=[ctrl])
-        stamps = list(st.stamps)
-        probe.publish_when_matched(f'{ns}/force_target', Float64(data=10.0), procs=[ctrl])
-        no_feedback = wait_status(probe, st, lambda s: values(s)['target_received'] == 'true',
-                                  'the target received', [ctrl])
-        probe.publish_when_matched(f'{ns}/force', Float64(data=1.0), procs=[ctrl])
-        stale = wait_status(probe, st, lambda s: values(s)['state'] == 'force feedback stale',
-                            'stale feedback', [ctrl])
+    probe, ns, ctrl = nodes['probe'], nodes['lone']['ns'], nodes['lone']['ctrl']
+    st = Statuses(probe, f'{ns}/force_controller: force control')
+    first = wait_status(probe, st, lambda s: True, 'a status', [ctrl])
+    probe.spin_until(lambda: len(st.list) >= 6, '6 statuses', procs=[ctrl])
+    stamps = list(st.stamps)
+    probe.publish_when_matched(f'{ns}/force_target', Float64(data=10.0), procs=[ctrl])
+    no_feedback = wait_status(probe, st, lambda s: values(s)['target_received'] == 'true',
+                              'the target received', [ctrl])
+    probe.publish_when_matched(f'{ns}/force', Float64(data=1.0), procs=[ctrl])
+    stale = wait_status(probe, st, lambda s: values(s)['state'] == 'force feedback stale',
+                        'stale feedback', [ctrl])
+    done_with(ctrl)
     return {'ns': ns, 'first': first, 'stamps': stamps, 'no_feedback': no_feedback,
             'stale': stale}
 
@@ -262,17 +388,15 @@ def test_controller_stale_feedback_warns_with_its_age(lone_controller):
     assert 'feedback_timeout_s' in status.message
 
 
-def test_controller_in_the_loop_reports_ok_and_stimulating(tmp_path):
-    ns = unique_namespace()
-    with ProcessGroup(tmp_path) as procs, Probe('diag_probe') as probe:
-        sim = procs.start('sim', node_command('simulator', ns=ns,
-                                              params={'rate_hz': QUIET_RATE_HZ}))
-        ctrl = procs.start('ctrl', node_command('force_controller', ns=ns, params=FAST))
-        st = Statuses(probe, f'{ns}/force_controller: force control')
-        probe.publish_when_matched(f'{ns}/force_target', Float64(data=10.0),
-                                   procs=[sim, ctrl])
-        status = wait_status(probe, st, lambda s: values(s)['state'] == 'ready',
-                             'the loop closed', [sim, ctrl])
+def test_controller_in_the_loop_reports_ok_and_stimulating(nodes):
+    probe, ns = nodes['probe'], nodes['loop']['ns']
+    sim, ctrl = nodes['loop']['sim'], nodes['loop']['ctrl']
+    st = Statuses(probe, f'{ns}/force_controller: force control')
+    probe.publish_when_matched(f'{ns}/force_target', Float64(data=10.0),
+                               procs=[sim, ctrl])
+    status = wait_status(probe, st, lambda s: values(s)['state'] == 'ready',
+                         'the loop closed', [sim, ctrl])
+    done_with(sim, ctrl)
     v = values(status)
     assert status.level == OK and v['stimulating'] == 'true'
     assert 0.0 < float(v['pulse_width_s']) and 'controlling' in status.message
@@ -281,22 +405,20 @@ def test_controller_in_the_loop_reports_ok_and_stimulating(tmp_path):
 # -- recorder -----------------------------------------------------------------------
 
 
-def test_recorder_reports_counts_per_topic_and_records_diagnostics(tmp_path):
-    ns = unique_namespace()
-    bag = tmp_path / 'bag'
+def test_recorder_reports_counts_per_topic_and_records_diagnostics(nodes):
+    probe, ns = nodes['probe'], nodes['recorder']['ns']
+    bag, rec = nodes['recorder']['bag'], nodes['recorder']['rec']
     n = QUEUE_DEPTH   # the probe's keep-last queue: none is dropped before it is acknowledged
-    with ProcessGroup(tmp_path) as procs, Probe('diag_probe') as probe:
-        rec = procs.start('rec', node_command('recorder', ns=ns, params={'output': str(bag)}))
-        st = Statuses(probe, f'{ns}/recorder: recording')
-        for k in range(n):
-            probe.publish_when_matched(f'{ns}/force', Float64(data=float(k)), procs=[rec])
-        status = wait_status(probe, st, lambda s: values(s)[f'written[{ns}/force]'] == str(n),
-                             f'{n} written', [rec])
-        # The recorder records every node's /diagnostics by default, its own too.
-        wait_status(probe, st, lambda s: int(values(s)['received[/diagnostics]']) > 0,
-                    '/diagnostics recorded', [rec])
-        probe.retire(f'{ns}/force')   # else the recorder waits for more of it
-        assert rec.stop() == 0
+    st = Statuses(probe, f'{ns}/recorder: recording')
+    for k in range(n):
+        probe.publish_when_matched(f'{ns}/force', Float64(data=float(k)), procs=[rec])
+    status = wait_status(probe, st, lambda s: values(s)[f'written[{ns}/force]'] == str(n),
+                         f'{n} written', [rec])
+    # The recorder records every node's /diagnostics by default, its own too.
+    wait_status(probe, st, lambda s: int(values(s)['received[/diagnostics]']) > 0,
+                '/diagnostics recorded', [rec])
+    probe.retire(f'{ns}/force')   # else the recorder waits for more of it
+    assert rec.stop() == 0
     v = values(status)
     assert status.level == OK and v['bag'] == str(bag)
     assert v[f'received[{ns}/force]'] == str(n) and v[f'lost[{ns}/force]'] == '0'
@@ -336,27 +458,16 @@ def test_recorder_loss_is_a_warning_naming_the_topic(recorder_in_process):
 
 # -- protocol player ------------------------------------------------------------------
 
-#: A protocol of 1.5 s: long enough for a report while playing.
-SHORT = {'name': 'short', 'duration_s': 1.5,
-         'recruitment': [[0.0, 0.3], [1.5, 0.3]], 'dl_mt_m': [[0.0, 0.0], [1.5, 0.0]]}
-
-
-def test_player_reports_waiting_then_progress_then_done(tmp_path):
-    ns = unique_namespace()
-    path = tmp_path / 'short.yaml'
-    path.write_text(yaml.safe_dump(SHORT))
-    duration_s = Protocol.from_yaml(path).duration_s
-    with ProcessGroup(tmp_path) as procs, Probe('diag_probe') as probe:
-        player = procs.start('player', node_command('protocol_player', ns=ns, params={
-            'protocol': str(path), 'rate_hz': 100.0, 'wait_for_subscribers_s': 60.0, **FAST}))
-        st = Statuses(probe, f'{ns}/protocol_player: protocol playback')
-        waiting = wait_status(probe, st, lambda s: True, 'a status', [player])
-        probe.record(f'{ns}/pulse_width', Float64)
-        probe.record(f'{ns}/length_command', Float64)
-        playing = wait_status(probe, st, lambda s: values(s)['state'] == 'playing',
-                              'playing', [player])
-        done = wait_status(probe, st, lambda s: values(s)['state'] == 'done', 'done', [player])
-        assert player.wait() == 0
+def test_player_reports_waiting_then_progress_then_done(nodes):
+    """The player of :func:`nodes`: its first status (awaited before its outputs
+    had subscribers), then its statuses while it plays, recorded meanwhile."""
+    probe, ns, player = nodes['probe'], nodes['player']['ns'], nodes['player']['player']
+    duration_s = Protocol.from_yaml(nodes['player']['protocol']).duration_s
+    st, waiting = nodes['player']['statuses'], nodes['player']['waiting']
+    playing = wait_status(probe, st, lambda s: values(s)['state'] == 'playing',
+                          'playing', [player])
+    done = wait_status(probe, st, lambda s: values(s)['state'] == 'done', 'done', [player])
+    assert player.wait() == 0
     assert waiting.level == OK and values(waiting)['state'] == 'waiting for subscribers'
     assert values(waiting)[f'subscribers[{ns}/pulse_width]'] == '0'
     v = values(playing)
@@ -379,12 +490,10 @@ def test_diagnostic_updater_period_sets_the_time_between_reports(lone_controller
     assert 0.5 * FAST_PERIOD_S < median < 0.5 * (FAST_PERIOD_S + DIAGNOSTICS_PERIOD_S), gaps
 
 
-@pytest.mark.parametrize('period', [0.0, 1e5])
-def test_diagnostic_updater_period_out_of_range_stops_start_up_naming_it(tmp_path, period):
-    with ProcessGroup(tmp_path) as procs:
-        ctrl = procs.start('ctrl', node_command('force_controller', ns=unique_namespace(),
-                                                params={DIAGNOSTICS_PERIOD_PARAMETER: period}))
-        status = ctrl.wait()
+@pytest.mark.parametrize('period', BAD_PERIODS)
+def test_diagnostic_updater_period_out_of_range_stops_start_up_naming_it(nodes, period):
+    ctrl = nodes[f'bad_period_{BAD_PERIODS.index(period)}']['ctrl']
+    status = ctrl.wait()
     assert status != 0
     assert f'parameter `{DIAGNOSTICS_PERIOD_PARAMETER}` = {period!r} rejected' in ctrl.output()
 
@@ -405,60 +514,3 @@ def test_report_delta_is_the_change_since_the_previous_report():
     previous = {}
     assert DiagnosticReport(1.0, previous).delta('n', 5) == 5
     assert DiagnosticReport(1.0, previous).delta('n', 7) == 2
-
-
-#: The recorders of the best-effort force: without and with the subscription's override.
-RECORDER_OVERRIDES = {'reliable-recorder': False, 'best-effort-recorder': True}
-
-
-@pytest.fixture(scope='module')
-def best_effort_force_runs(tmp_path_factory):
-    """A simulator whose force is best effort (a publisher QoS override), recorded
-    by a recorder without and by one with the matching subscription override:
-    both pairs at once, each in a namespace of its own. Each recorder's status
-    once the simulator's wrench is recorded and either the force too or an
-    error: name -> (force topic, status)."""
-    tmp_path = tmp_path_factory.mktemp('best_effort_force')
-    runs = {}
-    with ProcessGroup(tmp_path) as procs, Probe('diag_probe') as probe:
-        for name, recorder_override in RECORDER_OVERRIDES.items():
-            ns = unique_namespace()
-            force = f'{ns}/force'
-            overrides = {f'qos_overrides.{force}.publisher.reliability': 'best_effort'}
-            if recorder_override:
-                overrides[f'qos_overrides.{force}.subscription.reliability'] = 'best_effort'
-            params = tmp_path / f'{name}.yaml'
-            params.write_text(yaml.safe_dump({'/**': {'ros__parameters': overrides}}))
-            rec = procs.start(f'rec_{name}', node_command(
-                'recorder', ns=ns, params_files=[params],
-                params={'output': str(tmp_path / f'{name}_bag')}))
-            runs[name] = (ns, force, params, rec, Statuses(probe, f'{ns}/recorder: recording'))
-        for name, (ns, _, params, rec, st) in runs.items():
-            wait_status(probe, st, lambda s: True, 'a status', [rec])
-            procs.start(f'sim_{name}', node_command('simulator', ns=ns, params_files=[params],
-                                                    params={'rate_hz': QUIET_RATE_HZ}))
-        statuses = {}
-        for name, (ns, force, _, _, st) in runs.items():
-            # The simulator's wrench is reliable either way: once it is recorded,
-            # so is a matched force.
-            statuses[name] = (force, wait_status(
-                probe, st, lambda s: int(values(s)[f'received[{ns}/wrench]']) > 0
-                and (s.level == ERROR or int(values(s)[f'received[{force}]']) > 0),
-                'wrench and force recorded, or an error', list(procs.processes)))
-    return statuses
-
-
-@pytest.mark.parametrize('recorder', list(RECORDER_OVERRIDES))
-def test_recorder_of_a_best_effort_force_needs_the_matching_override(best_effort_force_runs,
-                                                                     recorder):
-    """A best-effort /force never matches the recorder's reliable start-up
-    subscription (an ERROR naming it); the subscription override makes it record."""
-    force, status = best_effort_force_runs[recorder]
-    if RECORDER_OVERRIDES[recorder]:
-        # Recorded; best effort may lose some (then a WARN), never an ERROR.
-        assert status.level != ERROR, status.message
-        assert int(values(status)[f'received[{force}]']) > 0
-    else:
-        assert status.level == ERROR
-        assert f'not recording (all or some publishers of) {force}' in status.message
-        assert values(status)[f'received[{force}]'] == '0'
