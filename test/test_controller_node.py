@@ -3,6 +3,11 @@ feedback is missing or stops, on shutdown, and how it treats its parameters.
 
 The probe plays the simulator (it publishes ``force``) so that each claim can
 be checked without the muscle in the loop.
+
+Every test's controller starts at once, when the module's first test asks (a
+pool, :func:`pool`, to share the start-up time), each in a namespace of its own
+and with the parameters its test needs; a test stops its controller when it is
+done with it.
 """
 from __future__ import annotations
 
@@ -39,12 +44,62 @@ def _wait_target_acknowledged(probe, ns, proc) -> None:
                      'the controller to acknowledge the target', procs=[proc])
 
 
+#: [s] ``feedback_timeout_s`` of the wind-up test: the probe's 5 ms feedback
+#: timer runs only while the test process gets a CPU, and a workers run's
+#: first minute (four workers collecting, two compiling processes) stalled it
+#: past the default 0.5 s, so the controller rightly held zero. That test is
+#: about the target, not the timeout (which has tests of its own below).
+WIND_UP_FEEDBACK_TIMEOUT_S = 30.0
+#: [s] the controller's feedback timeout in the plant-stall test: the
+#: probe's silence is PLANT_STALL_S plus however long the test process then
+#: waits for a CPU, so the default 0.5 s left a margin of only 0.2 s for that.
+STALL_TEST_FEEDBACK_TIMEOUT_S = 2.0
+#: Controllers of the tests that take a :func:`ctrl`, one each.
+CTRL_NAMES = ('stale_feedback', 'feedback_returns', 'SIGINT', 'SIGTERM')
+#: The pool: a controller per test (or fixture), with the parameters it needs.
+POOL = {
+    'no_feedback': {},
+    'wind_up': {'feedback_timeout_s': WIND_UP_FEEDBACK_TIMEOUT_S},
+    'stale_target': {'target_timeout_s': 0.3},
+    'plant_stall': {'feedback_timeout_s': STALL_TEST_FEEDBACK_TIMEOUT_S},
+    **{name: {} for name in CTRL_NAMES},
+    'params': {},
+}
+
+
+@pytest.fixture(scope='module')
+def pool(tmp_path_factory):
+    """Every controller of :data:`POOL`, started at once, and the probe:
+    ``probe``, and per name its ``ns`` and ``proc``."""
+    with ProcessGroup(tmp_path_factory.mktemp('controllers')) as procs, \
+            Probe('ctrl_probe') as probe:
+        ctrls = {}
+        for name, params in POOL.items():
+            ns = unique_namespace()
+            ctrls[name] = {'ns': ns, 'proc': procs.start(name, node_command(
+                'force_controller', ns=ns, params=params or None))}
+        yield {'probe': probe, **ctrls}
+
+
 @contextlib.contextmanager
-def stimulating_controller(tmp_path):
-    """A controller in its own namespace, stimulating against a fake force of 0 N."""
-    ns = unique_namespace()
-    with ProcessGroup(tmp_path) as procs, Probe('ctrl_probe') as probe:
-        proc = procs.start('controller', node_command('force_controller', ns=ns))
+def taken(pool, name):
+    """The pool's controller ``name``, which nothing has talked to yet:
+    ``(probe, ns, proc)``; stopped (SIGINT, reaped by the pool) after the
+    test, so that it loads the machine no longer."""
+    assert not pool[name].get('taken'), f'the controller {name} was taken before'
+    pool[name]['taken'] = True
+    proc = pool[name]['proc']
+    try:
+        yield pool['probe'], pool[name]['ns'], proc
+    finally:
+        if proc.returncode is None:
+            proc.send_signal(signal.SIGINT)
+
+
+@contextlib.contextmanager
+def stimulating_controller(pool, name):
+    """The pool's controller ``name``, stimulating against a fake force of 0 N."""
+    with taken(pool, name) as (probe, ns, proc):
         pw = probe.record(f'{ns}/pulse_width', Float64)
         probe.publish_when_matched(f'{ns}/force_target', Float64(data=TARGET_N), procs=[proc])
         force_pub = probe.publisher(f'{ns}/force', Float64)
@@ -64,30 +119,29 @@ def stimulating_controller(tmp_path):
 
 
 @pytest.fixture
-def ctrl(tmp_path):
-    """A :func:`stimulating_controller` of its own, for a test that takes it
-    through feedback timeouts or stops it."""
-    with stimulating_controller(tmp_path) as ctrl:
+def ctrl(pool):
+    """A :func:`stimulating_controller` of its own (the next of
+    :data:`CTRL_NAMES` nothing has taken), for a test that takes it through
+    feedback timeouts or stops it."""
+    name = next(name for name in CTRL_NAMES if not pool[name].get('taken'))
+    with stimulating_controller(pool, name) as ctrl:
         yield ctrl
 
 
 @pytest.fixture(scope='module')
-def params_ctrl(tmp_path_factory):
+def params_ctrl(pool):
     """One :func:`stimulating_controller` for the tests of run-time parameters:
     each reads the parameters before and after its own change."""
-    with stimulating_controller(tmp_path_factory.mktemp('params_ctrl')) as ctrl:
+    with stimulating_controller(pool, 'params') as ctrl:
         yield ctrl
 
 
 @pytest.fixture(scope='module')
-def target_without_feedback(tmp_path_factory):
+def target_without_feedback(pool):
     """A controller that is sent a target and never a force: the pulse widths it
     published from the start, those from the target's sending on, and those
     from its acknowledgement on (at least :data:`PERIODS_BEFORE_TARGET` of them)."""
-    ns = unique_namespace()
-    with ProcessGroup(tmp_path_factory.mktemp('no_feedback')) as procs, \
-            Probe('ctrl_probe') as probe:
-        proc = procs.start('controller', node_command('force_controller', ns=ns))
+    with taken(pool, 'no_feedback') as (probe, ns, proc):
         pw = probe.record(f'{ns}/pulse_width', Float64)
         probe.publish_when_matched(f'{ns}/force_target', Float64(data=TARGET_N), procs=[proc])
         sent = pw.mark()
@@ -107,19 +161,13 @@ def test_without_force_feedback_the_controller_publishes_zero(target_without_fee
 
 #: [s] how long a publisher may wait for its subscribers' acknowledgements.
 ACK_TIMEOUT_S = 30.0
-#: [s] ``feedback_timeout_s`` of the wind-up test: the probe's 5 ms feedback
-#: timer runs only while the test process gets a CPU, and a workers run's
-#: first minute (four workers collecting, two compiling processes) stalled it
-#: past the default 0.5 s, so the controller rightly held zero. That test is
-#: about the target, not the timeout (which has tests of its own below).
-WIND_UP_FEEDBACK_TIMEOUT_S = 30.0
 #: Controller periods of force feedback heard before the target arrives: at
 #: 100 Hz, 0.5 s, far more than the reference model's 60 ms time constant,
 #: so a controller that acted on a made-up 0 N target would have wound up.
 PERIODS_BEFORE_TARGET = 50
 
 
-def test_force_heard_before_the_target_neither_stimulates_nor_winds_up(tmp_path):
+def test_force_heard_before_the_target_neither_stimulates_nor_winds_up(pool):
     """The DDS race: feedback reaches the controller before the first target.
 
     The probe plays a muscle that holds exactly the target, so once the target
@@ -127,13 +175,9 @@ def test_force_heard_before_the_target_neither_stimulates_nor_winds_up(tmp_path)
     feedforward. A controller that ran on a default target of 0 N while only
     the force was known would wind its integral down and settle elsewhere.
     """
-    ns = unique_namespace()
     expected_pw = ForceController(ControllerParams(), MuscleParams()).feedforward(
         TARGET_N, TARGET_N)
-    with ProcessGroup(tmp_path) as procs, Probe('ctrl_probe') as probe:
-        proc = procs.start('controller', node_command(
-            'force_controller', ns=ns,
-            params={'feedback_timeout_s': WIND_UP_FEEDBACK_TIMEOUT_S}))
+    with taken(pool, 'wind_up') as (probe, ns, proc):
         pw = probe.record(f'{ns}/pulse_width', Float64)
         force_pub = probe.publisher(f'{ns}/force', Float64)
         target_pub = probe.publisher(f'{ns}/force_target', Float64)
@@ -166,11 +210,8 @@ def test_target_without_force_feedback_never_stimulates(target_without_feedback)
     assert set(target_without_feedback['all']) == {0.0}
 
 
-def test_a_stale_target_stops_stimulation_when_target_timeout_is_set(tmp_path):
-    ns = unique_namespace()
-    with ProcessGroup(tmp_path) as procs, Probe('ctrl_probe') as probe:
-        proc = procs.start('controller', node_command(
-            'force_controller', ns=ns, params={'target_timeout_s': 0.3}))
+def test_a_stale_target_stops_stimulation_when_target_timeout_is_set(pool):
+    with taken(pool, 'stale_target') as (probe, ns, proc):
         pw = probe.record(f'{ns}/pulse_width', Float64)
         force_pub = probe.publisher(f'{ns}/force', Float64)
         probe.spin_until(lambda: force_pub.get_subscription_count() > 0,
@@ -190,10 +231,6 @@ def test_a_stale_target_stops_stimulation_when_target_timeout_is_set(tmp_path):
 #: [s] a plant stall shorter than the feedback timeout, as long as the
 #: simulator stalls that a loop must ride through.
 PLANT_STALL_S = 0.3
-#: [s] the controller's feedback timeout in the plant-stall test: the
-#: probe's silence is PLANT_STALL_S plus however long the test process then
-#: waits for a CPU, so the default 0.5 s left a margin of only 0.2 s for that.
-STALL_TEST_FEEDBACK_TIMEOUT_S = 2.0
 #: [s] read on after the zero of a stopped controller, for anything it sent later
 AFTER_EXIT_S = 0.5
 #: Pulse widths at the end of the stall that must all be the held one: the
@@ -201,13 +238,9 @@ AFTER_EXIT_S = 0.5
 HELD_PERIODS = 20
 
 
-def test_a_plant_stall_shorter_than_the_feedback_timeout_holds_the_pulse_width(tmp_path):
+def test_a_plant_stall_shorter_than_the_feedback_timeout_holds_the_pulse_width(pool):
     """No dropout and no integration on an old error while the force is briefly late."""
-    ns = unique_namespace()
-    with ProcessGroup(tmp_path) as procs, Probe('ctrl_probe') as probe:
-        proc = procs.start('controller', node_command(
-            'force_controller', ns=ns,
-            params={'feedback_timeout_s': STALL_TEST_FEEDBACK_TIMEOUT_S}))
+    with taken(pool, 'plant_stall') as (probe, ns, proc):
         pw = probe.record(f'{ns}/pulse_width', Float64)
         force_pub = probe.publisher(f'{ns}/force', Float64)
         probe.spin_until(lambda: force_pub.get_subscription_count() > 0,
