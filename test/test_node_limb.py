@@ -7,7 +7,7 @@ test. The bad plant files each start a node of their own, which must exit.
 """
 import copy
 import math
-import time
+import signal
 
 import pytest
 import yaml
@@ -53,7 +53,6 @@ GOOD_RECRUITMENT = 0.1
 GOOD_TORQUE_N_M = 1.5
 #: [s] deadline for a node with a bad plant file to exit.
 EXIT_TIMEOUT_S = 30.0
-POLL_S = 0.05
 
 
 def _stamp_step(msg) -> int:
@@ -69,11 +68,46 @@ def _limb_command(tmp, ns):
     return node_command('limb_simulator', ns=ns, params_files=[KNEE_YAML, overrides])
 
 
+#: The bad plant files: case -> the key their node's exit must name.
+BAD_PLANTS = {
+    'unknown muscle': 'vastus',
+    'missing moment arm': 'quadriceps.moment_arm_m',
+    'negative inertia': 'joint.inertia_kg_m2',
+}
+
+
+def _bad_plant_file(path, case):
+    values = copy.deepcopy(read_ros_parameters(KNEE_YAML, 'limb'))
+    if case == 'unknown muscle':
+        values['muscles'] = ['quadriceps', 'hamstrings', 'vastus']
+    elif case == 'missing moment arm':
+        del values['quadriceps']['moment_arm_m']
+    else:
+        values['joint']['inertia_kg_m2'] = -PLANT.joint.inertia_kg_m2
+    path.write_text(yaml.safe_dump({'/**': {'ros__parameters': values}}))
+    return path
+
+
 @pytest.fixture(scope='module')
 def shared(tmp_path_factory):
-    """The limb node, a probe, and the node's first REST_STEPS joint states."""
+    """The limb node, a probe, and the node's first REST_STEPS joint states.
+
+    Started with it, so that they start (and exit) together: a limb node per
+    bad plant file (``bad``: case -> process, waited for by their test), and
+    the same limb on the Python engine (``python``: its process, and its joint
+    states in a deep reader from its first step on)."""
     tmp = tmp_path_factory.mktemp('limb')
     with ProcessGroup(tmp) as procs, Probe() as probe:
+        bad = {case: procs.start(f'bad{i}', node_command(
+                   'limb_simulator', ns=f'/bad{i}',
+                   params_files=[_bad_plant_file(tmp / f'plant{i}.yaml', case)]))
+               for i, case in enumerate(BAD_PLANTS)}
+        python_ns = f'{NS}_python'
+        python_tmp = tmp / 'python'
+        python_tmp.mkdir()
+        python = {'rec': probe.record(f'{python_ns}/joint_states', JointState, JOINT_QOS),
+                  'proc': procs.start('limb_python', _limb_command(python_tmp, python_ns),
+                                      env=ros_env(**{engine.ENV_VAR: engine.PYTHON}))}
         node = procs.start('limb', _limb_command(tmp, NS))
         recs = {'joint': probe.record(f'{NS}/joint_states', JointState, JOINT_QOS),
                 'force': probe.record(f'{NS}/quadriceps/force', Float64),
@@ -81,7 +115,8 @@ def shared(tmp_path_factory):
                 'diag': probe.record('/diagnostics', DiagnosticArray)}
         probe.wait_for_messages(recs['joint'], REST_STEPS, procs=[node])
         rest = list(recs['joint'].messages)
-        yield {'procs': [node], 'node': node, 'probe': probe, 'recs': recs, 'rest': rest}
+        yield {'procs': [node], 'node': node, 'probe': probe, 'recs': recs, 'rest': rest,
+               'bad': bad, 'python': python}
 
 
 @pytest.fixture
@@ -176,15 +211,11 @@ def test_an_unknown_engine_falls_back_to_python_naming_the_value(monkeypatch):
         logger.lines[0][1]
 
 
-def test_with_the_python_engine_the_node_steps_the_python_limb_alike(shared, tmp_path):
-    ns = f'{NS}_python'
-    probe = shared['probe']
-    rec = probe.record(f'{ns}/joint_states', JointState)
-    with ProcessGroup(tmp_path) as procs:
-        node = procs.start('limb', _limb_command(tmp_path, ns),
-                           env=ros_env(**{engine.ENV_VAR: engine.PYTHON}))
-        probe.wait_for_messages(rec, REST_STEPS, procs=[node])
-        out = node.output()
+def test_with_the_python_engine_the_node_steps_the_python_limb_alike(shared):
+    probe, rec, node = shared['probe'], shared['python']['rec'], shared['python']['proc']
+    probe.wait_for_messages(rec, REST_STEPS, procs=[node])
+    out = node.output()
+    node.send_signal(signal.SIGINT)   # done with it (the group reaps it)
     assert f'limb engine: python ({engine.ENV_VAR}=python)' in out
     _assert_rest_as_offline(list(rec.messages)[:REST_STEPS])
 
@@ -253,28 +284,11 @@ def test_garbage_on_every_input_is_ignored_keeping_the_last_good_value(leg):
 
 
 @pytest.mark.faults
-@pytest.mark.parametrize('case, key', [
-    ('unknown muscle', 'vastus'),
-    ('missing moment arm', 'quadriceps.moment_arm_m'),
-    ('negative inertia', 'joint.inertia_kg_m2'),
-])
-def test_bad_plant_file_exits_non_zero_naming_the_key(tmp_path, case, key):
-    values = copy.deepcopy(read_ros_parameters(KNEE_YAML, 'limb'))
-    if case == 'unknown muscle':
-        values['muscles'] = ['quadriceps', 'hamstrings', 'vastus']
-    elif case == 'missing moment arm':
-        del values['quadriceps']['moment_arm_m']
-    else:
-        values['joint']['inertia_kg_m2'] = -PLANT.joint.inertia_kg_m2
-    plant_file = tmp_path / 'plant.yaml'
-    plant_file.write_text(yaml.safe_dump({'/**': {'ros__parameters': values}}))
-    with ProcessGroup(tmp_path) as procs:
-        proc = procs.start('limb', node_command('limb_simulator', ns='/bad',
-                                                params_files=[plant_file]))
-        deadline = time.monotonic() + EXIT_TIMEOUT_S
-        while proc.returncode is None and time.monotonic() < deadline:
-            time.sleep(POLL_S)   # polling an exit status: no ROS here to spin
-        status, out = proc.returncode, proc.output()
+@pytest.mark.parametrize('case, key', list(BAD_PLANTS.items()))
+def test_bad_plant_file_exits_non_zero_naming_the_key(shared, case, key):
+    proc = shared['bad'][case]
+    status = proc.wait(EXIT_TIMEOUT_S)
+    out = proc.output()
     assert status not in (None, 0), out
     assert f'`{key}`' in out
 
