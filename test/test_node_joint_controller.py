@@ -15,7 +15,8 @@ Controllers start all at once per module (a pool, to share the start-up
 time): tests that need a controller that has never heard anything take a
 fresh one each; the stale-feedback, garbage and parameter tests share one,
 which a fixture returns to "not stimulating" (integral and reference
-forgotten) before each of them, by letting its joint state go stale.
+forgotten) before each of them, by letting its joint state go stale (the
+garbage test takes two fresh ones besides).
 """
 from __future__ import annotations
 
@@ -46,7 +47,7 @@ MUSCLES = [m.name for m in PLANT.muscles]   # quadriceps (extensor), hamstrings 
 DEFAULTS = JointControllerParams()
 NS = f'/jc_{os.getpid()}'
 #: Controllers of the pool; each "fresh" one is used by one test only.
-POOL = ('js_first', 'target_only', 'sigint', 'sigterm', 'shared')
+POOL = ('js_first', 'target_only', 'sigint', 'sigterm', 'shared', 'garbage_b', 'garbage_c')
 #: Parameters of a pool controller beyond the knee plant file. The wind-up
 #: test's joint states come from the probe's timer, which runs only while the
 #: test process gets a CPU; a stall past the default feedback_timeout_s
@@ -55,7 +56,8 @@ POOL = ('js_first', 'target_only', 'sigint', 'sigterm', 'shared')
 #: [s] feedback_timeout_s of a test that feeds joint states from the probe's
 #: timer and is not about the timeout.
 FED_TIMEOUT_S = 30.0
-POOL_PARAMS = {'js_first': {'feedback_timeout_s': FED_TIMEOUT_S}}
+POOL_PARAMS = {name: {'feedback_timeout_s': FED_TIMEOUT_S}
+               for name in ('js_first', 'garbage_b', 'garbage_c')}
 
 #: [rad] an extended knee, inside the range, where the quadriceps must hold it.
 TARGET_RAD = 0.5
@@ -329,29 +331,41 @@ GARBAGE_ROUNDS = [
 ]
 
 
-def test_garbage_on_every_input_is_warned_about_and_the_last_good_inputs_kept(shared):
+def test_garbage_on_every_input_is_warned_about_and_the_last_good_inputs_kept(shared, fresh):
     """Joint held at the good target: the output is exactly the holding pulse
     widths throughout. After each garbage joint state the probe is silent for
     a few control periods, so a controller that took it would act on it; any
     accepted garbage target or angle would move the output, the reference or
-    the integral for good."""
-    c = shared
+    the integral for good.
+
+    The rounds go to three controllers in turn (the shared one and two fresh
+    ones): a controller warns once per THROTTLE_S per topic, so a round waits
+    only for its own controller's previous warning to be THROTTLE_S old."""
     # The joint states come from the probe's timer, which runs only while the
     # test process gets a CPU: a stall past the default 0.5 s rightly stopped
     # the stimulation in a loaded fresh-clone run. This test is about garbage,
-    # not the timeout (the stale tests have it; the fixture restores it).
-    results = c.probe.set_parameters(c.node, {'feedback_timeout_s': FED_TIMEOUT_S},
-                                     procs=c.procs)
+    # not the timeout (the stale tests have it; the fixture restores it; the
+    # fresh controllers start with it).
+    results = shared.probe.set_parameters(shared.node, {'feedback_timeout_s': FED_TIMEOUT_S},
+                                          procs=shared.procs)
     assert all(r.successful for r in results), results
+    ctrls = [shared, fresh('garbage_b'), fresh('garbage_c')]
     expected = expected_widths(TARGET_RAD, TARGET_RAD)
-    c.send_target(TARGET_RAD)
-    c.feed(TARGET_RAD)
-    first = c.wait_stimulating()
-    t0 = c.pw[MUSCLES[0]].times_s[first]
-    events = []   # [s after the first stimulation] what the probe did when
-    for target, state, quote in GARBAGE_ROUNDS:
+    first, t0, events, free_s = {}, {}, {}, {}
+    for c in ctrls:
+        c.send_target(TARGET_RAD)
+        c.feed(TARGET_RAD)
+    for c in ctrls:
+        first[c.node] = c.wait_stimulating()
+        t0[c.node] = c.pw[MUSCLES[0]].times_s[first[c.node]]
+        events[c.node] = []   # [s after its first stimulation] what the probe did when
+        free_s[c.node] = 0.0  # [s] time.monotonic() when its warnings are no longer throttled
+    for i, (target, state, quote) in enumerate(GARBAGE_ROUNDS):
+        c = ctrls[i % len(ctrls)]
+        c.probe.spin_until(lambda: time.monotonic() >= free_s[c.node],
+                           'the warning throttle period', procs=c.procs)
         log_from = len(c.proc.output())
-        events.append((time.monotonic() - t0, f'paused, garbage {quote!r}'))
+        events[c.node].append((time.monotonic() - t0[c.node], f'paused, garbage {quote!r}'))
         wanted = [f'ignoring {c.ns}/joint_states: ']
         c.paused = True
         c.joint_pub.publish(state)
@@ -364,24 +378,26 @@ def test_garbage_on_every_input_is_warned_about_and_the_last_good_inputs_kept(sh
             return all(w in new for w in wanted) and new
         new = c.probe.spin_until(warned, f'warnings {wanted}', procs=c.procs)
         warned_s = time.monotonic()
+        free_s[c.node] = warned_s + THROTTLE_S
         line = next(ln for ln in new.splitlines() if wanted[0] in ln)
         assert quote in line, line
-        events.append((warned_s - t0, 'warned'))
+        events[c.node].append((warned_s - t0[c.node], 'warned'))
         c.wait_periods(GARBAGE_TICKS)
         c.paused = False
-        events.append((time.monotonic() - t0, 'fed again'))
-        c.probe.spin_until(lambda: time.monotonic() >= warned_s + THROTTLE_S,
-                           'the warning throttle period', procs=c.procs)
-    c.wait_periods()
-    assert c.proc.returncode is None
-    for m, w in zip(MUSCLES, expected):
-        rec = c.pw[m]
-        off = [(f'{rec.times_s[i] - t0:.3f} s', rec.messages[i].data)
-               for i in range(first, len(rec.messages)) if rec.messages[i].data != w]
-        assert not off, (f'{m}: {len(off)} pulse width(s) other than {w!r} '
-                         f'(arrival, value): {off[:20]}; the probe: '
-                         f'{[(f"{t:.3f} s", e) for t, e in events]}; the node\'s log, its last '
-                         f'3000 characters:\n{c.proc.output()[-3000:]}')
+        events[c.node].append((time.monotonic() - t0[c.node], 'fed again'))
+    for c in ctrls:
+        c.wait_periods()
+        assert c.proc.returncode is None
+    for c in ctrls:
+        for m, w in zip(MUSCLES, expected):
+            rec = c.pw[m]
+            off = [(f'{rec.times_s[i] - t0[c.node]:.3f} s', rec.messages[i].data)
+                   for i in range(first[c.node], len(rec.messages))
+                   if rec.messages[i].data != w]
+            assert not off, (f'{c.node} {m}: {len(off)} pulse width(s) other than {w!r} '
+                             f'(arrival, value): {off[:20]}; the probe: '
+                             f'{[(f"{t:.3f} s", e) for t, e in events[c.node]]}; the node\'s '
+                             f'log, its last 3000 characters:\n{c.proc.output()[-3000:]}')
 
 
 # -- parameters -------------------------------------------------------------------
