@@ -35,12 +35,18 @@ WATCH_S = 0.5
 
 @pytest.fixture(scope='module')
 def shared(tmp_path_factory):
-    """The two simulators and a probe, for the whole module."""
+    """The two simulators and a probe, for the whole module; and, started first
+    so that they exit while these start, a simulator per bad start-up parameter
+    (``bad_startups``: override -> process, waited for by their test)."""
     tmp = tmp_path_factory.mktemp('sim')
     overrides = tmp / 'overrides.yaml'
     overrides.write_text(yaml.safe_dump({'/**': {'ros__parameters': {
         'rate_hz': SHARED_RATE_HZ, 'input_timeout_s': 0.0}}}))
     with ProcessGroup(tmp) as procs, Probe() as probe:
+        bad_startups = {override: procs.start(f'bad{i}', node_command(
+                            'simulator', params_files=[MUSCLE_YAML],
+                            extra_ros_args=['-p', override]))
+                        for i, override in enumerate(BAD_STARTUP)}
         sims = {ns: procs.start(ns, node_command('simulator', ns=f'/{ns}',
                                                  params_files=[MUSCLE_YAML, overrides]))
                 for ns in ('left', 'right')}
@@ -50,7 +56,8 @@ def shared(tmp_path_factory):
                 for ns in sims}
         for ns in sims:
             probe.wait_for_messages(recs[ns]['force'], procs=sims.values())
-        yield {'procs': list(sims.values()), 'sims': sims, 'probe': probe, 'recs': recs}
+        yield {'procs': list(sims.values()), 'sims': sims, 'probe': probe, 'recs': recs,
+               'bad_startups': bad_startups}
 
 
 @pytest.fixture
@@ -241,39 +248,43 @@ GOOD_INPUTS = {
 }
 
 
-def _rejection_line(sim, topic, value_text, log_start):
-    """Send a bad value on /left/topic until a warning names it; return that line.
+def _rejection_line(sim, topic, value_text, log_start, ns='left'):
+    """Send a bad value on /ns/topic until a warning names it; return that line.
 
     Warnings are throttled per topic (1 s): an earlier test may have used this
     second's, so the value is sent again until its own line appears.
     """
-    needle = f'ignoring /left/{topic} = {value_text}:'
-    pub = sim['probe'].publisher(f'/left/{topic}', Float64)
+    needle = f'ignoring /{ns}/{topic} = {value_text}:'
+    pub = sim['probe'].publisher(f'/{ns}/{topic}', Float64)
 
     def line():
-        found = [ln for ln in sim['sims']['left'].output()[log_start:].splitlines()
+        found = [ln for ln in sim['sims'][ns].output()[log_start:].splitlines()
                  if needle in ln]
         if not found:
             pub.publish(Float64(data=float(value_text)))
         return found[0] if found else None
 
     sim['probe'].spin_until(lambda: pub.get_subscription_count() > 0,
-                            f'a subscriber on /left/{topic}', procs=sim['procs'])
+                            f'a subscriber on /{ns}/{topic}', procs=sim['procs'])
     return sim['probe'].spin_until(line, f'the warning {needle!r}', procs=sim['procs'])
 
 
-@pytest.mark.parametrize('topic, value_text, reason', [
-    ('pulse_width', 'nan', '`/left/pulse_width` must be finite and non-negative, got nan'),
-    ('pulse_width', 'inf', '`/left/pulse_width` must be finite and non-negative, got inf'),
-    ('pulse_width', '-0.0001',
+# The three pulse widths go to the two simulators in turn: each warns once a
+# second per topic, so the second one need not wait for the first's second.
+@pytest.mark.parametrize('ns, topic, value_text, reason', [
+    ('left', 'pulse_width', 'nan', '`/left/pulse_width` must be finite and non-negative, got nan'),
+    ('right', 'pulse_width', 'inf',
+     '`/right/pulse_width` must be finite and non-negative, got inf'),
+    ('left', 'pulse_width', '-0.0001',
      '`/left/pulse_width` must be finite and non-negative, got -0.0001'),
-    ('recruitment', 'nan', '`/left/recruitment` must be in [0, 1], got nan'),
-    ('length_command', '-inf',
+    ('left', 'recruitment', 'nan', '`/left/recruitment` must be in [0, 1], got nan'),
+    ('left', 'length_command', '-inf',
      '`/left/length_command` must be finite and within ±1.0 m of rest, got -inf'),
 ])
-def test_bad_input_warning_names_the_full_topic_and_the_value(sim, topic, value_text, reason):
-    log_start = len(sim['sims']['left'].output())
-    line = _rejection_line(sim, topic, value_text, log_start)
+def test_bad_input_warning_names_the_full_topic_and_the_value(sim, ns, topic, value_text,
+                                                              reason):
+    log_start = len(sim['sims'][ns].output())
+    line = _rejection_line(sim, topic, value_text, log_start, ns)
     assert reason in line
     # A non-finite or negative width is not a unit mix-up.
     assert 'microseconds' not in line
@@ -337,19 +348,21 @@ def test_namespaced_simulators_do_not_cross_talk(sim):
     assert right.data_since(mark) and set(right.data_since(mark)) == {0.0}
 
 
-@pytest.mark.parametrize('override, needle', [
-    ('k_se_n_per_m:=-3.0', "parameter `k_se_n_per_m` must be positive and finite, got -3.0"),
-    ('l_opt_m:=0.001', 'l_rest_m = 0.125 / l_opt_m = 0.001'),
-    ("frame_id:=''", "parameter `frame_id` must be a non-empty frame name"),
-    ('f_iso_max_n:=true', '`f_iso_max_n`: got True (bool), expected a float'),
-    ('units:=triple', "`units` must be one of multi, single, got 'triple'"),
-])
-def test_bad_startup_parameter_exits_nonzero_naming_it(tmp_path, override, needle):
-    with ProcessGroup(tmp_path) as procs:
-        proc = procs.start('bad', node_command('simulator', params_files=[MUSCLE_YAML],
-                                               extra_ros_args=['-p', override]))
-        status = proc.wait()
-        log = proc.output()
+#: A bad start-up parameter and what the simulator's exit must say of it.
+BAD_STARTUP = {
+    'k_se_n_per_m:=-3.0': "parameter `k_se_n_per_m` must be positive and finite, got -3.0",
+    'l_opt_m:=0.001': 'l_rest_m = 0.125 / l_opt_m = 0.001',
+    "frame_id:=''": "parameter `frame_id` must be a non-empty frame name",
+    'f_iso_max_n:=true': '`f_iso_max_n`: got True (bool), expected a float',
+    'units:=triple': "`units` must be one of multi, single, got 'triple'",
+}
+
+
+@pytest.mark.parametrize('override, needle', list(BAD_STARTUP.items()))
+def test_bad_startup_parameter_exits_nonzero_naming_it(shared, override, needle):
+    proc = shared['bad_startups'][override]
+    status = proc.wait()
+    log = proc.output()
     assert status != 0
     assert needle in log
     assert 'Traceback' not in log
