@@ -1,6 +1,6 @@
 """The simulator's ``length_command_stamped``: dl_MT knots sent ahead, applied on time.
 
-Each test has its own namespace and simulator at 1 kHz, without /clock: the
+Every simulator runs at 1 kHz in a namespace of its own, without /clock: the
 outputs are stamped with the node clock at start-up plus simulated time, the
 clock the knots are stamped in, so a knot for step k is the stamp of a wrench
 plus k ms.
