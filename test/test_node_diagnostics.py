@@ -186,44 +186,6 @@ def done_with(*procs):
 # -- simulator -------------------------------------------------------------------
 
 
-#: NaN recruitment messages the quiet simulator is sent.
-N_BAD = 3
-
-
-@pytest.fixture(scope='module')
-def quiet_simulator(nodes):
-    """One simulator at :data:`QUIET_RATE_HZ` with the default report period:
-    its first OK status, with no input yet; then :data:`N_BAD` NaN recruitment
-    messages, and every status up to the one that counts them all.
-
-    :return: ``ns``, ``ok`` (status), ``statuses`` (all, in order)
-    """
-    probe, ns, sim = nodes['probe'], nodes['quiet']['ns'], nodes['quiet']['sim']
-    st = Statuses(probe, f'{ns}/simulator: muscle simulation')
-    ok = wait_status(probe, st, lambda s: s.level == OK, 'an OK status', [sim])
-    for _ in range(N_BAD):
-        probe.publish_when_matched(f'{ns}/recruitment', Float64(data=float('nan')),
-                                   procs=[sim])
-    key = f'bad_inputs[{ns}/recruitment]'
-    wait_status(probe, st, lambda s: values(s).get(key) == str(N_BAD),
-                f'{N_BAD} rejected', [sim])
-    done_with(sim)
-    return {'ns': ns, 'ok': ok, 'statuses': list(st.list)}
-
-
-def test_simulator_without_input_reports_ok_at_its_step_rate(quiet_simulator):
-    ns, status = quiet_simulator['ns'], quiet_simulator['ok']
-    v = values(status)
-    assert status.hardware_id == f'{ns}/simulator'
-    assert float(v['achieved_step_rate_hz']) == pytest.approx(QUIET_RATE_HZ,
-                                                              rel=RATE_TOLERANCE)
-    assert float(v['target_step_rate_hz']) == QUIET_RATE_HZ
-    assert v['stimulation_received'] == 'false' and v['stimulation_age_s'] == ''
-    assert v['watchdog_tripped'] == 'false' and v['recruitment'] == '0'
-    assert v['catch_up_steps_last_period'] == '0' and v['bad_inputs_total'] == '0'
-    assert 'no pulse_width or recruitment received yet' in status.message
-
-
 def test_simulator_watchdog_trip_is_a_warning(nodes):
     probe, ns, sim = nodes['probe'], nodes['watchdog']['ns'], nodes['watchdog']['sim']
     st = Statuses(probe, f'{ns}/simulator: muscle simulation')
@@ -236,16 +198,6 @@ def test_simulator_watchdog_trip_is_a_warning(nodes):
     v = values(status)
     assert v['stimulation_received'] == 'true' and v['recruitment'] == '0'
     assert float(v['stimulation_age_s']) > 0.2
-
-
-def test_simulator_counts_rejected_input_per_topic_and_warns_in_that_period(quiet_simulator):
-    statuses = quiet_simulator['statuses']
-    per_period = [int(values(s)['bad_inputs_last_period']) for s in statuses]
-    assert sum(per_period) == N_BAD
-    for status, n in zip(statuses, per_period):
-        if n:
-            assert RANK[status.level] >= RANK[WARN], status
-            assert f'{n} input message(s) rejected' in status.message
 
 
 # -- recorders of a best-effort force (early: their four nodes then stop) -----------
@@ -475,6 +427,58 @@ def test_player_reports_waiting_then_progress_then_done(nodes):
     assert playing.level == OK and 0.0 <= t_s < duration_s
     assert float(v['progress']) == pytest.approx(t_s / duration_s, abs=1e-5)
     assert done.level == OK and values(done)['progress'] == '1'
+
+
+# -- the quiet simulator (late: its first periods, while every node starts,
+# catch up late ticks, and its OK report is the first without) ---------------
+
+
+#: NaN recruitment messages the quiet simulator is sent.
+N_BAD = 3
+
+
+@pytest.fixture(scope='module')
+def quiet_simulator(nodes):
+    """One simulator at :data:`QUIET_RATE_HZ` with the default report period:
+    its first OK status, with no input yet; then :data:`N_BAD` NaN recruitment
+    messages, and every status up to the one that counts them all.
+
+    :return: ``ns``, ``ok`` (status), ``statuses`` (all, in order)
+    """
+    probe, ns, sim = nodes['probe'], nodes['quiet']['ns'], nodes['quiet']['sim']
+    st = Statuses(probe, f'{ns}/simulator: muscle simulation')
+    ok = wait_status(probe, st, lambda s: s.level == OK, 'an OK status', [sim])
+    for _ in range(N_BAD):
+        probe.publish_when_matched(f'{ns}/recruitment', Float64(data=float('nan')),
+                                   procs=[sim])
+    key = f'bad_inputs[{ns}/recruitment]'
+    wait_status(probe, st, lambda s: values(s).get(key) == str(N_BAD),
+                f'{N_BAD} rejected', [sim])
+    done_with(sim)
+    return {'ns': ns, 'ok': ok, 'statuses': list(st.list)}
+
+
+def test_simulator_without_input_reports_ok_at_its_step_rate(quiet_simulator):
+    ns, status = quiet_simulator['ns'], quiet_simulator['ok']
+    v = values(status)
+    assert status.hardware_id == f'{ns}/simulator'
+    assert float(v['achieved_step_rate_hz']) == pytest.approx(QUIET_RATE_HZ,
+                                                              rel=RATE_TOLERANCE)
+    assert float(v['target_step_rate_hz']) == QUIET_RATE_HZ
+    assert v['stimulation_received'] == 'false' and v['stimulation_age_s'] == ''
+    assert v['watchdog_tripped'] == 'false' and v['recruitment'] == '0'
+    assert v['catch_up_steps_last_period'] == '0' and v['bad_inputs_total'] == '0'
+    assert 'no pulse_width or recruitment received yet' in status.message
+
+
+def test_simulator_counts_rejected_input_per_topic_and_warns_in_that_period(quiet_simulator):
+    statuses = quiet_simulator['statuses']
+    per_period = [int(values(s)['bad_inputs_last_period']) for s in statuses]
+    assert sum(per_period) == N_BAD
+    for status, n in zip(statuses, per_period):
+        if n:
+            assert RANK[status.level] >= RANK[WARN], status
+            assert f'{n} input message(s) rejected' in status.message
 
 
 # -- the period ---------------------------------------------------------------------
