@@ -103,25 +103,57 @@ def test_bad_protocol_file_exits_with_validator_message(exiting_players):
     assert 'Traceback' not in player.output()
 
 
-@pytest.mark.parametrize('output, pw_max_s, scale', [
-    ('recruitment', 0.0005, 1.0),
-    ('pulse_width', 0.001, 0.001),   # R * pw_max_s, with the player's own pw_max_s
-])
-def test_player_replays_protocol_then_sends_zero(tmp_path, output, pw_max_s, scale):
-    path = _protocol_file(tmp_path, SHORT)
+#: The replay test's cases: output -> (pw_max_s, scale).
+REPLAYS = {
+    'recruitment': (0.0005, 1.0),
+    'pulse_width': (0.001, 0.001),   # R * pw_max_s, with the player's own pw_max_s
+}
+
+
+@pytest.fixture(scope='module')
+def short_replays(tmp_path_factory):
+    """The SHORT protocol played to its end by a player per :data:`REPLAYS`
+    case and by one with ``lookahead_s`` (:func:`_lookahead_run`), all at once,
+    each in a namespace of its own: name -> its player and recordings."""
+    tmp = tmp_path_factory.mktemp('short_replays')
+    path = _protocol_file(tmp, SHORT)
     protocol = Protocol.from_yaml(path)
-    ns = f'/replay_{output}'
-    with ProcessGroup(tmp_path) as procs, Probe() as probe:
-        stim = probe.record(f'{ns}/{output}', Float64)
-        length = probe.record(f'{ns}/length_command', Float64)
-        player = procs.start('player', node_command('protocol_player', ns=ns, params={
-            'protocol': str(path), 'output': output, 'rate_hz': 100.0, 'pw_max_s': pw_max_s}))
-        probe.spin_until(lambda: player.returncode is not None, 'the player to exit')
-        # Its exit says nothing of what the probe has taken yet: wait for the
-        # final zero and the protocol's last length.
+    runs = {}
+    with ProcessGroup(tmp) as procs, Probe('short_replays_probe') as probe:
+        for output, (pw_max_s, _) in REPLAYS.items():
+            ns = f'/replay_{output}'
+            run = runs[output] = {'stim': probe.record(f'{ns}/{output}', Float64),
+                                  'length': probe.record(f'{ns}/length_command', Float64)}
+            run['player'] = procs.start(f'player_{output}', node_command(
+                'protocol_player', ns=ns, params={
+                    'protocol': str(path), 'output': output, 'rate_hz': 100.0,
+                    'pw_max_s': pw_max_s}))
+        runs['lookahead'] = _lookahead_run(procs, probe, path)
+        players = [run['player'] for run in runs.values()]
+        probe.spin_until(lambda: all(p.returncode is not None for p in players),
+                         'the players to exit')
+        # Their exits say nothing of what the probe has taken yet: wait for the
+        # final zero and the protocol's last length, and the lookahead's knot
+        # at the protocol's end.
         final_length_m = protocol.dl_mt(protocol.duration_s)
-        probe.spin_until(lambda: _ends_with(stim, 0.0) and _ends_with(length, final_length_m),
-                         'the final zero stimulation and the final length')
+        for output in REPLAYS:
+            stim, length = runs[output]['stim'], runs[output]['length']
+            probe.spin_until(lambda: _ends_with(stim, 0.0) and _ends_with(length, final_length_m),
+                             'the final zero stimulation and the final length')
+        knots = runs['lookahead']['knots']
+        probe.spin_until(lambda: len(knots.messages) > 1 and (
+            _stamp_ns(knots.messages[-1].header.stamp)
+            - _stamp_ns(knots.messages[0].header.stamp)) / 1e9 >= protocol.duration_s - 1e-9,
+            "the knot at the protocol's end")
+    return runs
+
+
+@pytest.mark.parametrize('output', list(REPLAYS))
+def test_player_replays_protocol_then_sends_zero(short_replays, output):
+    pw_max_s, scale = REPLAYS[output]
+    protocol = Protocol.from_mapping(SHORT)
+    run = short_replays[output]
+    stim, length, player = run['stim'], run['length'], run['player']
     assert player.returncode == 0, player.describe()
     values = np.array([m.data for m in stim.messages])
     # The rest state first, then the protocol from its time 0.
@@ -374,24 +406,23 @@ def _stamp_ns(stamp):
     return stamp.sec * 1_000_000_000 + stamp.nanosec
 
 
-def test_player_with_lookahead_sends_the_protocol_length_ahead_as_stamped_knots(tmp_path):
-    path = _protocol_file(tmp_path, SHORT)
-    protocol = Protocol.from_yaml(path)
+def _lookahead_run(procs, probe, path):
+    """A player of ``path`` with ``lookahead_s``, started, its outputs recorded
+    (played with the replays: :func:`short_replays`)."""
     ns = '/lookahead'
-    with ProcessGroup(tmp_path) as procs, Probe() as probe:
-        knots = probe.record(f'{ns}/length_command_stamped', PointStamped, qos=DEEP_QOS)
-        stim = probe.record(f'{ns}/recruitment', Float64, qos=DEEP_QOS)
-        plain = probe.record(f'{ns}/length_command', Float64)
-        player = procs.start('player', node_command('protocol_player', ns=ns, params={
-            'protocol': str(path), 'output': 'recruitment', 'rate_hz': PLAYER_RATE_HZ,
-            'lookahead_s': LOOKAHEAD_S}))
-        probe.spin_until(lambda: player.returncode is not None, 'the player to exit')
-        # Its exit says nothing of what the probe has taken yet: wait for the
-        # knot at the protocol's end.
-        probe.spin_until(lambda: len(knots.messages) > 1 and (
-            _stamp_ns(knots.messages[-1].header.stamp)
-            - _stamp_ns(knots.messages[0].header.stamp)) / 1e9 >= protocol.duration_s - 1e-9,
-            "the knot at the protocol's end")
+    run = {'knots': probe.record(f'{ns}/length_command_stamped', PointStamped, qos=DEEP_QOS),
+           'stim': probe.record(f'{ns}/recruitment', Float64, qos=DEEP_QOS),
+           'plain': probe.record(f'{ns}/length_command', Float64)}
+    run['player'] = procs.start('player_lookahead', node_command('protocol_player', ns=ns, params={
+        'protocol': str(path), 'output': 'recruitment', 'rate_hz': PLAYER_RATE_HZ,
+        'lookahead_s': LOOKAHEAD_S}))
+    return run
+
+
+def test_player_with_lookahead_sends_the_protocol_length_ahead_as_stamped_knots(short_replays):
+    protocol = Protocol.from_mapping(SHORT)
+    run = short_replays['lookahead']
+    knots, stim, plain, player = run['knots'], run['stim'], run['plain'], run['player']
     assert player.returncode == 0, player.describe()
     assert not plain.messages
     stamps = np.array([_stamp_ns(m.header.stamp) for m in knots.messages])
