@@ -201,3 +201,17 @@ def test_every_node_console_script_ends_its_process_through_exit_process():
         entry = ep.load()
         assert ep.attr == 'process_main', name
         assert entry.__doc__ == f'Console script: {ep.module}.main(), then exit_process.', name
+
+
+def test_the_plant_of_a_limb_node_leaves_out_the_diagnostics_period_and_the_nodes_own():
+    # One params file may set every node's diagnostics period; a limb node or a
+    # joint controller must not read it as a key of its plant.
+    from rclpy.parameter import Parameter
+
+    from hill_muscle_ros.nodes._diagnostics import DIAGNOSTICS_PERIOD_PARAMETER
+    from hill_muscle_ros.nodes._overrides import LIMB_NODE_PARAMETERS, plant_values
+
+    overrides = {name: Parameter(name, value=value) for name, value in (
+        (DIAGNOSTICS_PERIOD_PARAMETER, 0.25), ('rate_hz', 500.0),
+        ('joint.name', 'knee'), ('qos_overrides./joint_states.publisher.depth', 5))}
+    assert plant_values(overrides, LIMB_NODE_PARAMETERS) == {'joint.name': 'knee'}

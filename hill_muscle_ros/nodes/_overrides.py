@@ -51,8 +51,9 @@ def plant_values(overrides: dict[str, Parameter], own: tuple[str, ...] = ()
     """The plant's entries among a node's parameter overrides, by dotted name.
 
     The node's own parameters (``own``), the other nodes' of the package (one
-    ``/**`` section may configure them all) and QoS overrides are left out;
-    everything else belongs to the plant, which rejects what it does not know.
+    ``/**`` section may configure them all), the diagnostics period every node
+    declares and QoS overrides are left out; everything else belongs to the
+    plant, which rejects what it does not know.
 
     :param overrides: the node's overrides by name (:func:`parameter_overrides`)
     :param own: the node's own parameter names
@@ -61,6 +62,7 @@ def plant_values(overrides: dict[str, Parameter], own: tuple[str, ...] = ()
     values = {}
     for name, param in overrides.items():
         if (name in own or name in OTHER_NODE_PARAMETERS
+                or name == DIAGNOSTICS_PERIOD_PARAMETER
                 or name.startswith(QOS_OVERRIDES_PREFIX)):
             continue
         value = param.value
