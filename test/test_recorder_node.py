@@ -253,28 +253,22 @@ def test_channels_carry_the_publishers_qos(full_run):
 
 @pytest.fixture(scope='module')
 def stopped_runs(tmp_path_factory):
-    """Four recorders of one numbered publisher (it starts once all four
+    """Three recorders of one numbered publisher (it starts once all three
     have subscribed): SIGINT and SIGTERM to two of them once 1500 messages
-    were published, SIGKILL to the third once 3000 were; the fourth
-    (``write_error``) may write files of :data:`FILE_SIZE_LIMIT` at most,
-    a full disk after about two chunks, and stops on its own.
+    were published, SIGKILL to the third once 3000 were.
 
-    :return: ``ns``; per signal name (and ``write_error``) a dict of ``bag``,
-        ``status``, ``log`` and, for SIGINT and SIGTERM, ``sent_before_signal``
+    :return: ``ns``; per signal name a dict of ``bag``, ``status``, ``log``
+        and, for SIGINT and SIGTERM, ``sent_before_signal``
     """
     tmp = tmp_path_factory.mktemp('stopped_runs')
     ns = f'/rec{os.getpid()}_stopped'
     sigs = (signal.SIGINT, signal.SIGTERM, signal.SIGKILL)
-    runs = {name: {'bag': tmp / f'{name}_bag'} for name in
-            (*(sig.name for sig in sigs), 'write_error')}
+    runs = {sig.name: {'bag': tmp / f'{sig.name}_bag'} for sig in sigs}
     with ProcessGroup(tmp) as procs:
-        recs = {name: procs.start(name, recorder_cmd(run['bag'], ns),
-                                  preexec_fn=_limit_file_size if name == 'write_error' else None)
+        recs = {name: procs.start(name, recorder_cmd(run['bag'], ns))
                 for name, run in runs.items()}
         pub = procs.start('publisher', publisher_cmd(60_000, ns, subscribers=len(recs)))
-        # The write_error recorder stops on its own, maybe before this.
-        wait_for_output(procs, pub, 'published 1500', timeout_s=60,
-                        watch=[recs[sig.name] for sig in sigs])
+        wait_for_output(procs, pub, 'published 1500', timeout_s=60, watch=recs.values())
         sent_before_signal = published_count(pub)
         for sig in (signal.SIGINT, signal.SIGTERM):
             recs[sig.name].popen.send_signal(sig)
@@ -285,7 +279,6 @@ def stopped_runs(tmp_path_factory):
                         watch=[recs['SIGKILL']])
         recs['SIGKILL'].popen.send_signal(signal.SIGKILL)
         runs['SIGKILL']['status'] = recs['SIGKILL'].wait()
-        runs['write_error']['status'] = recs['write_error'].wait(timeout_s=120)
         for name, rec in recs.items():
             runs[name]['log'] = rec.output()
     return {'ns': ns, **runs}
@@ -347,9 +340,13 @@ def _limit_file_size():
     resource.setrlimit(resource.RLIMIT_FSIZE, (FILE_SIZE_LIMIT, FILE_SIZE_LIMIT))
 
 
-def test_write_error_mid_run_stops_cleanly_keeping_what_was_written(stopped_runs):
-    ns, run = stopped_runs['ns'], stopped_runs['write_error']
-    bag, status, output = run['bag'], run['status'], run['log']
+def test_write_error_mid_run_stops_cleanly_keeping_what_was_written(tmp_path, ns):
+    bag = tmp_path / 'bag'
+    with ProcessGroup(tmp_path) as procs:
+        rec = procs.start('recorder', recorder_cmd(bag, ns), preexec_fn=_limit_file_size)
+        procs.start('publisher', publisher_cmd(60_000, ns))
+        status = rec.wait(timeout_s=120)
+    output = (tmp_path / 'recorder.log').read_text()
     assert status != 0, output
     assert 'stopping' in output and 'Traceback' not in output
     data = read_bag(bag)
