@@ -32,8 +32,8 @@ TOPICS = ('pulse_width', 'length_command', 'force', 'ce_length', 'wrench')
 NS_PER_MS = 1_000_000
 
 #: Publishes message k (k = 0, 1, ...) on every topic at RATE_HZ: Float64 data = k,
-#: WrenchStamped force.x = k stamped k ms. Starts once every topic has as many
-#: subscribers as argv[4] says (default 1), prints progress, and stays alive after the last message; on
+#: WrenchStamped force.x = k stamped k ms. Starts once every topic has a
+#: subscriber, prints progress, and stays alive after the last message; on
 #: SIGINT it leaves the graph (a recorder then need not wait for more from it).
 PUBLISHER = r'''
 import sys, time
@@ -42,14 +42,13 @@ from rclpy.node import Node
 from std_msgs.msg import Float64
 from geometry_msgs.msg import WrenchStamped
 rate, n, topics = float(sys.argv[1]), int(sys.argv[2]), sys.argv[3].split(',')
-subscribers = int(sys.argv[4]) if len(sys.argv) > 4 else 1
 rclpy.init()
 node = Node('numbered_publisher')
 # A deep history lets reliable delivery recover the first messages when the
 # recorder's reader matches this writer a little after the writer matched it.
 pubs = [(t, node.create_publisher(WrenchStamped if t.endswith('wrench') else Float64, t, 1000))
         for t in topics]
-while any(p.get_subscription_count() < subscribers for _, p in pubs):
+while any(p.get_subscription_count() == 0 for _, p in pubs):
     time.sleep(0.01)
 print('matched', flush=True)
 t0 = time.monotonic()
@@ -92,10 +91,9 @@ def ns():
     return f'/rec{os.getpid()}_{next(_namespaces)}'
 
 
-def publisher_cmd(n: int, ns: str, topics=TOPICS, subscribers: int = 1):
+def publisher_cmd(n: int, ns: str, topics=TOPICS):
     names = [t if t.startswith('/') else f'{ns}/{t}' for t in topics]
-    return [sys.executable, '-c', PUBLISHER, str(RATE_HZ), str(n), ','.join(names),
-            str(subscribers)]
+    return [sys.executable, '-c', PUBLISHER, str(RATE_HZ), str(n), ','.join(names)]
 
 
 def wait_for_output(procs, proc, text, timeout_s=DEFAULT_TIMEOUT_S, watch=()):
@@ -251,44 +249,16 @@ def test_channels_carry_the_publishers_qos(full_run):
         assert qos and all(q['reliability'] == 'reliable' for q in qos), topic
 
 
-@pytest.fixture(scope='module')
-def stopped_runs(tmp_path_factory):
-    """Three recorders of one numbered publisher (it starts once all three
-    have subscribed): SIGINT and SIGTERM to two of them once 1500 messages
-    were published, SIGKILL to the third once 3000 were.
-
-    :return: ``ns``; per signal name a dict of ``bag``, ``status``, ``log``
-        and, for SIGINT and SIGTERM, ``sent_before_signal``
-    """
-    tmp = tmp_path_factory.mktemp('stopped_runs')
-    ns = f'/rec{os.getpid()}_stopped'
-    sigs = (signal.SIGINT, signal.SIGTERM, signal.SIGKILL)
-    runs = {sig.name: {'bag': tmp / f'{sig.name}_bag'} for sig in sigs}
-    with ProcessGroup(tmp) as procs:
-        recs = {name: procs.start(name, recorder_cmd(run['bag'], ns))
-                for name, run in runs.items()}
-        pub = procs.start('publisher', publisher_cmd(60_000, ns, subscribers=len(recs)))
-        wait_for_output(procs, pub, 'published 1500', timeout_s=60, watch=recs.values())
-        sent_before_signal = published_count(pub)
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            recs[sig.name].popen.send_signal(sig)
-            runs[sig.name]['sent_before_signal'] = sent_before_signal
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            runs[sig.name]['status'] = recs[sig.name].wait()
-        wait_for_output(procs, pub, 'published 3000', timeout_s=60,
-                        watch=[recs['SIGKILL']])
-        recs['SIGKILL'].popen.send_signal(signal.SIGKILL)
-        runs['SIGKILL']['status'] = recs['SIGKILL'].wait()
-        for name, rec in recs.items():
-            runs[name]['log'] = rec.output()
-    return {'ns': ns, **runs}
-
-
 @pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM], ids=['SIGINT', 'SIGTERM'])
-def test_stop_signal_mid_run_leaves_a_complete_bag_without_holes(stopped_runs, sig):
-    ns, run = stopped_runs['ns'], stopped_runs[sig.name]
-    bag, sent_before_signal = run['bag'], run['sent_before_signal']
-    assert run['status'] == 0, run['log']
+def test_stop_signal_mid_run_leaves_a_complete_bag_without_holes(tmp_path, sig, ns):
+    bag = tmp_path / 'bag'
+    with ProcessGroup(tmp_path) as procs:
+        rec = procs.start('recorder', recorder_cmd(bag, ns))
+        pub = procs.start('publisher', publisher_cmd(60_000, ns))
+        wait_for_output(procs, pub, 'published 1500', timeout_s=60, watch=[rec])
+        sent_before_signal = published_count(pub)
+        status = stop(rec, sig)
+    assert status == 0, rec.output()
     data = read_bag(bag)
     assert data.complete
     info = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
@@ -301,8 +271,14 @@ def test_stop_signal_mid_run_leaves_a_complete_bag_without_holes(stopped_runs, s
         assert list(values) == [float(k) for k in range(len(values))]
 
 
-def test_sigkill_leaves_the_closed_chunks_readable(stopped_runs):
-    ns, bag = stopped_runs['ns'], stopped_runs['SIGKILL']['bag']
+def test_sigkill_leaves_the_closed_chunks_readable(tmp_path, ns):
+    bag = tmp_path / 'bag'
+    with ProcessGroup(tmp_path) as procs:
+        rec = procs.start('recorder', recorder_cmd(bag, ns))
+        pub = procs.start('publisher', publisher_cmd(60_000, ns))
+        wait_for_output(procs, pub, 'published 3000', timeout_s=60, watch=[rec])
+        rec.popen.send_signal(signal.SIGKILL)
+        rec.wait()
     assert not (bag / 'metadata.yaml').exists()
     data = read_bag(bag)
     assert not data.complete
