@@ -45,10 +45,10 @@ What DDS timing does to the fit's inputs, and so its tolerances:
   that to deliver it, and the fit sees the length the simulator ran. The
   simulator's exit line (late knots, longest tick gap) is quoted on failure.
 """
-import contextlib
-import io
 import os
 import signal
+import subprocess
+import sys
 import time
 
 import numpy as np
@@ -66,7 +66,6 @@ from hill_muscle_ros.recording.analysis import (SIMULATOR_LAG_LIMIT_S, live_forc
                                                 summary_times)
 from hill_muscle_ros.recording.reader import read_bag
 from hill_muscle_ros.timebase import NS_PER_S
-from hill_muscle_ros.tools import cli
 from live_run import record_live_run, wait_until_recording
 from ros_helpers import ProcessGroup, Probe, node_command
 from stall_watch import repeat_only_on_external_stall
@@ -112,6 +111,9 @@ MAX_ATTEMPTS = 3
 STALL_LIMIT_S = 0.03
 #: [s] the force at a sample time depends on the inputs of this long before it.
 SAMPLE_WINDOW_S = 0.2
+#: Forces (1 kHz) the probe receives after the recorder subscribed, before the
+#: sim-time recorder stops: several times the 100 of /clock and force the bag must hold.
+SIM_TIME_RECORDED_MSGS = 500
 #: [s] Protocol II lasts 6 s.
 PROTOCOL_DURATION_S = 6.0
 
@@ -168,16 +170,29 @@ def offline_force_misses(run, protocol_file) -> list[tuple[float, float, float]]
             if not abs(f - e) < FORCE_TOLERANCE_N]
 
 
+def start_fit(run) -> None:
+    """Start ``hill-muscle fit --edge-search`` of the run's bag in a process of its
+    own, once per run; :func:`fit_of` collects it. The fixture starts it as soon
+    as the run is judged, so that it computes while the next tests wait on DDS."""
+    if 'fit' not in run:
+        out_file = run['bag'].parent / 'fitted.yaml'
+        proc = subprocess.Popen(
+            [sys.executable, '-m', 'hill_muscle_ros.tools.cli', 'fit', '--bag', str(run['bag']),
+             '--fit', ','.join(TRUTH), '--edge-search', str(EDGE_SEARCH_S),
+             '--out', str(out_file)],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        run['fit'] = (proc, out_file)
+
+
 def fit_of(run) -> dict:
     """``hill-muscle fit --edge-search`` of the run's bag, once per run: ``status``,
     ``out``, ``err`` and ``fitted`` (the parameters, or None)."""
-    if 'fit' not in run:
-        out_file = run['bag'].parent / 'fitted.yaml'
-        out, err = io.StringIO(), io.StringIO()
-        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-            status = cli.main(['fit', '--bag', str(run['bag']), '--fit', ','.join(TRUTH),
-                               '--edge-search', str(EDGE_SEARCH_S), '--out', str(out_file)])
-        run['fit'] = {'status': status, 'out': out.getvalue(), 'err': err.getvalue(),
+    start_fit(run)
+    if isinstance(run['fit'], tuple):
+        proc, out_file = run['fit']
+        out, err = proc.communicate()
+        status = proc.returncode
+        run['fit'] = {'status': status, 'out': out, 'err': err,
                       'fitted': load_muscle_params(out_file)[0] if status == 0 else None}
     return run['fit']
 
@@ -223,12 +238,46 @@ def live_run(tmp_path_factory, protocol_paths, stall_watcher):
             return None
         return disturbance or None
 
-    return repeat_only_on_external_stall(one_run, judge, stall_watcher, MAX_ATTEMPTS)
+    run = repeat_only_on_external_stall(one_run, judge, stall_watcher, MAX_ATTEMPTS)
+    start_fit(run)
+    yield run
+    if isinstance(run['fit'], tuple):  # the fit test did not run
+        run['fit'][0].kill()
+        run['fit'][0].communicate()
 
 
 def test_recorder_stops_cleanly_after_a_live_run(live_run):
     assert live_run['status'] == 0, live_run['log']
     assert read_bag(live_run['bag']).complete
+
+
+def test_sim_time_run_logs_in_sim_time(tmp_path):
+    """With the simulator as the clock, the recorder's log_time is sim time too.
+
+    It runs right after the live run, beside that run's fit (a process of its
+    own, started by the fixture), which it does not use."""
+    ns = f'/simtime{os.getpid()}'
+    bag = tmp_path / 'bag'
+    with ProcessGroup(tmp_path) as procs, Probe('simtime_probe') as probe:
+        seen = probe.record(f'{ns}/force', Float64)
+        sim = procs.start('simulator', node_command('simulator', ns=ns,
+                                                    params={'publish_clock': True}))
+        rec = procs.start('recorder', node_command(
+            'recorder', ns=ns, params={'output': str(bag), 'use_sim_time': True}))
+        wait_until_recording(probe, ns, [sim, rec])
+        probe.wait_for_messages(seen, SIM_TIME_RECORDED_MSGS, mark=seen.mark(),
+                                procs=[sim, rec], timeout_s=60)
+        rec.popen.send_signal(signal.SIGINT)
+        assert rec.wait() == 0, rec.output()
+    data = read_bag(bag)
+    clock = data.topic('/clock').values()
+    force = data.topic(f'{ns}/force')
+    assert len(clock) > 100 and force.count > 100
+    # Sim time starts at 0 with the simulator; the wall clock is ~1.7e9 s.
+    log_s = force.log_time_ns / NS_PER_S
+    assert 0.0 <= log_s.min() and log_s.max() <= clock.max() + 1.0
+    wrench = data.topic(f'{ns}/wrench')
+    assert wrench.stamps_ns().max() / NS_PER_S <= clock.max() + 1e-9
 
 
 def test_live_bag_has_every_topic_of_both_nodes(live_run):
@@ -319,28 +368,3 @@ def test_fit_recovers_the_simulator_parameters_from_a_live_bag(live_run):
     for name, truth in TRUTH.items():
         assert getattr(fit['fitted'], name) == pytest.approx(truth, rel=FIT_TOLERANCE[name]), (
             name, moves, statistics, fit['out'])
-
-
-def test_sim_time_run_logs_in_sim_time(tmp_path):
-    """With the simulator as the clock, the recorder's log_time is sim time too."""
-    ns = f'/simtime{os.getpid()}'
-    bag = tmp_path / 'bag'
-    with ProcessGroup(tmp_path) as procs, Probe('simtime_probe') as probe:
-        seen = probe.record(f'{ns}/force', Float64)
-        sim = procs.start('simulator', node_command('simulator', ns=ns,
-                                                    params={'publish_clock': True}))
-        rec = procs.start('recorder', node_command(
-            'recorder', ns=ns, params={'output': str(bag), 'use_sim_time': True}))
-        wait_until_recording(probe, ns, [sim, rec])
-        probe.wait_for_messages(seen, 2000, procs=[sim, rec], timeout_s=60)
-        rec.popen.send_signal(signal.SIGINT)
-        assert rec.wait() == 0, rec.output()
-    data = read_bag(bag)
-    clock = data.topic('/clock').values()
-    force = data.topic(f'{ns}/force')
-    assert len(clock) > 100 and force.count > 100
-    # Sim time starts at 0 with the simulator; the wall clock is ~1.7e9 s.
-    log_s = force.log_time_ns / NS_PER_S
-    assert 0.0 <= log_s.min() and log_s.max() <= clock.max() + 1.0
-    wrench = data.topic(f'{ns}/wrench')
-    assert wrench.stamps_ns().max() / NS_PER_S <= clock.max() + 1e-9
