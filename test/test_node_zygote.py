@@ -19,20 +19,22 @@ from ros_helpers import Probe, ProcessGroup, node_command
 
 pytestmark = pytest.mark.ros
 
+@pytest.fixture(autouse=True)
+def _forking_on(monkeypatch):
+    """These tests are about forked nodes, even in a run that switched forking off."""
+    monkeypatch.setenv('HILL_MUSCLE_TEST_FORK', '1')
+
+
 #: A start-up parameter the simulator refuses, and the words its refusal must name.
 BAD_RATE = ('-p', 'rate_hz:=-5.0')
 NEEDLE = 'rate_hz'
 
 
 def _bad_start(tmp_path: Path, fork: str) -> tuple[int, str, object]:
-    os.environ['HILL_MUSCLE_TEST_FORK'] = fork
-    try:
-        with ProcessGroup(tmp_path) as procs:
-            proc = procs.start(f'bad_{fork}', node_command('simulator',
-                                                           extra_ros_args=BAD_RATE))
-            status = proc.wait()
-    finally:
-        del os.environ['HILL_MUSCLE_TEST_FORK']
+    os.environ['HILL_MUSCLE_TEST_FORK'] = fork   # _forking_on puts it back
+    with ProcessGroup(tmp_path) as procs:
+        proc = procs.start(f'bad_{fork}', node_command('simulator', extra_ros_args=BAD_RATE))
+        status = proc.wait()
     return status, proc.output(), proc.popen
 
 
