@@ -95,8 +95,12 @@ def test_simulator_restart_is_survived_and_both_lives_are_recorded(tmp_path):
         t_kill = stamp_s(wrench.messages[-1])
         sim.popen.send_signal(signal.SIGKILL)
         sim.popen.wait()
-        probe.spin_until(lambda: 'no force feedback' in ctrl.output(),
-                         'the controller to notice', procs=[ctrl, rec, player])
+        # Its warning that the feedback stopped (feedback_timeout_s after the
+        # kill), not its start-up line "no force feedback received yet": the
+        # second life must begin after the loop was broken, or the controller
+        # never loses the feedback and never says it is back.
+        probe.spin_until(lambda: f'no force feedback on {ns}/force for more than'
+                         in ctrl.output(), 'the controller to notice', procs=[ctrl, rec, player])
         # Second life.
         mark = wrench.mark()
         length_mark = length.mark()
