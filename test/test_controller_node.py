@@ -271,7 +271,10 @@ def test_stale_force_feedback_stops_stimulation_with_a_warning(ctrl):
     # No more force messages: after feedback_timeout_s the output must be 0.
     probe.wait_for_value(pw, lambda v: v == 0.0, 'zero after feedback stops',
                          mark=pw.mark(), procs=[proc])
-    probe.spin_until(lambda: 'no force feedback' in proc.output(), 'the warning', procs=[proc])
+    # The stale-feedback warning, not the start-up line "no force feedback received yet".
+    probe.spin_until(lambda: 'for more than' in proc.output()
+                     and '(feedback_timeout_s): stimulation stopped' in proc.output(),
+                     'the warning', procs=[proc])
 
 
 def test_stimulation_resumes_when_feedback_returns(ctrl):
