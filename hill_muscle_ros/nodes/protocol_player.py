@@ -7,8 +7,8 @@ against its own clock, which follows ``/clock`` when ``use_sim_time`` is set.
 Time 0 of the protocol is when its first sample acts: the player first sends
 the rest state (zero stimulation at the protocol's starting length), waits
 until every subscriber has acknowledged it, and then starts the protocol's
-clock with its first sample (:mod:`hill_muscle_ros.playback`, the timeline
-without ROS). At the end it publishes zero stimulation and exits with status 0.
+clock with its first sample at its next tick, on a clock read after the wait
+(:mod:`hill_muscle_ros.playback`, the timeline without ROS). At the end it publishes zero stimulation and exits with status 0.
 
 A protocol with ``channels`` (pulse trains) goes on ``stimulation``
 (``hill_muscle_interfaces/msg/Stimulation``) instead, on the same clock and
@@ -24,8 +24,8 @@ refused, the message naming the field, the channel, the value and the time.
 With ``lookahead_s`` > 0 the length goes ahead of time instead: the player
 publishes ``length_command_stamped`` (geometry_msgs/PointStamped, dl_MT [m]
 in ``point.x``, ``header.stamp`` = when it is to be reached, on the player's
-clock). The protocol starts ``lookahead_s`` after the rest state is
-acknowledged (time 0 is the stamp of the first knot; that topic carries no
+clock). The protocol starts ``lookahead_s`` after the first tick once the
+rest state is acknowledged (time 0 is the stamp of the first knot; that topic carries no
 rest state, as a knot acts at its stamp); before that it sends the knots covering the
 first ``lookahead_s`` of the protocol, and at each tick at protocol time t the
 knot for t + ``lookahead_s``, plus every corner of the protocol's dl_MT in
@@ -300,8 +300,11 @@ class ProtocolPlayer(Node):
         acked_ms = (self._steady.now().nanoseconds - self._rest_sent_ns) / NS_PER_MS
         self.get_logger().info(f'{self._protocol.name} starts: every subscriber acknowledged '
                                f'the rest state {acked_ms:.1f} ms after it was sent')
-        # The node's own clock, so that with use_sim_time it follows /clock.
-        self._send(self._playback.start(self.get_clock().now().nanoseconds))
+        # Time 0 is the first tick of the node's own clock, not now: with
+        # use_sim_time, the clock is the last /clock this node took, and while
+        # this callback waited for the acknowledgement it took none (under load
+        # 0.54 s of waiting left it 1.8 s of sim time behind, and the protocol
+        # was "done" at its first tick). The tick timer fires on a fresh clock.
         self._timer = self.create_timer(self._period_s, self._on_tick)
 
     def _send(self, sends: list[Send]) -> None:
@@ -323,7 +326,11 @@ class ProtocolPlayer(Node):
                 self._pub_dl.publish(msg)
 
     def _on_tick(self) -> None:
+        # The node's own clock, so that with use_sim_time it follows /clock.
         now_ns = self.get_clock().now().nanoseconds
+        if self._playback.t0_ns is None:
+            self._send(self._playback.start(now_ns))
+            return
         self._send(self._playback.tick(now_ns))
         if not self._playback.finished:
             return
