@@ -330,6 +330,11 @@ class ProtocolPlayer(Node):
         now_ns = self.get_clock().now().nanoseconds
         if self._playback.t0_ns is None:
             self._send(self._playback.start(now_ns))
+            # The ticks from time 0 on, as a timer made now schedules them: on
+            # the first timer's grid a late first tick put the next ones a
+            # little before whole periods of protocol time.
+            self._timer.cancel()
+            self._timer = self.create_timer(self._period_s, self._on_tick)
             return
         self._send(self._playback.tick(now_ns))
         if not self._playback.finished:
