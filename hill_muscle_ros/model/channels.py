@@ -15,6 +15,7 @@ from .stimulator import ChannelCommand, check_channel_command, stimulator_profil
 from .stimulus import pulse_command
 from .trains import ChannelTrain, PulseTrain
 
+
 def check_train_frequency(command: ChannelCommand) -> None:
     """A pulse train's bursts are 1/f apart: its frequency must be positive.
 

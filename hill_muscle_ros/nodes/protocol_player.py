@@ -8,7 +8,8 @@ Time 0 of the protocol is when its first sample acts: the player first sends
 the rest state (zero stimulation at the protocol's starting length), waits
 until every subscriber has acknowledged it, and then starts the protocol's
 clock with its first sample at its next tick, on a clock read after the wait
-(:mod:`hill_muscle_ros.playback`, the timeline without ROS). At the end it publishes zero stimulation and exits with status 0.
+(:mod:`hill_muscle_ros.playback`, the timeline without ROS). At the end it
+publishes zero stimulation and exits with status 0.
 
 A protocol with ``channels`` (pulse trains) goes on ``stimulation``
 (``hill_muscle_interfaces/msg/Stimulation``) instead, on the same clock and
@@ -25,8 +26,8 @@ With ``lookahead_s`` > 0 the length goes ahead of time instead: the player
 publishes ``length_command_stamped`` (geometry_msgs/PointStamped, dl_MT [m]
 in ``point.x``, ``header.stamp`` = when it is to be reached, on the player's
 clock). The protocol starts ``lookahead_s`` after the first tick once the
-rest state is acknowledged (time 0 is the stamp of the first knot; that topic carries no
-rest state, as a knot acts at its stamp); before that it sends the knots covering the
+rest state is acknowledged (time 0 is the stamp of the first knot; that topic
+carries no rest state, as a knot acts at its stamp); before that it sends the knots covering the
 first ``lookahead_s`` of the protocol, and at each tick at protocol time t the
 knot for t + ``lookahead_s``, plus every corner of the protocol's dl_MT in
 between, so the simulator's linear interpolation reproduces the protocol's
