@@ -96,13 +96,17 @@ class Statuses:
         self.list.extend(mine)
         self.stamps.extend([msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec] * len(mine))
 
-    def first(self, predicate, start: int = 0):
-        """The first status from index ``start`` with ``predicate(status)``, or None."""
-        return next((s for s in self.list[start:] if predicate(s)), None)
+    def first(self, predicate, start: int = 0, stamped_after_s: float | None = None):
+        """The first status from index ``start`` with ``predicate(status)``, or
+        None; with ``stamped_after_s`` [s] (the node's clock), only one sent after it."""
+        return next((s for s, t in zip(self.list[start:], self.stamps[start:])
+                     if (stamped_after_s is None or t > stamped_after_s) and predicate(s)),
+                    None)
 
 
-def wait_status(probe, statuses, predicate, what, procs, start=0, timeout_s=30.0):
-    return probe.spin_until(lambda: statuses.first(predicate, start),
+def wait_status(probe, statuses, predicate, what, procs, start=0, timeout_s=30.0,
+                stamped_after_s=None):
+    return probe.spin_until(lambda: statuses.first(predicate, start, stamped_after_s),
                             f'{statuses.name}: {what}', timeout_s=timeout_s, procs=procs)
 
 
@@ -253,7 +257,10 @@ def test_simulator_stall_is_an_error_then_a_catch_up_warning(nodes):
     probe, ns, sim = nodes['probe'], nodes['stall']['ns'], nodes['stall']['sim']
     st = Statuses(probe, f'{ns}/simulator: muscle simulation')
     wait_status(probe, st, lambda s: True, 'a first status', [sim])
-    start = len(st.list)
+    # Statuses sent before the stop can still be queued unread (a load stall
+    # before it once gave one a 0.46 s catch-up): only the ones stamped after
+    # the stop (the node's clock is the system clock) are the stall's.
+    stopped_wall_s = time.time()
     stopped_at = time.monotonic()
     os.kill(sim.popen.pid, signal.SIGSTOP)
     try:
@@ -261,11 +268,13 @@ def test_simulator_stall_is_an_error_then_a_catch_up_warning(nodes):
     finally:
         os.kill(sim.popen.pid, signal.SIGCONT)
     stalled_s = time.monotonic() - stopped_at
-    error = wait_status(probe, st, lambda s: s.level == ERROR, 'an ERROR', [sim], start)
+    error = wait_status(probe, st, lambda s: s.level == ERROR, 'an ERROR', [sim],
+                        stamped_after_s=stopped_wall_s)
     stall_steps = STALL_CATCH_UP_FRACTION * stalled_s * SIM_RATE_HZ
     caught_up = wait_status(
         probe, st, lambda s: int(values(s)['catch_up_steps_last_period']) >= stall_steps,
-        f'the stall caught up (at least {stall_steps:.0f} steps in a period)', [sim], start)
+        f'the stall caught up (at least {stall_steps:.0f} steps in a period)', [sim],
+        stamped_after_s=stopped_wall_s)
     done_with(sim)
     v = values(error)
     assert int(v['steps_behind']) > int(v['steps_behind_error_above']) == 100
