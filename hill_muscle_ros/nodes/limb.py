@@ -287,22 +287,27 @@ class LimbNode(Node):
         stamp = joint.header.stamp
         stamp.sec = sec
         stamp.nanosec = nanosec
-        if self._pub_clock is not None:
+        # An output no subscription has matched is not converted and written:
+        # DDS would deliver it to no one (volatile durability), as in the simulator.
+        if self._pub_clock is not None and self._pub_clock.get_subscription_count():
             self._clock_msg.clock = stamp
             self._pub_clock.publish(self._clock_msg)
-        joint.position = [out.theta_rad]
-        joint.velocity = [out.omega_rad_per_s]
-        joint.effort = [out.muscle_torque_n_m]
-        self._pub_joint.publish(joint)
+        if self._pub_joint.get_subscription_count():
+            joint.position = [out.theta_rad]
+            joint.velocity = [out.omega_rad_per_s]
+            joint.effort = [out.muscle_torque_n_m]
+            self._pub_joint.publish(joint)
         for i, force_n in enumerate(out.force_n):
-            msg = self._force_msgs[i]
-            msg.data = force_n
-            self._pub_force[i].publish(msg)
-            wrench = self._wrench_msgs[i]
-            wrench.header.stamp = stamp
-            wrench.wrench.force.x = force_n
-            self._pub_wrench[i].publish(wrench)
-            if self._pulsed[i]:
+            if self._pub_force[i].get_subscription_count():
+                msg = self._force_msgs[i]
+                msg.data = force_n
+                self._pub_force[i].publish(msg)
+            if self._pub_wrench[i].get_subscription_count():
+                wrench = self._wrench_msgs[i]
+                wrench.header.stamp = stamp
+                wrench.wrench.force.x = force_n
+                self._pub_wrench[i].publish(wrench)
+            if self._pulsed[i] and self._pub_activation[i].get_subscription_count():
                 activation = self._activation_msgs[i]
                 activation.data = self._limb.activation(i).tolist()
                 self._pub_activation[i].publish(activation)
