@@ -47,28 +47,57 @@ QUOTE_CHARS = 600
 HISTORY_S = 600.0
 
 
-def _descendants(root: int) -> dict[int, str]:
-    """Process ids and names of every process below ``root`` (from /proc)."""
-    children: dict[int, list[int]] = {}
-    names: dict[int, str] = {}
+def _read_stat(pid: str) -> tuple[int, str] | None:
+    """(parent pid, name) of a process from ``/proc/<pid>/stat``, or None if gone."""
+    try:
+        with open(f'/proc/{pid}/stat', 'rb') as f:
+            stat = f.read().decode(errors='replace')
+    except OSError:
+        return None
+    # "pid (comm) state ppid ...": comm may hold spaces and parentheses.
+    return (int(stat[stat.rindex(')') + 2:].split()[1]),
+            stat[stat.index('(') + 1:stat.rindex(')')])
+
+
+def _descendants(root: int, known: dict[int, tuple[int, str]] | None = None) -> dict[int, str]:
+    """Process ids and names of every process below ``root`` (from /proc).
+
+    :param known: pid -> (parent pid, name) from the last call, updated in
+        place: a process outside the last tree is not read again (its parent
+        cannot become one of ours), which made the refresh a few reads
+        instead of one per process on the machine. One inside is, as an
+        ``exec`` renames it.
+    """
+    known = {} if known is None else known
+    last_tree = _tree(root, known)
+    present = set()
     for entry in os.scandir('/proc'):
         if not entry.name.isdigit():
             continue
-        try:
-            with open(f'/proc/{entry.name}/stat', 'rb') as f:
-                stat = f.read().decode(errors='replace')
-        except OSError:
-            continue  # gone meanwhile
-        # "pid (comm) state ppid ...": comm may hold spaces and parentheses.
-        comm = stat[stat.index('(') + 1:stat.rindex(')')]
-        ppid = int(stat[stat.rindex(')') + 2:].split()[1])
         pid = int(entry.name)
+        present.add(pid)
+        if pid in known and pid not in last_tree:
+            continue
+        parent_and_name = _read_stat(entry.name)
+        if parent_and_name is None:
+            present.discard(pid)   # gone meanwhile
+            known.pop(pid, None)
+        else:
+            known[pid] = parent_and_name
+    for pid in known.keys() - present:
+        del known[pid]
+    return _tree(root, known)
+
+
+def _tree(root: int, known: dict[int, tuple[int, str]]) -> dict[int, str]:
+    """The processes below ``root`` in ``known`` (pid -> (parent pid, name))."""
+    children: dict[int, list[int]] = {}
+    for pid, (ppid, _) in known.items():
         children.setdefault(ppid, []).append(pid)
-        names[pid] = comm
     found, todo = {}, list(children.get(root, []))
     while todo:
         pid = todo.pop()
-        found[pid] = names[pid]
+        found[pid] = known[pid][1]
         todo += children.get(pid, [])
     return found
 
@@ -120,12 +149,13 @@ class StallWatcher:
     def _run(self) -> None:
         #: (pid, name) -> open schedstat descriptor (None: the process is gone)
         fds: dict[tuple[int, str], int | None] = {}
+        known: dict[int, tuple[int, str]] = {}
         next_refresh = 0.0
         try:
             while not self._stop.wait(SAMPLE_S):
                 now = time.monotonic()
                 if now >= next_refresh:
-                    watched = {(self._root, 'pytest')} | set(_descendants(self._root).items())
+                    watched = {(self._root, 'pytest')} | set(_descendants(self._root, known).items())
                     for key in fds.keys() - watched:
                         if fds[key] is not None:
                             os.close(fds[key])
