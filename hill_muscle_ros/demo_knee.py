@@ -25,7 +25,8 @@ the end of each held step and each muscle's largest pulse width. Every
 process it started is stopped on the way out, also when it is interrupted
 (Ctrl-C, SIGTERM); the recorder then still closes the bag.
 
-Run: ``python -m hill_muscle_ros.demo_knee [--profile full|short] [--out DIR]``.
+Run: ``python -m hill_muscle_ros.demo_knee [--profile full|short] [--out DIR]
+[--gif-fps FPS]``.
 """
 from __future__ import annotations
 
@@ -430,12 +431,14 @@ def plot(run_: KneeRun, profile: KneeProfile, png: Path) -> None:
     plt.close(fig)
 
 
-def animate(run_: KneeRun, plant: LimbPlant, profile: KneeProfile, gif: Path) -> int:
+def animate(run_: KneeRun, plant: LimbPlant, profile: KneeProfile, gif: Path,
+            fps: float = GIF_FPS) -> int:
     """The stick-figure GIF (:func:`hill_muscle_ros.animation.write_gif`) of the run.
 
     Each muscle is coloured by the recruitment its recorded pulse width asks
     for (the muscle's recruitment curve), without the activation dynamics.
 
+    :param fps: [frames/s] frames per second of simulated time
     :return: the number of frames
     """
     from .animation import write_gif   # matplotlib only here
@@ -447,7 +450,7 @@ def animate(run_: KneeRun, plant: LimbPlant, profile: KneeProfile, gif: Path) ->
         widths = run_.pulse_width_at(m.name, t_s)
         columns[f'{m.name}_recruitment'] = np.array(
             [command_from_pulse_width(w, m.params) for w in widths])
-    return write_gif(gif, plant, LimbResult(t_s, columns), fps=GIF_FPS)
+    return write_gif(gif, plant, LimbResult(t_s, columns), fps=fps)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -463,7 +466,18 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--out', type=Path, default=None,
                         help='output directory, must not exist or be empty '
                              '(default: runs/knee_<UTC timestamp>)')
+    parser.add_argument('--gif-fps', type=_positive_float, default=GIF_FPS, metavar='FPS',
+                        help=f'frames of knee.gif per second of simulated time (default '
+                             f'{GIF_FPS:g}); each frame costs ~35 ms of CPU to render, and '
+                             f'the tests ask for 1')
     return parser
+
+
+def _positive_float(text: str) -> float:
+    value = float(text)
+    if not (math.isfinite(value) and value > 0.0):
+        raise argparse.ArgumentTypeError(f'must be a positive number, got {text!r}')
+    return value
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -486,7 +500,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         summary = summarize(recorded, profile)
         png, gif = out / 'knee.png', out / 'knee.gif'
         plot(recorded, profile, png)
-        frames = animate(recorded, plant, profile, gif)
+        frames = animate(recorded, plant, profile, gif, args.gif_fps)
     except (KeyboardInterrupt, ValueError, RuntimeError) as err:
         if isinstance(err, KeyboardInterrupt) or stops.received is not None:
             print(f'interrupted: every node stopped, the bag so far closed in {out / "bag"}',

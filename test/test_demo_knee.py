@@ -5,25 +5,36 @@ AnyReader, a reader independent of the package's own. What must hold: exit
 0; every promised topic in the bag with messages; a PNG and a GIF; the knee
 angle near each held target at the end of its hold; no process left running,
 also after a SIGINT in mid-run, when the bag is still closed.
+
+The run asks for a GIF of :data:`TEST_GIF_FPS` (``--gif-fps``): its frames
+were 3.2 of the demo process's 7.8 CPU-s at the default 10 frames/s. That
+``make demo-knee`` renders at the default is checked here (its command line,
+the parser's default); ``write_gif`` at 10 frames/s is test_limb_cli's.
 """
 from __future__ import annotations
 
 import math
 import os
+import re
 import signal
 import subprocess
 import sys
 import time
 
+from pathlib import Path
+
 import numpy as np
 import pytest
+from PIL import Image
 from rosbags.highlevel import AnyReader
 
-from hill_muscle_ros.demo_knee import PROFILES, plant_file
+from hill_muscle_ros.demo_knee import GIF_FPS, PROFILES, build_parser, plant_file
 from hill_muscle_ros.params_file import load_plant
 from ros_helpers import ros_env
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
+
+REPO = Path(__file__).resolve().parents[1]
 
 #: [s] deadline for a demo run (start-up of three nodes on a loaded machine,
 #: the 8.5 s profile, the plot and the GIF); measured ~25 s on an idle machine.
@@ -40,6 +51,9 @@ END_OF_HOLD_S = 0.1
 #: (offline: a sustained ±1.3 deg at 20 ms, ±7 deg at 30 ms). 3 deg leaves room
 #: for the ripple and a few ms of extra delay, and fails on that oscillation.
 ANGLE_TOLERANCE_DEG = 3.0
+#: [frames/s] the module run's GIF: 9 frames of the 8.5 s short profile (~0.4
+#: CPU-s to render) where the default 10 frames/s renders 86 (~3.2 CPU-s).
+TEST_GIF_FPS = 1.0
 PNG_MAGIC = b'\x89PNG\r\n\x1a\n'
 GIF_MAGICS = (b'GIF87a', b'GIF89a')
 
@@ -58,9 +72,9 @@ def processes_in(ns: str) -> list[tuple[int, str]]:
     return found
 
 
-def demo_command(out, ns: str, profile: str) -> list[str]:
+def demo_command(out, ns: str, profile: str, *options: str) -> list[str]:
     return [sys.executable, '-m', 'hill_muscle_ros.demo_knee', '--profile', profile,
-            '--out', str(out), '--namespace', ns]
+            '--out', str(out), '--namespace', ns, *options]
 
 
 def read_topics(bag_dir) -> dict[str, list[tuple[int, object]]]:
@@ -79,7 +93,8 @@ def run(tmp_path_factory):
     out = tmp_path_factory.mktemp('demo_knee') / 'out'
     ns = f'/kneedemo_{os.getpid()}'
     started = time.monotonic()
-    done = subprocess.run(demo_command(out, ns, 'short'), capture_output=True, text=True,
+    done = subprocess.run(demo_command(out, ns, 'short', '--gif-fps', f'{TEST_GIF_FPS:g}'),
+                          capture_output=True, text=True,
                           env=ros_env(), timeout=RUN_TIMEOUT_S)
     return done, out, ns, time.monotonic() - started
 
@@ -109,9 +124,25 @@ def test_bag_holds_every_promised_topic_with_messages(run, topics):
 
 
 def test_plot_and_gif_are_written(run):
-    _, out, _, _ = run
+    done, out, _, _ = run
     assert (out / 'knee.png').read_bytes()[:8] == PNG_MAGIC
     assert (out / 'knee.gif').read_bytes()[:6] in GIF_MAGICS
+    # One frame per 1 / fps of the profile's simulated time, from 0, as printed.
+    with Image.open(out / 'knee.gif') as gif:
+        frames = gif.n_frames
+    printed = int(re.search(r'knee\.gif \((\d+) frames\)', done.stdout).group(1))
+    assert frames == printed == math.floor(PROFILES['short'].duration_s * TEST_GIF_FPS) + 1
+
+
+def test_make_demo_knee_renders_the_gif_at_the_default_frame_rate():
+    """The user's GIF is the default's: ``make demo-knee`` passes no --gif-fps
+    (``make -n``: printed, not run), and the default is GIF_FPS (10 frames/s)."""
+    proc = subprocess.run(['make', '-n', '--no-print-directory', 'demo-knee'], cwd=REPO,
+                          capture_output=True, text=True, check=True)
+    command = next(line for line in proc.stdout.splitlines()
+                   if '-m hill_muscle_ros.demo_knee' in line)
+    assert '--gif-fps' not in command
+    assert build_parser().parse_args([]).gif_fps == GIF_FPS == 10.0
 
 
 @pytest.mark.realtime
