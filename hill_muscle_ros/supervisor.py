@@ -420,6 +420,11 @@ class ProcessGroup:
 class GraphProbe:
     """An rclpy node in a context of its own that tells readiness from the ROS graph.
 
+    Its participant is set up as the nodes' are
+    (:func:`~hill_muscle_ros.dds_transport.use_udp_transport`, which sets this
+    process's environment: build a node's environment before the probe to
+    hand it the user's).
+
     :param name: node name
     :param namespace: node namespace (relative topic names resolve in it)
     :param domain_id: ``ROS_DOMAIN_ID`` of the graph (default: the environment's)
@@ -444,6 +449,13 @@ class GraphProbe:
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.experimental import EventsExecutor
 
+        from .dds_transport import use_udp_transport
+
+        # The probe's participant set up as the nodes' are (UDP only, and
+        # their heartbeat): with Fast DDS's 3 s heartbeat an acknowledgement
+        # waits for the next one, and the knee demo's stop waited 2.95 s in
+        # retire_publisher while its three nodes ran on.
+        use_udp_transport()
         self.context = rclpy.Context()
         rclpy.init(args=[], context=self.context, domain_id=domain_id)
         self.node = rclpy.create_node(name, namespace=namespace, context=self.context)
