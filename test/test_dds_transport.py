@@ -12,6 +12,7 @@ claim) a sample is acknowledged within 20 ms.
 from __future__ import annotations
 
 import socket
+import subprocess
 import sys
 import time
 import xml.etree.ElementTree as ET
@@ -265,6 +266,31 @@ def test_profile_times_reliable_writers_and_readers_for_quick_acknowledgements(t
     assert _duration_s(writer.find('p:times/p:nackResponseDelay', NS)) == NACK_RESPONSE_DELAY_S
     assert (_duration_s(reader.find('p:times/p:heartbeatResponseDelay', NS))
             == HEARTBEAT_RESPONSE_DELAY_S)
+
+
+#: A process that only makes a GraphProbe (as the demos do), printing the
+#: profile its participant got.
+GRAPH_PROBE_PROCESS = (
+    'import os\n'
+    'from hill_muscle_ros.supervisor import GraphProbe\n'
+    'with GraphProbe("profile_probe"):\n'
+    '    print(os.environ.get("FASTRTPS_DEFAULT_PROFILES_FILE", ""))\n')
+
+
+@pytest.mark.ros
+def test_a_graph_probe_gets_the_nodes_heartbeat_in_a_process_of_its_own(tmp_path):
+    """The demos' probes publish and wait for acknowledgements too: with Fast
+    DDS's 3 s heartbeat, the knee demo's stop waited 2.95 s for one."""
+    env = ros_env()
+    for name in USER_FASTDDS_SETTINGS:
+        env.pop(name, None)   # the test process's own set-up, not a user's
+    out = subprocess.run([sys.executable, '-c', GRAPH_PROBE_PROCESS], env=env, cwd=tmp_path,
+                         capture_output=True, text=True, timeout=DEFAULT_TIMEOUT_S)
+    assert out.returncode == 0, out.stderr
+    profile = out.stdout.strip()
+    assert profile, 'the probe ran with no Fast DDS profile'
+    [writer] = ET.parse(profile).getroot().findall('p:data_writer', NS)
+    assert _duration_s(writer.find('p:times/p:heartbeatPeriod', NS)) == HEARTBEAT_PERIOD_S
 
 
 #: Samples published one at a time, each once the one before is acknowledged.
