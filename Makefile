@@ -63,9 +63,10 @@ kernels: $(STAMP) bytecode
 # pytest runs side by side: the tests marked `ros`, which run nodes in real
 # time, one module after the other (ROS_WORKERS); the others on TEST_WORKERS
 # xdist workers (a module's tests on one worker, --dist loadscope), each
-# worker on a ROS domain of its own, under `nice -n 19` (any user may lower
-# their own priority), so that they take the CPU the real-time runs leave
-# idle. Two ROS workers and the offline run together kept the 2 cores busy:
+# worker on a ROS domain of its own, at nice 19 in a session whose autogroup
+# is at nice 19 too (test/background_priority.py: any user may lower their
+# own priority), so that they take the CPU the real-time runs leave idle.
+# Two ROS workers and the offline run together kept the 2 cores busy:
 # a simulator then stalled 0.2-0.7 s, its watchdog fired and a live run
 # missed the offline force, in a run no faster (248 s) than one ROS worker.
 # The offline run's report follows the ROS run's; either failing fails the
@@ -83,7 +84,9 @@ PYTEST_TEST  := $(PYTEST) -q --dist loadscope --durations=15
 
 test: $(STAMP) interfaces bytecode kernels
 	@offline_log=$$(mktemp); \
-	nice -n 19 $(PYTEST_TEST) -n $(TEST_WORKERS) -m 'not ros' > $$offline_log 2>&1 & offline=$$!; \
+	$(BIN)/python test/background_priority.py $(PYTEST_TEST) -n $(TEST_WORKERS) -m 'not ros' \
+	    > $$offline_log 2>&1 & offline=$$!; \
+	trap 'kill -INT $$offline 2>/dev/null' INT TERM HUP; \
 	echo "== the ROS tests (-m ros); the offline ones (-m 'not ros') run meanwhile, reported below"; \
 	$(PYTEST_TEST) -n $(ROS_WORKERS) -m ros; ros_status=$$?; \
 	wait $$offline; offline_status=$$?; \
