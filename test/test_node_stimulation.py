@@ -13,6 +13,8 @@ Three layers, cheapest first:
 """
 import math
 import os
+import subprocess
+import sys
 
 import pytest
 import rclpy
@@ -181,6 +183,31 @@ def make_node():
 def _steps(node, n):
     """Run ``n`` steps of the node at dl_MT = 0, as its tick does."""
     assert node._run_steps([0.0] * n)
+
+
+#: A fresh process (no kernel called yet) builds the simulator's ding2003
+#: muscle as the node does, then prints how many compiled versions of its two
+#: read-out kernels numba has loaded.
+READ_OUTS_PROCESS = (
+    'from hill_muscle_ros.model import MuscleParams\n'
+    'from hill_muscle_ros.model.muscle import kernels\n'
+    'from hill_muscle_ros.nodes._engine import load_muscle\n'
+    'from ros_helpers import RecordingLogger\n'
+    'load_muscle(MuscleParams(activation_model="ding2003", channel_fractions=(0.5, 0.5)),\n'
+    '            RecordingLogger())\n'
+    'k = kernels.compiled()\n'
+    'print(len(k.muscle_outputs.signatures), len(k.ding_activation.signatures))\n')
+
+
+def test_the_read_outs_kernels_load_at_start_up_not_in_a_callback():
+    """numba loads a kernel without a given signature at its first call: the
+    first /diagnostics report of a ding2003 simulator held its tick 11.5 ms."""
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        [str(REPO / 'test'), os.environ.get('PYTHONPATH', '')]))
+    out = subprocess.run([sys.executable, '-c', READ_OUTS_PROCESS], env=env, cwd=REPO,
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert [int(n) for n in out.stdout.split()] == [1, 1], out.stdout
 
 
 def test_an_output_no_subscription_matched_is_not_written(make_node):

@@ -75,9 +75,24 @@ def load_muscle(params: MuscleParams, logger) -> Muscle:
     :param params: the muscle's parameters
     :param logger: the node's logger
     """
-    return load_engine('muscle', lambda: Muscle(params, build=engines.COMPILED),
+    return load_engine('muscle',
+                       lambda: with_read_outs_loaded(Muscle(params, build=engines.COMPILED)),
                        lambda: Muscle(params, build=engines.PYTHON), muscle_kernels.loaded,
                        logger)
+
+
+def with_read_outs_loaded(muscle: Muscle) -> Muscle:
+    """``muscle``, after one call of each read-out the node makes outside its
+    steps: ``outputs`` (/diagnostics) and ``activation`` (the ``activation``
+    topic). Their kernels have no signature given in advance, so numba loads
+    each from its cache on the first call: 5-12 ms, which the first
+    /diagnostics report of a ding2003 simulator spent inside a callback (11.5
+    ms, its longest tick gap under a 1 kHz stimulation stream). Here it is
+    start-up.
+    """
+    muscle.outputs()
+    muscle.activation   # noqa: B018 -- read for its kernel's first call
+    return muscle
 
 
 def rebuild_muscle(params: MuscleParams, compiled: bool, logger) -> Muscle:
