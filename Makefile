@@ -70,7 +70,9 @@ kernels: $(STAMP) bytecode
 # a simulator then stalled 0.2-0.7 s, its watchdog fired and a live run
 # missed the offline force, in a run no faster (248 s) than one ROS worker.
 # The offline run's report follows the ROS run's; either failing fails the
-# target.
+# target. A stop signal to make ends the offline run too, by SIGTERM: as a
+# background job of a shell it ignores SIGINT, and in a session of its own a
+# terminal's Ctrl-C does not reach it.
 # `make test-serial`: the same tests, one after the other, in one run.
 # `make check-realtime`: the claims on milliseconds of wall time (tests marked
 # `realtime`), alone and serially, with a table of claim, measured and limit.
@@ -86,7 +88,7 @@ test: $(STAMP) interfaces bytecode kernels
 	@offline_log=$$(mktemp); \
 	$(BIN)/python test/background_priority.py $(PYTEST_TEST) -n $(TEST_WORKERS) -m 'not ros' \
 	    > $$offline_log 2>&1 & offline=$$!; \
-	trap 'kill -INT $$offline 2>/dev/null' INT TERM HUP; \
+	trap 'kill -TERM $$offline 2>/dev/null' INT TERM HUP; \
 	echo "== the ROS tests (-m ros); the offline ones (-m 'not ros') run meanwhile, reported below"; \
 	$(PYTEST_TEST) -n $(ROS_WORKERS) -m ros; ros_status=$$?; \
 	wait $$offline; offline_status=$$?; \
