@@ -393,7 +393,8 @@ class Simulator(Node):
         stamp.nanosec = nanosec
         # An output no subscription has matched is not converted and written:
         # DDS would deliver it to no one (volatile durability), and at 1 kHz
-        # the writes were half of an idle simulator's CPU.
+        # the writes were a third of an idle simulator's CPU (0.20 -> 0.14 of
+        # a core without them).
         if self._pub_clock is not None and self._pub_clock.get_subscription_count():
             self._clock_msg.clock = stamp
             self._pub_clock.publish(self._clock_msg)
