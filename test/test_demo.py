@@ -10,12 +10,15 @@ import time
 import uuid
 from pathlib import Path
 
+import numpy as np
 import pytest
+from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import Reader
 
 from hill_muscle_ros import demo as demo_module
+from hill_muscle_ros.model import Protocol, simulate
 from hill_muscle_ros.params_file import load_muscle_params
-from hill_muscle_ros.resources import default_params_file
+from hill_muscle_ros.resources import default_params_file, protocol_path
 from hill_muscle_ros.supervisor import StopSignals
 
 from stall_watch import repeat_only_on_external_stall
@@ -33,6 +36,14 @@ POLL_S = 0.1
 VERDICT_MARK = 'live force differs from the offline simulation'
 #: Runs of one demo in all, at most (see VERDICT_MARK).
 MAX_ATTEMPTS = 3
+#: [s] instants of Protocol II, each in a hold phase (a step of latency moves
+#: the force there by far less than the tolerance), at which the bag's force is
+#: compared with the offline core by this test, apart from the demo's analysis.
+HOLD_TIMES_S = (0.9, 2.9, 3.9, 5.9)
+#: [N] live against offline at those instants: the demo's own promise.
+LIVE_OFFLINE_TOL_N = 0.1
+#: [s] farthest wrench stamp from an instant that still counts for it.
+SAMPLE_WINDOW_S = 0.1
 
 
 def _env(marker: str) -> dict:
@@ -117,6 +128,34 @@ def test_demo_prints_the_force_at_the_end_of_each_second(demo):
     assert [round(float(t)) for t, *_ in rows] == [1, 2, 3, 4, 5, 6]
     for _, live, offline, diff in rows:
         assert float(diff) == pytest.approx(float(live) - float(offline), abs=2e-3)
+
+
+def test_the_bags_force_is_the_offline_cores_in_every_hold_of_protocol_ii(demo):
+    """Simulator and player as separate processes through DDS, read back here.
+
+    The wrench stamps are the simulator's own step times, so no receive
+    latency plays a part. Time zero is the player's first sample as the
+    simulator acted on it: the first step with a non-zero force (at rest and
+    R = 0 the force is exactly 0), which is the offline run's first step.
+    """
+    proc, tmp, _ = demo
+    bag = Path(re.search(r'^bag:\s+(\S+)', proc.stdout, re.M).group(1))
+    params, node = load_muscle_params(default_params_file())
+    offline = simulate(Protocol.from_yaml(protocol_path('II')), params,
+                       rate_hz=node['rate_hz'])
+    with AnyReader([bag]) as reader:
+        wrenches = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages(
+            connections=[c for c in reader.connections if c.topic == '/wrench'])]
+    stamps_s = np.array([w.header.stamp.sec + w.header.stamp.nanosec * 1e-9 for w in wrenches])
+    force_n = np.array([w.wrench.force.x for w in wrenches])
+    assert np.any(force_n > 0.0), 'no force in the bag'
+    first = int(np.argmax(force_n > 0.0))
+    t_s = stamps_s - stamps_s[first] + offline.t_s[1]
+    for t in HOLD_TIMES_S:
+        nearest = int(np.argmin(np.abs(t_s - t)))
+        assert abs(t_s[nearest] - t) <= SAMPLE_WINDOW_S, f'no wrench within {SAMPLE_WINDOW_S} s of {t} s'
+        assert force_n[nearest] == pytest.approx(offline.force_n[offline.at(t)],
+                                                 abs=LIVE_OFFLINE_TOL_N), f't = {t} s'
 
 
 def test_demo_leaves_no_process(demo):
