@@ -360,8 +360,8 @@ def test_a_burst_whose_tail_udp_dropped_arrives_whole_within_a_few_heartbeats(tm
         reader = procs.start('reader', [*peer, 'reader', str(BURST_SIZE), str(BURSTS)],
                              env=ros_env(FASTRTPS_DEFAULT_PROFILES_FILE=_small_buffer_profile(
                                  tmp_path), ROS_AUTOMATIC_DISCOVERY_RANGE='SYSTEM_DEFAULT'))
-        writer = procs.start('writer', [*peer, 'writer', str(BURST_SIZE), str(BURSTS),
-                                        str(go_file)], env=ros_env())
+        procs.start('writer', [*peer, 'writer', str(BURST_SIZE), str(BURSTS),
+                    str(go_file)], env=ros_env())
         procs.wait_until(lambda: 'matched' in reader.output(), 'the reader to match the writer',
                          DEFAULT_TIMEOUT_S)
         go_file.touch()

@@ -174,7 +174,7 @@ def test_sigint_or_sigterm_at_a_random_moment_loses_nothing_received(sim):
         while pending:
             def ready():
                 for run in pending:
-                    if run['subscribed'] is None and f'/wrench (' in run['proc'].output():
+                    if run['subscribed'] is None and '/wrench (' in run['proc'].output():
                         run['subscribed'] = time.monotonic()
                 return any(r['subscribed'] is not None
                            and time.monotonic() >= r['subscribed'] + r['delay'] for r in pending)

@@ -267,7 +267,6 @@ def test_player_on_sim_time_follows_published_clock(tmp_path):
                          procs=[sim])
     clock_s = np.array([_sec(m.clock) for m in clock.messages])
     stamps_s = np.array([_sec(w.header.stamp) for w in wrench.messages])
-    f = np.array([w.wrench.force.x for w in wrench.messages])
     # Sim time starts at 0 with the simulator: it cannot be ahead of 3x the
     # time since the process started (wall-clock stamps would be ~1.8e9 s).
     assert 0.0 < clock_s[0] <= RTF * (clock.times_s[0] - started_s)
