@@ -17,8 +17,11 @@ from test_fes_compiled import _params
 
 #: [N], [m], [m/s] agreement asked of every column (the forces' is the goal's 1e-9 N).
 TOL = 1e-9
-#: [s] longest random protocol: the Python reference stays quick.
-MAX_DURATION_S = 0.4
+#: [s] longest random protocol: the Python reference stays quick. It holds
+#: two of the shorter drawn fatigue time constant (0.1 s) and six of the
+#: longest delay (31 ms); whole 6 s paper protocols are the preset's
+#: comparison (test_quadriceps_preset_matches_the_python_run).
+MAX_DURATION_S = 0.2
 PRESET = resources.config_dir() / 'fes_quadriceps.yaml'
 PROTOCOLS = resources.config_dir() / 'protocols'
 
@@ -74,8 +77,8 @@ def fes_params(draw):
 
 @st.composite
 def protocols(draw):
-    """Random recruitment and dl_MT knots (steps and ramps) over up to 0.4 s."""
-    duration = draw(st.sampled_from([0.05, 0.2, MAX_DURATION_S]))
+    """Random recruitment and dl_MT knots (steps and ramps) over up to MAX_DURATION_S."""
+    duration = draw(st.sampled_from([0.05, 0.1, MAX_DURATION_S]))
     times = sorted(draw(st.lists(st.floats(0.0, duration), min_size=1, max_size=6)))
     r = [[t, draw(st.sampled_from([0.0, 1.0, 0.3, 0.77]))] for t in times]
     dl = [[t, draw(st.floats(-0.01, 0.01))] for t in times]
