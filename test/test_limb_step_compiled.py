@@ -24,6 +24,10 @@ PYTHON, COMPILED = engine.PYTHON, engine.COMPILED
 #: [s] the presets' step (1 kHz)
 DT_S = 1e-3
 PLANTS = {name: load_plant(config_dir() / f'{name}.yaml')[0] for name in ('knee', 'ankle')}
+#: Limbs of the batches compared with their limbs stepped one by one or on the
+#: other build: two are a batch (the second's index and state are its own); a
+#: third repeated the plain Python run of a limb, most of these tests' time.
+BATCH_LIMBS = 2
 SETTINGS = settings(max_examples=3, deadline=None,
                     suppress_health_check=[HealthCheck.too_slow,
                                            HealthCheck.function_scoped_fixture])
@@ -169,7 +173,8 @@ def test_an_unknown_engine_is_refused_naming_the_value(monkeypatch):
 @example(name='knee', seed=3)
 @example(name='ankle', seed=4)
 def test_a_limb_batch_steps_alike_on_both_builds(name, seed):
-    k_limbs, plant = 3, PLANTS[name]
+    # A batch's limbs are each a Limb stepped in turn (writing its row), whatever their count.
+    k_limbs, plant = BATCH_LIMBS, PLANTS[name]
     ref, got = _pair(LimbBatch, [plant] * k_limbs)
     assert (ref.build, got.build) == (PYTHON, COMPILED)
     rng = np.random.default_rng(seed)
@@ -219,10 +224,10 @@ def test_hold_commands_is_n_steps_and_their_squared_angle_errors(name):
     plant, n = PLANTS[name], 20
     rng = np.random.default_rng(7)
     m = len(plant.muscles)
-    got = run_on(COMPILED, LimbBatch, [plant] * 3)
-    refs = [run_on(PYTHON, Limb, plant) for _ in range(3)]
+    got = run_on(COMPILED, LimbBatch, [plant] * BATCH_LIMBS)
+    refs = [run_on(PYTHON, Limb, plant) for _ in range(BATCH_LIMBS)]
     for period in range(4):
-        u, target = rng.uniform(0, 1, (3, m)), rng.uniform(0.2, 0.8, 3)
+        u, target = rng.uniform(0, 1, (BATCH_LIMBS, m)), rng.uniform(0.2, 0.8, BATCH_LIMBS)
         out, squared = got.hold_commands(u, 0.5, DT_S, n, target)
         for k, ref in enumerate(refs):
             thetas = [ref.step(u[k].tolist(), 0.5, DT_S).theta_rad for _ in range(n)]
