@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from matplotlib.image import imread
+from PIL import Image
 
 from hill_muscle_ros.model import Protocol
 from hill_muscle_ros.tools import cli
@@ -106,11 +107,14 @@ def test_each_figure_is_a_valid_png_of_the_declared_size(figure_dir, name):
 
 @pytest.mark.parametrize('name', FIGURE_FILES + FES_FILES + PULSE_FILES)
 def test_each_figure_is_not_blank(figure_dir, name):
-    image = imread(figure_dir / name)
-    pixels = np.ascontiguousarray(image.reshape(-1, image.shape[-1]))
-    # One opaque item per pixel (its channels' bytes): the same distinct colours
-    # as np.unique(..., axis=0), which took about 1 s per figure.
-    colours = np.unique(pixels.view(np.dtype((np.void, pixels.strides[0]))))
+    # The PNG's 8-bit RGBA pixels (Agg writes 8 bits a channel) packed into one
+    # uint32 each: a one-to-one code of the colour, so the same distinct colours
+    # as np.unique(..., axis=0) on the pixels, which took about 1 s per figure,
+    # and as the opaque 16-byte items of imread's floats, 0.08-0.15 CPU-s per
+    # figure; these integers take 0.02.
+    with Image.open(figure_dir / name) as png:
+        rgba = np.ascontiguousarray(png.convert('RGBA'), dtype=np.uint8)
+    colours = np.unique(rgba.view(np.uint32))
     assert len(colours) > MIN_DISTINCT_COLOURS
 
 
