@@ -20,7 +20,10 @@ RECRUITMENT_CURVE_CHOICES = ('linear', 'threshold_linear', 'exponential')
 FV_SCALING_CHOICES = ('absolute', 'relative')
 FATIGUE_CHOICES = ('none', 'riener')
 RECRUITMENT_ORDER_CHOICES = ('size', 'reverse', 'random')
-ACTIVATION_MODEL_CHOICES = ('first_order', 'ding2003')
+#: The activation model whose muscle is driven by pulse trains per channel
+#: (Ding et al. 2003); the other, ``first_order``, by a level.
+PULSED_MODEL = 'ding2003'
+ACTIVATION_MODEL_CHOICES = ('first_order', PULSED_MODEL)
 #: Stimulator profiles (model/stimulator.py, from pyScienceMode 1.1.5's devices).
 STIMULATOR_CHOICES = ('generic', 'rehastim2', 'p24')
 

@@ -8,7 +8,7 @@ import numpy as np
 
 from .muscle import Muscle
 from .substeps import output_rows, substep_inputs, substeps_for
-from .params import MuscleParams
+from .params import PULSED_MODEL, MuscleParams
 from .protocol import Protocol, PulseProtocol
 from .stimulator import check_channel_command, stimulator_profile
 from .stimulus import pulse_command
@@ -194,7 +194,7 @@ def simulate_pulses(protocol: PulseProtocol, params: MuscleParams | None = None,
     """
     muscle = Muscle(params)
     p = muscle.params
-    if p.activation_model != 'ding2003':
+    if p.activation_model != PULSED_MODEL:
         raise ValueError(f'protocol {protocol.name!r} gives pulse trains (`channels`): it needs '
                          f'`activation_model: ding2003`, got {p.activation_model!r}')
     times, channels, commands = protocol_pulses(protocol, p)

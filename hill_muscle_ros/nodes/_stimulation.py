@@ -22,6 +22,7 @@ from __future__ import annotations
 from typing import Any, Iterable, Mapping
 
 from ..model import MuscleParams
+from ..model.params import PULSED_MODEL
 from ..model.channels import check_train_frequency
 from ..model.stimulator import (ChannelCommand, check_channel_command, check_stimulation,
                                 stimulator_profile)
@@ -34,8 +35,6 @@ except ImportError:   # pragma: no cover - the test venv has it
 
 #: The message's arrays, in its order.
 FIELDS = ('channel', 'mode', 'pulse_width_s', 'current_a', 'frequency_hz')
-#: The activation model whose muscle takes pulses per channel.
-PULSED_MODEL = 'ding2003'
 
 
 def pulsed(params: MuscleParams) -> bool:

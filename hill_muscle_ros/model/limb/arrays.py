@@ -13,6 +13,7 @@ import numpy as np
 from ..muscle import state as muscle_state
 from ..muscle.state import DELAY_FULL, S_DL, S_L, FesBundle, ScratchPool
 from ..muscle import DL_MT_LIMIT_M
+from ..params import PULSED_MODEL
 from .kernels import (DL_OUT_OF_RANGE, L_COM, L_DAMPING, L_EQUILIBRIUM, L_GRAVITY,
                       L_INERTIA, L_MASS, L_MUSCLES, L_OMEGA, L_PER_MUSCLE, L_STIFFNESS, L_T,
                       L_TAU, L_THETA, M_ARM, M_REF, M_SIGN, N_W, dl_mt, muscle_slot)
@@ -33,7 +34,7 @@ def row_length(n_muscles: int, n_activations: int = 0) -> int:
 def activation_count(plant: LimbPlant) -> int:
     """[-] the channels of the plant's pulsed (``ding2003``) muscles, in all."""
     return sum(m.params.n_channels for m in plant.muscles
-               if m.params.activation_model == 'ding2003')
+               if m.params.activation_model == PULSED_MODEL)
 
 
 def no_pulses() -> tuple[np.ndarray, np.ndarray, np.ndarray]:

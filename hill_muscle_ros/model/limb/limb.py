@@ -20,12 +20,13 @@ import numpy as np
 
 from .. import engine as engines
 from ..channels import ChannelTrains
+from ..params import PULSED_MODEL
 from ..stimulator import ChannelCommand
 from ..substeps import MAX_SUBSTEP_S, substeps_for
 from . import kernels
 from .arrays import ROW_JOINT, LimbArrays, no_pulses, pulse_arrays, row_length
 from .kernels import L_OMEGA, L_T, L_TAU, L_THETA, MODE_GIVE, MODE_HOLD, MODE_RECORD, OK
-from .plant import MUSCLE_COLUMNS, PULSED_MODEL, LimbOutputs, LimbPlant, check_step_inputs
+from .plant import MUSCLE_COLUMNS, LimbOutputs, LimbPlant, check_step_inputs
 
 #: [s] The step the delay lines of a :class:`Limb` are first sized for (the
 #: 1 kHz of the presets); a shorter step resizes them, keeping the state.

@@ -29,7 +29,7 @@ from typing import Any, Mapping, NamedTuple, Sequence
 import numpy as np
 
 from ..muscle import DL_MT_LIMIT_M, check_recruitment
-from ..params import _FLOAT_MAX, MuscleParams, _float, _spec, finite_float
+from ..params import PULSED_MODEL, _FLOAT_MAX, MuscleParams, _float, _spec, finite_float
 from ..protocol import (Knots, ProtocolError, PulseProtocol, _parse_channel, _parse_knots,
                         check_protocol_keys, commands_from_pulse_widths, safe_load_yaml)
 
@@ -290,8 +290,6 @@ LIMB_PROTOCOL_KEYS = ('name', 'duration_s', 'muscles', 'external_torque_n_m')
 #: What a muscle's entry of a limb protocol gives: a level (pulse width or
 #: recruitment) or, for a ``ding2003`` muscle, pulse trains per channel.
 LIMB_STIMULATION_KEYS = ('pulse_width_s', 'recruitment', 'channels')
-#: The model whose muscles take ``channels``.
-PULSED_MODEL = 'ding2003'
 
 
 @dataclass(frozen=True)

@@ -24,7 +24,7 @@ from typing import NamedTuple, Sequence
 import numpy as np
 
 from .. import engine
-from ..params import MuscleParams
+from ..params import PULSED_MODEL, MuscleParams
 from ..channels import ChannelTrains
 from ..stimulator import ChannelCommand
 from ..stimulus import command_from_pulse_width
@@ -151,7 +151,7 @@ class Muscle:
         self._out = np.zeros((1, N_OUT))
         self._row = np.zeros(N_OUT)
         self._views()
-        self._pulsed = self.params.activation_model == 'ding2003'
+        self._pulsed = self.params.activation_model == PULSED_MODEL
         # The channels' commands, trains and pending pulses (ding2003 only).
         self._channels = ChannelTrains(self.params) if self._pulsed else None
         self._no_pulse = (np.empty(0), np.empty(0, dtype=np.int64), np.empty(0))

@@ -21,7 +21,7 @@ from typing import Sequence
 import numpy as np
 
 from ..equations import MAX_EVENTS_PER_PIECE
-from ..params import MuscleParams
+from ..params import PULSED_MODEL, MuscleParams
 from ..units import UnitLayout, channel_positions, length_scale
 
 
@@ -316,7 +316,7 @@ class FesBundle:
         ip[I_FATIGUE] = p.fatigue == 'riener'
         ip[I_N] = n = p.n_units
         ip[I_K] = k = p.n_fibre_types
-        ip[I_DING] = p.activation_model == 'ding2003'
+        ip[I_DING] = p.activation_model == PULSED_MODEL
         if ip[I_DING]:
             ip[I_CH0] = len(self.params) + [parent for parent, _ in self.slots].index(i)
             ip[I_NCH] = p.n_channels
@@ -401,7 +401,7 @@ class FesBundle:
 def _slots(params: Sequence[MuscleParams]) -> list:
     """The channel slots of ``params``: (muscle index, territory positions) for
     every channel of every ``ding2003`` muscle, in order."""
-    return [(i, positions) for i, p in enumerate(params) if p.activation_model == 'ding2003'
+    return [(i, positions) for i, p in enumerate(params) if p.activation_model == PULSED_MODEL
             for positions in channel_positions(p)]
 
 
