@@ -35,12 +35,15 @@ AUTOGROUP_TRIES = 5
 AUTOGROUP_RETRY_S = 0.11
 
 
-def lower_autogroup() -> str | None:
-    """Set this session's autogroup to :data:`NICENESS`; return why not, or None."""
+def lower_autogroup(niceness: int = NICENESS) -> str | None:
+    """Set this session's autogroup to ``niceness``; return why not, or None.
+
+    :param niceness: the autogroup's nice value, at least its present one
+    """
     for _ in range(AUTOGROUP_TRIES):
         try:
             with open(AUTOGROUP, 'w') as group:
-                group.write(str(NICENESS))
+                group.write(str(niceness))
             return None
         except FileNotFoundError:
             return 'no autogroups in this kernel'
