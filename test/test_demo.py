@@ -97,6 +97,11 @@ def _make_demo_judged(tmp_path_factory, stall_watcher, name, *make_vars):
                                          MAX_ATTEMPTS)
 
 
+def _bag_dir(proc) -> Path:
+    """The bag directory the demo's summary names (its ``bag:`` line)."""
+    return Path(re.search(r'^bag:\s+(\S+)', proc.stdout, re.M).group(1))
+
+
 @pytest.fixture(scope='module')
 def demo(tmp_path_factory, stall_watcher):
     proc, marker, tmp = _make_demo_judged(tmp_path_factory, stall_watcher, 'demo')
@@ -110,7 +115,7 @@ def test_make_demo_succeeds(demo):
 
 def test_demo_writes_a_readable_bag_and_the_plot_inside_it(demo):
     proc, tmp, _ = demo
-    bag = Path(re.search(r'^bag:\s+(\S+)', proc.stdout, re.M).group(1))
+    bag = _bag_dir(proc)
     assert bag.parent == tmp
     assert (bag / 'force.png').read_bytes()[:8] == PNG_MAGIC
     with Reader(bag) as reader:
@@ -138,8 +143,8 @@ def test_the_bags_force_is_the_offline_cores_in_every_hold_of_protocol_ii(demo):
     simulator acted on it: the first step with a non-zero force (at rest and
     R = 0 the force is exactly 0), which is the offline run's first step.
     """
-    proc, tmp, _ = demo
-    bag = Path(re.search(r'^bag:\s+(\S+)', proc.stdout, re.M).group(1))
+    proc, *_ = demo
+    bag = _bag_dir(proc)
     params, node = load_muscle_params(default_params_file())
     offline = simulate(Protocol.from_yaml(protocol_path('II')), params,
                        rate_hz=node['rate_hz'])
@@ -153,7 +158,8 @@ def test_the_bags_force_is_the_offline_cores_in_every_hold_of_protocol_ii(demo):
     t_s = stamps_s - stamps_s[first] + offline.t_s[1]
     for t in HOLD_TIMES_S:
         nearest = int(np.argmin(np.abs(t_s - t)))
-        assert abs(t_s[nearest] - t) <= SAMPLE_WINDOW_S, f'no wrench within {SAMPLE_WINDOW_S} s of {t} s'
+        assert abs(t_s[nearest] - t) <= SAMPLE_WINDOW_S, \
+            f'no wrench within {SAMPLE_WINDOW_S} s of {t} s'
         assert force_n[nearest] == pytest.approx(offline.force_n[offline.at(t)],
                                                  abs=LIVE_OFFLINE_TOL_N), f't = {t} s'
 
