@@ -36,7 +36,8 @@ from ros_helpers import Probe, ProcessGroup, node_command
 
 # Pacing keeps the node's keep-last-10 queue from dropping a bad value only
 # while no other test loads the machine (publish_acked): that every bad value
-# is warned or counted is a realtime claim; the rest is behaviour.
+# is warned or counted is a realtime claim, on runs of its own paced
+# PACE_S apart; the rest is behaviour, on runs sent as fast as the probe can.
 pytestmark = [pytest.mark.faults, pytest.mark.ros]
 
 _RUNS = itertools.count()
@@ -59,7 +60,8 @@ SETTLE_S = 1.5
 STEADY_TOL_N = 1e-6
 #: The throttle period of the nodes' bad-input warnings (BadInputWarner).
 THROTTLE_S = 1.0
-#: [s] between two messages to one node.
+#: [s] between two messages to one node, in the runs of the realtime claims;
+#: the behaviour's runs send unpaced (a dropped value changes none of them).
 PACE_S = 0.005
 #: The suffix with which a warning counts those suppressed before it.
 MORE = re.compile(r'\((\d+) more since the last warning\)')
@@ -105,8 +107,8 @@ def offline_steady_force() -> float:
     return float(rows[-1, MuscleOutputs._fields.index('force_n')])
 
 
-def publish_acked(probe, pub, value: float) -> None:
-    """Publish, then keep receiving for :data:`PACE_S`.
+def publish_acked(probe, pub, value: float, pace_s: float) -> None:
+    """Publish, then keep receiving for ``pace_s`` [s].
 
     Pacing keeps the node's keep-last-10 queue from dropping messages (it
     would take a 10-message stall of the node), so that every bad value sent
@@ -114,23 +116,24 @@ def publish_acked(probe, pub, value: float) -> None:
     but it can block far beyond its timeout in this rclpy.)
     """
     pub.publish(Float64(data=value))
-    probe.spin_for(PACE_S)
+    probe.spin_for(pace_s)
 
 
-def send_garbage(probe, pub, bad_values, good_value) -> int:
+def send_garbage(probe, pub, bad_values, good_value, pace_s: float) -> int:
     """Each bad value, then a burst alternating good and bad, ending bad.
 
     :return: how many bad values were sent
     """
     sent = 0
     for value in bad_values:
-        publish_acked(probe, pub, value)
+        publish_acked(probe, pub, value, pace_s)
         sent += 1
     for i in range(BURST):
         bad = i % 2 == 1
-        publish_acked(probe, pub, bad_values[i // 2 % len(bad_values)] if bad else good_value)
+        publish_acked(probe, pub, bad_values[i // 2 % len(bad_values)] if bad else good_value,
+                      pace_s)
         sent += bad
-    publish_acked(probe, pub, bad_values[0])
+    publish_acked(probe, pub, bad_values[0], pace_s)
     return sent + 1
 
 
@@ -148,7 +151,7 @@ def flush_throttled_counts(probe, proc, pubs, bad) -> dict[str, int]:
     probe.spin_for(THROTTLE_S)
     for topic, pub in pubs.items():
         before = len(warnings_for(proc.output(), pub.topic_name))
-        publish_acked(probe, pub, bad[topic][0])
+        publish_acked(probe, pub, bad[topic][0], 0.0)
         probe.spin_until(lambda: len(warnings_for(proc.output(), pub.topic_name)) > before,
                          f'the warning on {pub.topic_name}', procs=[proc])
     return {topic: 1 for topic in pubs}
@@ -198,10 +201,11 @@ def assert_every_bad_value_accounted(run: dict, realtime_claim) -> None:
 CONTROLLER_FEEDBACK_TIMEOUT_S = 30.0
 
 
-@pytest.fixture(scope='module')
-def garbage_runs(tmp_path_factory) -> dict:
+def garbage_runs(tmp_path_factory, pace_s: float) -> dict:
     """The simulator and the controller, each fed garbage on every input (checked
     as it runs), and their logs: ``{'simulator': ..., 'controller': ...}``.
+
+    :param pace_s: [s] between two messages to one node (0: unpaced)
 
     Both nodes start together. The controller takes its garbage while the
     simulator settles at its first pulse width (the pacing is per node: one
@@ -250,7 +254,7 @@ def garbage_runs(tmp_path_factory) -> dict:
         probe.wait_for_value(pw, lambda v: v > 0.0, 'stimulation', procs=[sim, ctrl])
         start = time.monotonic()
         good = {'force_target': target_n, 'force': target_n, 'length_command': STRETCH_M}
-        ctrl_sent = {topic: send_garbage(probe, pub, BAD[topic], good[topic])
+        ctrl_sent = {topic: send_garbage(probe, pub, BAD[topic], good[topic], pace_s)
                      for topic, pub in ctrl_pubs.items()}
         for topic, n in flush_throttled_counts(probe, ctrl, ctrl_pubs, BAD).items():
             ctrl_sent[topic] += n
@@ -268,7 +272,7 @@ def garbage_runs(tmp_path_factory) -> dict:
         start = time.monotonic()
         good = {'pulse_width': PW_LAST_S, 'recruitment': PW_LAST_S / PW_MAX_S,
                 'length_command': STRETCH_M}
-        sent = {topic: send_garbage(probe, pub, BAD[topic], good[topic])
+        sent = {topic: send_garbage(probe, pub, BAD[topic], good[topic], pace_s)
                 for topic, pub in pubs.items()}
         for topic, n in flush_throttled_counts(probe, sim, pubs, BAD).items():
             sent[topic] += n
@@ -305,13 +309,25 @@ def garbage_runs(tmp_path_factory) -> dict:
 
 
 @pytest.fixture(scope='module')
-def simulator_run(garbage_runs) -> dict:
-    return garbage_runs['simulator']
+def unpaced_runs(tmp_path_factory) -> dict:
+    """:func:`garbage_runs` sent as fast as the probe can: the behaviour."""
+    return garbage_runs(tmp_path_factory, 0.0)
 
 
 @pytest.fixture(scope='module')
-def controller_run(garbage_runs) -> dict:
-    return garbage_runs['controller']
+def paced_runs(tmp_path_factory) -> dict:
+    """:func:`garbage_runs` paced :data:`PACE_S` apart: the realtime claims."""
+    return garbage_runs(tmp_path_factory, PACE_S)
+
+
+@pytest.fixture(scope='module')
+def simulator_run(unpaced_runs) -> dict:
+    return unpaced_runs['simulator']
+
+
+@pytest.fixture(scope='module')
+def controller_run(unpaced_runs) -> dict:
+    return unpaced_runs['controller']
 
 
 def test_simulator_ignores_garbage_on_every_input_and_keeps_the_last_good_value(simulator_run):
@@ -319,8 +335,8 @@ def test_simulator_ignores_garbage_on_every_input_and_keeps_the_last_good_value(
 
 
 @pytest.mark.realtime
-def test_simulator_warns_or_counts_every_paced_bad_value(simulator_run, realtime_claim):
-    assert_every_bad_value_accounted(simulator_run, realtime_claim)
+def test_simulator_warns_or_counts_every_paced_bad_value(paced_runs, realtime_claim):
+    assert_every_bad_value_accounted(paced_runs['simulator'], realtime_claim)
 
 
 
@@ -330,5 +346,5 @@ def test_controller_ignores_garbage_on_every_input_and_keeps_the_last_good_value
 
 
 @pytest.mark.realtime
-def test_controller_warns_or_counts_every_paced_bad_value(controller_run, realtime_claim):
-    assert_every_bad_value_accounted(controller_run, realtime_claim)
+def test_controller_warns_or_counts_every_paced_bad_value(paced_runs, realtime_claim):
+    assert_every_bad_value_accounted(paced_runs['controller'], realtime_claim)
