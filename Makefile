@@ -147,7 +147,7 @@ demo-closed-loop: $(STAMP) bytecode
 
 # The joint controller moves the simulated knee (doc/control.md, "make demo-knee"): limb node, joint
 # controller and recorder on config/knee.yaml; angle steps and a sine; a bag, a plot
-# and a stick-figure GIF. KNEE_PROFILE=short (8.5 s) for a quick look, OUT= a new directory.
+# and a stick-figure GIF. KNEE_PROFILE=short (8.5 s) for a quick look, brief (2.75 s) to try it, OUT= a new directory.
 .PHONY: demo-knee
 demo-knee: $(STAMP) bytecode
 	$(BIN)/python -m hill_muscle_ros.demo_knee $(if $(KNEE_PROFILE),--profile $(KNEE_PROFILE)) $(if $(OUT),--out $(OUT))
