@@ -18,6 +18,7 @@ Euler would be off by about 0.3 N.
 """
 from __future__ import annotations
 
+import copy
 import math
 from typing import NamedTuple, Sequence
 
@@ -161,6 +162,29 @@ class Muscle:
         self._fs = self._bundle.view(0, 'fs')
         self._js = self._bundle.view(0, 'js')
         self._multi = bool(self._bundle.view(0, 'ip')[I_MULTI])
+
+    def __deepcopy__(self, memo: dict) -> 'Muscle':
+        """A muscle in the same state with state of its own, stepping on the same
+        build of the kernels: it goes on exactly as this one would, and neither
+        moves the other (the fit's edge search replays each move of a
+        stimulation change from a copy saved before it).
+
+        Copied: the bundle's ``F`` and ``I`` (time, CE and MTU lengths, command,
+        delay line, activation, unit memory and fatigue, channel slots), a
+        ``ding2003`` muscle's trains and pending pulses, and the step's scratch.
+        Shared: the parameters (frozen) and the kernels (functions, or numba's
+        dispatchers: a module cannot be copied, which is why this method exists).
+        """
+        # Seeded in the memo so that the bundle and the channels keep the very
+        # same parameters object rather than copies of it.
+        memo[id(self.params)] = self.params
+        twin = copy.copy(self)
+        twin._bundle = copy.deepcopy(self._bundle, memo)
+        for name in ('_r', '_dl', '_out', '_row'):
+            setattr(twin, name, getattr(self, name).copy())
+        twin._channels = copy.deepcopy(self._channels, memo)
+        twin._views()
+        return twin
 
     # -- state -----------------------------------------------------------------
 
