@@ -522,3 +522,93 @@ def test_an_edge_search_is_judged_as_a_whole(late_change_recording):
         len(recording.stimulation) - 1) * fit.replay_runs(len(parameters))
     _, _, shifts = fit.fit_with_aligned_edges(recording, start, parameters, max_shift)
     assert shifts == [-5, 0]
+
+
+# --------------------------------------------------------------------------- moves from a saved state
+
+def _full_replays_alignment(recording, params, max_shift):
+    """The edge search with every move replayed from rest: each change in turn,
+    each move within ±max_shift (never past its neighbours), the least sum of
+    squared residuals, a tie to the smallest move."""
+    from hill_muscle_ros.tools.fit.edges import _moved_edge, stimulation_edges
+    stim = recording.stimulation
+    edges = [int(c) for c in stimulation_edges(stim)]
+    shifts = []
+    for j, edge in enumerate(edges):
+        low = edges[j - 1] + shifts[j - 1] + 1 if j else 1
+        high = edges[j + 1] - 1 if j + 1 < len(edges) else len(stim) - 1
+        best = None
+        for shift in sorted(range(-max_shift, max_shift + 1), key=abs):
+            if low <= edge + shift <= high:
+                moved = dataclasses.replace(recording, stimulation=_moved_edge(stim, edge, shift))
+                residual = fit.MuscleReplay(moved).predict([params])[0] - recording.force_n
+                if best is None or float(residual @ residual) < best[0]:
+                    best = (float(residual @ residual), shift)
+        shifts.append(best[1] if best is not None else 0)
+        stim = _moved_edge(stim, edge, shifts[-1])
+    return dataclasses.replace(recording, stimulation=stim), shifts
+
+
+@pytest.mark.parametrize('engine, params, moves', [
+    ('python', TRUTH, (-2, 0, 3)), ('compiled', TRUTH, range(-4, 5)),
+    ('compiled', FES_TRUTH, range(-4, 5))], ids=['python', 'compiled', 'compiled-fes'])
+def test_a_replay_from_a_checkpoint_predicts_what_a_replay_from_rest_predicts(
+        late_change_recording, engine, params, moves, monkeypatch):
+    from hill_muscle_ros.tools.fit.edges import _moved_edge
+    monkeypatch.setenv('HILL_MUSCLE_ENGINE', engine)
+    recording, p = late_change_recording, MuscleParams(**params)
+    edge = 3005   # the change at 3 s, stamped 5 ms late
+    checkpoint = fit.MuscleReplay(recording).checkpoint(p, edge + min(moves))
+    for shift in moves:
+        moved = _moved_edge(recording.stimulation, edge, shift)
+        from_rest = fit.MuscleReplay(dataclasses.replace(recording, stimulation=moved))
+        np.testing.assert_array_equal(checkpoint.predict(moved), from_rest.predict([p])[0],
+                                      strict=True)
+
+
+def test_a_checkpoint_refuses_a_stimulation_that_changes_its_saved_steps(
+        late_change_recording):
+    checkpoint = fit.MuscleReplay(late_change_recording).checkpoint(MuscleParams(), 3000)
+    changed = late_change_recording.stimulation.copy()
+    changed[2999] = 0.0
+    with pytest.raises(ValueError, match=r'`stimulation` must give the recorded commands '
+                                         r'over the first 3000 steps, it changes step 2999'):
+        checkpoint.predict(changed)
+    with pytest.raises(ValueError, match=r'`stimulation` must have the recording\'s 6001 '
+                                         r'entries, got 6000'):
+        checkpoint.predict(changed[:-1])
+
+
+@pytest.mark.parametrize('steps', [0, 6001, 2.5])
+def test_a_checkpoint_beyond_the_recording_is_refused_naming_it(late_change_recording, steps):
+    with pytest.raises(ValueError, match=rf'`steps` must be an integer in \[1, 6000\], '
+                                         rf'got {steps!r}'):
+        fit.MuscleReplay(late_change_recording).checkpoint(MuscleParams(), steps)
+
+
+@pytest.mark.parametrize('params', [{}, TRUTH, FES_TRUTH], ids=['start', 'truth', 'fes'])
+def test_an_edge_search_moves_each_change_as_replays_from_rest_do(late_change_recording,
+                                                                  params):
+    recording, p = late_change_recording, MuscleParams(**params)
+    aligned, shifts = fit.align_stimulation_edges(recording, p, 20)
+    want_aligned, want_shifts = _full_replays_alignment(recording, p, 20)
+    assert shifts == want_shifts
+    np.testing.assert_array_equal(aligned.stimulation, want_aligned.stimulation, strict=True)
+
+
+def test_an_edge_search_fits_exactly_what_replays_from_rest_fit(late_change_recording,
+                                                               monkeypatch):
+    from hill_muscle_ros.tools.fit import edges
+    recording, start = late_change_recording, MuscleParams()
+    parameters = fit.parse_fit_names(FITTED, start)
+    got, got_used, got_shifts = fit.fit_with_aligned_edges(recording, start, parameters, 20)
+    monkeypatch.setattr(edges, 'align_stimulation_edges',
+                        lambda rec, params, max_shift, runs=None:
+                        _full_replays_alignment(rec, params, max_shift))
+    want, want_used, want_shifts = fit.fit_with_aligned_edges(recording, start, parameters, 20)
+    assert got_shifts == want_shifts
+    assert got.params == want.params
+    for name in ('estimates', 'std_errors', 'fitted'):
+        np.testing.assert_array_equal(getattr(got, name), getattr(want, name), strict=True)
+    assert (got.rms_n, got.n_evaluations) == (want.rms_n, want.n_evaluations)
+    np.testing.assert_array_equal(got_used.stimulation, want_used.stimulation, strict=True)

@@ -61,6 +61,9 @@ def align_stimulation_edges(recording: MuscleRecording, params: MuscleParams,
     biases the fit. Each change, in order, is moved by the whole number of steps
     within ±``max_shift_steps`` (never past its neighbours) that gives the least
     sum of squared residuals with ``params``; a tie keeps the smallest move.
+    The moves of one change are replayed from the muscle saved before the
+    earliest of them (:meth:`MuscleReplay.checkpoint`), with the same forces
+    as replays from rest.
 
     :param runs: [-] runs the caller expects in all, for :class:`MuscleReplay`'s
         choice of engine (default: this search's own, one per candidate move)
@@ -74,12 +77,15 @@ def align_stimulation_edges(recording: MuscleRecording, params: MuscleParams,
     for j, edge in enumerate(edges):
         low = (edges[j - 1] + shifts[j - 1] + 1) if j else 1
         high = edges[j + 1] - 1 if j + 1 < len(edges) else len(stim) - 1
+        moves = [shift for shift in sorted(range(-max_shift_steps, max_shift_steps + 1), key=abs)
+                 if low <= edge + shift <= high]   # never empty: 0 always is
+        # Every move leaves the commands before its earliest step as they are:
+        # those steps are replayed once, each move goes on from there.
+        replay = MuscleReplay(dataclasses.replace(recording, stimulation=stim), runs)
+        checkpoint = replay.checkpoint(params, edge + min(moves))
         best = None
-        for shift in sorted(range(-max_shift_steps, max_shift_steps + 1), key=abs):
-            if not low <= edge + shift <= high:
-                continue
-            moved = dataclasses.replace(recording, stimulation=_moved_edge(stim, edge, shift))
-            residual = MuscleReplay(moved, runs).predict([params])[0] - recording.force_n
+        for shift in moves:
+            residual = checkpoint.predict(_moved_edge(stim, edge, shift)) - recording.force_n
             sse = float(residual @ residual)
             if best is None or sse < best[0]:
                 best = (sse, shift)
