@@ -142,15 +142,31 @@ def warnings_for(log: str, topic: str) -> list[str]:
             if '[WARN]' in line and f'ignoring {topic} = ' in line]
 
 
+#: A node's warning line: ``[WARN] [seconds.nanoseconds] [name]: ...``.
+WARN_TIME = re.compile(r'^\[WARN\] \[(\d+\.\d+)\]')
+#: [s] beyond a throttle period after a topic's last warning (system clock, as
+#: the log's stamps) before its flush value is sent: the node's own period runs
+#: on its monotonic clock, from when it took the value.
+FLUSH_MARGIN_S = 0.05
+
+
 def flush_throttled_counts(probe, proc, pubs, bad) -> dict[str, int]:
-    """After a throttle period, one more bad value per topic: its warning
-    carries the count of those suppressed since the last one.
+    """A throttle period after each topic's last warning, one more bad value on
+    it: its warning carries the count of those suppressed since the last one.
+
+    The period is counted from the warning in the node's log, not from the
+    last value sent: the node may take a burst's first value a while after
+    the probe sent it (unpaced, a few ms to tens of ms), and a flush within
+    its period would be counted, not warned.
 
     :return: the bad values sent here, per topic (1 each)
     """
-    probe.spin_for(THROTTLE_S)
     for topic, pub in pubs.items():
-        before = len(warnings_for(proc.output(), pub.topic_name))
+        lines = probe.spin_until(lambda: warnings_for(proc.output(), pub.topic_name),
+                                 f'a first warning on {pub.topic_name}', procs=[proc])
+        before = len(lines)
+        last_s = float(WARN_TIME.match(lines[-1]).group(1))
+        probe.spin_for(last_s + THROTTLE_S + FLUSH_MARGIN_S - time.time())
         publish_acked(probe, pub, bad[topic][0], 0.0)
         probe.spin_until(lambda: len(warnings_for(proc.output(), pub.topic_name)) > before,
                          f'the warning on {pub.topic_name}', procs=[proc])
