@@ -38,6 +38,18 @@ def test_channel_territories_are_disjoint_and_cover_every_unit_in_their_shares()
     assert sorted(every.tolist()) == list(range(1000))
 
 
+def test_a_channel_whose_share_rounds_to_no_unit_is_refused_naming_it():
+    # 2 units in shares 1 : 0.25 give channel 2 floor(2 * 1.25 / 1.25 + 0.5) -
+    # floor(2 * 1 / 1.25 + 0.5) = 0 units: it would take pulses and move nothing.
+    with pytest.raises(ValueError, match=r'`channel_fractions` must give every channel at '
+                                         r'least one of the 2 units \(`n_units`\), got '
+                                         r'\[1.0, 0.25\]: channel 2 gets none'):
+        MuscleParams(**DING, n_units=2, channel_fractions=(1.0, 0.25))
+    # One unit more and each channel has one: accepted.
+    assert [len(t) for t in channel_positions(
+        MuscleParams(**DING, n_units=3, channel_fractions=(1.0, 0.25)))] == [2, 1]
+
+
 def test_a_territory_is_the_channel_seeds_permutation_block_whatever_the_recruitment_order():
     p = MuscleParams(**DING, n_units=50, channel_fractions=(1.0, 1.0),
                      recruitment_order='random', recruitment_seed=3, channel_seed=7)

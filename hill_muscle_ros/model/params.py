@@ -27,6 +27,22 @@ ACTIVATION_MODEL_CHOICES = ('first_order', PULSED_MODEL)
 #: Stimulator profiles (model/stimulator.py, from pyScienceMode 1.1.5's devices).
 STIMULATOR_CHOICES = ('generic', 'rehastim2', 'p24')
 
+def type_block_ends(n_units: int, fractions: tuple[float, ...]) -> list[int]:
+    """Last unit number of each block (fibre type, or channel territory):
+    floor(N cumsum / sum + 0.5).
+
+    :param n_units: N, the muscle's units
+    :param fractions: [-] each block's share (any positive scale)
+    :return: K block ends; block k owns units ends[k-1] + 1 .. ends[k] (1-based)
+    """
+    total = sum(fractions)
+    ends, acc = [], 0.0
+    for f in fractions:
+        acc += f
+        ends.append(int(math.floor(n_units * acc / total + 0.5)))
+    return ends
+
+
 #: Upper bound of every float parameter: far beyond any muscle, it only turns a
 #: typo or an overflow-prone value (1e300 N/m) into an error. The model and
 #: the ROS parameter descriptors use the same bound.
@@ -471,6 +487,15 @@ class MuscleParams:
         if self.n_units < c:
             raise ValueError(f'`n_units` must be at least the number of channels ({c}), '
                              f'got {self.n_units!r}')
+        # A channel without units would take pulses and move nothing, and its
+        # pool's mean fitness is 0/0: refused, as a territory the user asked for.
+        ends = type_block_ends(self.n_units, self.channel_fractions)
+        for channel, (start, end) in enumerate(zip([0] + ends[:-1], ends), start=1):
+            if end == start:
+                raise ValueError(
+                    f'`channel_fractions` must give every channel at least one of the '
+                    f'{self.n_units} units (`n_units`), got {list(self.channel_fractions)!r}: '
+                    f'channel {channel} gets none')
 
     @property
     def n_channels(self) -> int:

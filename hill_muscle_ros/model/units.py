@@ -25,7 +25,7 @@ import math
 import numpy as np
 
 from .equations import FL_A, FL_B, FL_C
-from .params import MuscleParams
+from .params import MuscleParams, type_block_ends
 
 #: The golden-ratio conjugate (sqrt(5) - 1) / 2 of the length-spread sequence.
 PHI = (math.sqrt(5.0) - 1.0) / 2.0
@@ -34,19 +34,6 @@ PHI = (math.sqrt(5.0) - 1.0) / 2.0
 _DISCRIMINANT = math.sqrt(FL_B * FL_B - 4.0 * FL_A * FL_C)
 FL_ROOT_LOW = (-FL_B + _DISCRIMINANT) / (2.0 * FL_A)
 FL_ROOT_HIGH = (-FL_B - _DISCRIMINANT) / (2.0 * FL_A)
-
-
-def type_block_ends(n_units: int, fractions: tuple[float, ...]) -> list[int]:
-    """Last unit number of each fibre type's block: floor(N cumsum / sum + 0.5).
-
-    :return: K block ends; type k owns units ends[k-1] + 1 .. ends[k] (1-based)
-    """
-    total = sum(fractions)
-    ends, acc = [], 0.0
-    for f in fractions:
-        acc += f
-        ends.append(int(math.floor(n_units * acc / total + 0.5)))
-    return ends
 
 
 def unit_length_scale(position, spread: float):
