@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from hypothesis import given, settings, strategies as st
 
 from hill_muscle_ros.model import MuscleParams, simulate
 from hill_muscle_ros.model.muscle import Muscle
@@ -116,6 +117,22 @@ def test_a_command_a_rehastim2_refuses_is_rejected_by_field_and_channel_and_the_
         m.stimulate([constant_train(1, pw=200e-6, f=25.0, current=0.140)])
     m.run_trains(np.zeros(10), 1e-3)
     assert m.n_recruited == round(1000 / 2 * 300e-6 / 500e-6)   # the first command's
+
+
+@pytest.mark.parametrize('build', ['python', 'compiled'])
+@settings(max_examples=25, deadline=None)
+@given(dt=st.sampled_from([2e-4, 3e-4, 7e-4, 1e-3]),
+       runs=st.lists(st.integers(1, 60), min_size=1, max_size=4))
+def test_a_command_after_any_run_of_the_trains_is_taken_at_the_muscles_instant(build, dt, runs):
+    # The muscle's clock is a sum of steps; the trains must stand exactly there:
+    # 24 steps of 0.2 ms end at 0.0048 s, and a command then was refused with
+    # "`t1_s` must be >= 0.0048000000000000004 s" (the trains at t + n dt).
+    m = pulses_muscle(build)
+    m.stimulate([constant_train(1, pw=250e-6)])
+    for k, n in enumerate(runs):
+        m.run_trains(np.zeros(n), dt)
+        m.stimulate([constant_train(1, pw=200e-6 + 10e-6 * k)])
+    assert m.t_s == pytest.approx(sum(runs) * dt, rel=1e-12)
 
 
 def test_a_channel_beyond_the_muscles_is_rejected():
