@@ -30,6 +30,9 @@ from hill_muscle_ros.dds_transport import use_udp_transport
 from hill_muscle_ros.domain_lock import lock_free_domain
 from stall_watch import RepeatedOnStall, StallWatcher
 
+#: Fixtures shared by test modules, each defined once: the sim-time demo run.
+pytest_plugins = ('demo_run',)
+
 #: Domain IDs 1..100 stay clear of 0 (the default most people use), of the
 #: demo's 101..199, and within the range Fast DDS maps to valid UDP ports.
 _DOMAIN_LOW, _DOMAIN_HIGH = 1, 100

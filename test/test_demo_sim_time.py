@@ -1,9 +1,10 @@
 """Faster than real time: the demo on sim time.
 
-`python -m hill_muscle_ros.demo --real-time-factor 10` runs the simulator
-(publish_clock, real_time_factor 10), the recorder and the protocol player
-(both use_sim_time) as three processes and replays Protocol II. The bag is
-read back here and compared with the offline simulation.
+``make demo RTF=10`` (demo_run's ``demo_at_rtf``, the run test_demo checks
+too) runs the simulator (publish_clock, real_time_factor 10), the recorder
+and the protocol player (both use_sim_time) as three processes and replays
+Protocol II. The bag is read back here and compared with the offline
+simulation.
 
 The force is compared at the end of each second, every second, at
 real_time_factor 10, within 0.5 N. Mid-ramp (1.95 and 4.95 s, 10 mm/s) the
@@ -13,11 +14,7 @@ late (0.2-0.75 N off). The demo therefore sends the length ahead, stamped
 with the time it is to be reached (``length_command_stamped``, the player's
 ``lookahead_s``), and the simulator applies each knot at its time.
 """
-import os
 import re
-import subprocess
-import sys
-import time
 
 import numpy as np
 import pytest
@@ -31,23 +28,20 @@ from hill_muscle_ros.recording.reader import read_bag
 from hill_muscle_ros.resources import default_params_file, protocol_path
 from hill_muscle_ros.timebase import NS_PER_S
 
+from demo_run import RTF, bag_dir
+
 # realtime (the force checks): at RTF 10 a tolerance of 0.5 s of sim time is 50 ms of wall time; beside
 # three other ROS modules (xdist) a recorder's batch of 136 messages came 145 ms late.
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
-RTF = 10.0
 #: [N] the pass criterion: every end-of-second reading within this of offline.
 FORCE_TOLERANCE_N = 0.5
-#: [s] generous for a shared 2-core box; a healthy run takes ~10 s.
-DEMO_TIMEOUT_S = 180.0
 #: [s] the recorded protocol's span on the recorder's sim clock may differ
 #: from the protocol's duration by the DDS receive latency (the recorder
 #: stamps the sim time in force when DDS received a message, not when it took
 #: it: ReceiptClock) and the player's tick granularity, at RTF 10 ten times
 #: their wall time.
 SPAN_TOLERANCE_S = 0.5
-#: Added to the run's ROS_DOMAIN_ID for the sim-time demo's processes.
-SIM_TIME_DOMAIN_OFFSET = 100
 #: [s] of simulated time a reading may lag the time it is for: one tick of
 #: RTF steps, plus a catch-up tick on a busy machine.
 SAMPLE_AGE_LIMIT_S = 0.1
@@ -59,32 +53,18 @@ def _ramping(protocol: Protocol, t_s: float) -> bool:
     return abs(float(protocol.dl_mt(t_s + h)) - float(protocol.dl_mt(t_s - h))) > 0.0
 
 
-def _run_demo(tmp_path_factory, rtf: float):
-    runs_dir = tmp_path_factory.mktemp('demo_sim_time')
-    env = os.environ.copy()
-    # A domain of its own, derived from the one conftest locked for this run
-    # (1..100, so this is 101..200 and unique too): a /clock-driven run must
-    # leave nothing behind in the domain the later tests use.
-    env['HILL_MUSCLE_DEMO_DOMAIN'] = str(int(env['ROS_DOMAIN_ID']) + SIM_TIME_DOMAIN_OFFSET)
-    start = time.monotonic()
-    proc = subprocess.run([sys.executable, '-m', 'hill_muscle_ros.demo', '--protocol', 'II',
-                           '--real-time-factor', repr(rtf), '--runs-dir', str(runs_dir),
-                           '--name', 'rtf'], env=env, capture_output=True, text=True,
-                          timeout=DEMO_TIMEOUT_S)
-    wall_s = time.monotonic() - start
-    print(f'demo at real_time_factor {rtf:g} took {wall_s:.1f} s')  # measured, not asserted
+@pytest.fixture(scope='module')
+def run(demo_at_rtf):
+    """(bag, protocol, offline run, wall time [s], simulator log) of ``make demo RTF=10``."""
+    proc, _, wall_s, _ = demo_at_rtf
     print(proc.stdout)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     protocol = Protocol.from_yaml(protocol_path('II'))
     params, settings = load_muscle_params(default_params_file())
     offline = simulate(protocol, params, float(settings.get('rate_hz', 1000.0)))
-    log = (runs_dir / 'logs' / 'rtf' / 'simulator.log').read_text(errors='replace')
-    return read_bag(runs_dir / 'rtf'), protocol, offline, wall_s, log
-
-
-@pytest.fixture(scope='module')
-def run(tmp_path_factory):
-    return _run_demo(tmp_path_factory, RTF)
+    bag = bag_dir(proc)
+    log = (bag.parent / 'logs' / bag.name / 'simulator.log').read_text(errors='replace')
+    return read_bag(bag), protocol, offline, wall_s, log
 
 
 def _errors(run, ramp: bool):
