@@ -3,9 +3,15 @@ processes over DDS), recorded, read back with every promised reader,
 cross-checked against the offline core, and fitted: ``hill-muscle fit``
 recovers the simulator's non-default muscle parameters from the bag.
 
-One live run serves every claim of the module: the simulator runs the
-:data:`TRUTH` muscle (the defaults are 45 N, 10 kN/m and 10 N), against
-which the offline core is run too.
+The simulator runs the :data:`TRUTH` muscle (the defaults are 45 N, 10 kN/m
+and 10 N), against which the offline core is run too. What the recorder
+writes (every topic, the gaps it reports, the same wrenches a probe got, the
+player's inputs exactly, every reader agreeing) is checked on one live run of
+:data:`BRIEF_PROTOCOL` (``live_run``), whatever the machine does meanwhile.
+That the recorded force is the offline core's at the end of each second, and
+that the fit recovers the parameters, hold only for a run the machine did not
+hold up just before a sample time: claims on the live run's timing, on
+Protocol II (``timed_live_run``, ``make check-realtime``).
 
 The player sends the length ahead, stamped (``lookahead_s``, as the demo
 does), and the simulator reaches each length at its stamp. On the plain
@@ -53,6 +59,7 @@ import time
 
 import numpy as np
 import pytest
+import yaml
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from rosbags.highlevel import AnyReader
@@ -116,6 +123,12 @@ SAMPLE_WINDOW_S = 0.2
 SIM_TIME_RECORDED_MSGS = 500
 #: [s] Protocol II lasts 6 s.
 PROTOCOL_DURATION_S = 6.0
+#: Protocol II in 2 s, for what the recorder writes: R = 0.5 then 1.0, the
+#: stretch to 10 mm and back (its ramps 20 mm/s), 2000 steps of every output.
+BRIEF_PROTOCOL = {'name': 'Protocol II in 2 s', 'duration_s': 2.0,
+                  'recruitment': [[0.0, 0.5], [1.0, 0.5], [1.0, 1.0]],
+                  'dl_mt_m': [[0.0, 0.0], [0.25, 0.0], [0.75, 0.010], [1.25, 0.010],
+                              [1.75, 0.0]]}
 
 
 def _one_live_run(tmp, ns, protocol_file):
@@ -216,9 +229,19 @@ def fit_misses(run) -> list[str]:
 
 
 @pytest.fixture(scope='module')
-def live_run(tmp_path_factory, protocol_paths, stall_watcher):
-    """Protocol II over DDS to the :data:`TRUTH` muscle, recorded; a probe in the
-    test records the wrench too.
+def live_run(tmp_path_factory):
+    """:data:`BRIEF_PROTOCOL` over DDS to the :data:`TRUTH` muscle, recorded; a
+    probe in the test records the wrench too."""
+    tmp = tmp_path_factory.mktemp('live_brief')
+    protocol_file = tmp / 'protocol.yaml'
+    protocol_file.write_text(yaml.safe_dump(BRIEF_PROTOCOL))
+    return _one_live_run(tmp, f'/live{os.getpid()}_brief', protocol_file)
+
+
+@pytest.fixture(scope='module')
+def timed_live_run(tmp_path_factory, protocol_paths, stall_watcher):
+    """Protocol II over DDS to the :data:`TRUTH` muscle, recorded, and its fit
+    started; a probe in the test records the wrench too.
 
     A disturbed run (see :func:`_disturbance`) is repeated only when the stall
     watcher measured the machine leaving it unscheduled during that run, and
@@ -261,10 +284,7 @@ def test_recorder_stops_cleanly_after_a_live_run(live_run):
 
 
 def test_sim_time_run_logs_in_sim_time(tmp_path):
-    """With the simulator as the clock, the recorder's log_time is sim time too.
-
-    It runs right after the live run, beside that run's fit (a process of its
-    own, started by the fixture), which it does not use."""
+    """With the simulator as the clock, the recorder's log_time is sim time too."""
     ns = f'/simtime{os.getpid()}'
     bag = tmp_path / 'bag'
     with ProcessGroup(tmp_path) as procs, Probe('simtime_probe') as probe:
@@ -338,7 +358,7 @@ def test_player_inputs_come_back_exactly(live_run):
     bag = bag_of(live_run)
     pw_max = MuscleParams().pw_max_s
     pulse = bag.topic(f'{live_run["ns"]}/pulse_width').values()
-    # The rest state (zero), then Protocol II: R = 0.5, then 1.0, and zero stimulation at the end.
+    # The rest state (zero), then the protocol's R = 0.5, then 1.0, and zero stimulation at the end.
     assert set(np.unique(pulse)) == {0.0, 0.5 * pw_max, pw_max}
     assert pulse[0] == 0.0 and pulse[1] == 0.5 * pw_max and pulse[-1] == 0.0
     length = bag.topic(f'{live_run["ns"]}/length_command_stamped').values()
@@ -362,18 +382,29 @@ def test_readers_agree_on_the_live_bag(live_run):
     assert list(ours) == any_values == mcap_values
 
 
-def test_recorded_force_matches_offline_at_the_end_of_each_second(live_run, protocol_paths):
-    misses = offline_force_misses(live_run, protocol_paths['II'])
+@pytest.mark.realtime
+def test_recorded_force_matches_offline_at_the_end_of_each_second(timed_live_run,
+                                                                   protocol_paths,
+                                                                   realtime_claim):
+    misses = offline_force_misses(timed_live_run, protocol_paths['II'])
+    realtime_claim('live run, recorded: force vs offline at the end of each second',
+                   f'{len(misses)} of 6 off', f'< {FORCE_TOLERANCE_N:g} N each')
     assert not misses, misses
 
 
-def test_fit_recovers_the_simulator_parameters_from_a_live_bag(live_run):
-    assert live_run['status'] == 0, live_run['log']
-    fit = fit_of(live_run)
+@pytest.mark.realtime
+def test_fit_recovers_the_simulator_parameters_from_a_live_bag(timed_live_run,
+                                                               realtime_claim):
+    assert timed_live_run['status'] == 0, timed_live_run['log']
+    fit = fit_of(timed_live_run)
     assert fit['status'] == 0, fit['err']
     moves = next(line for line in fit['out'].splitlines()
                  if 'stimulation changes moved by' in line)
-    statistics = simulator_statistics(live_run['sim_log'])
+    statistics = simulator_statistics(timed_live_run['sim_log'])
+    worst = max(abs(getattr(fit['fitted'], name) / truth - 1.0) / FIT_TOLERANCE[name]
+                for name, truth in TRUTH.items())
+    realtime_claim('live run, recorded: fit of f_iso, k_se, fv_a',
+                   f'{worst:.2f} of each tolerance', '<= 1')
     for name, truth in TRUTH.items():
         assert getattr(fit['fitted'], name) == pytest.approx(truth, rel=FIT_TOLERANCE[name]), (
             name, moves, statistics, fit['out'])
