@@ -93,15 +93,30 @@ def read_topics(bag_dir) -> dict[str, list[tuple[int, object]]]:
     return topics
 
 
-def run_demo(tmp_path_factory, profile):
-    """The demo on ``profile``: (process result, output dir, namespace, wall time [s])."""
+def start_demo(tmp_path_factory, profile):
+    """Start the demo on ``profile`` and return a call that waits for it:
+    (process result, output dir, namespace, wall time [s])."""
     out = tmp_path_factory.mktemp(f'demo_knee_{profile.name}') / 'out'
     ns = f'/kneedemo_{profile.name}_{os.getpid()}'
+    # Files, not pipes: nothing reads the output while the demo runs.
+    stdout, stderr = out.parent / 'stdout.txt', out.parent / 'stderr.txt'
     started = time.monotonic()
-    done = subprocess.run(demo_command(out, ns, profile.name, '--gif-fps', f'{TEST_GIF_FPS:g}'),
-                          capture_output=True, text=True,
-                          env=ros_env(), timeout=RUN_TIMEOUT_S)
-    return done, out, ns, time.monotonic() - started
+    with open(stdout, 'w') as o, open(stderr, 'w') as e:
+        proc = subprocess.Popen(
+            demo_command(out, ns, profile.name, '--gif-fps', f'{TEST_GIF_FPS:g}'),
+            stdout=o, stderr=e, text=True, env=ros_env())
+
+    def finished():
+        try:
+            status = proc.wait(timeout=RUN_TIMEOUT_S)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+        done = subprocess.CompletedProcess(proc.args, status, stdout.read_text(),
+                                           stderr.read_text())
+        return done, out, ns, time.monotonic() - started
+    return finished
 
 
 def topics_of(run):
@@ -111,9 +126,19 @@ def topics_of(run):
 
 
 @pytest.fixture(scope='module')
-def run(tmp_path_factory):
-    """The brief profile, once."""
-    return run_demo(tmp_path_factory, BRIEF)
+def started_run(tmp_path_factory):
+    """The brief profile, started once: it runs beside the module's first test
+    (the interrupted run), whose nodes are in a namespace of their own. Waited
+    for at the module's end if no test did, so that it never outlives it."""
+    finished = start_demo(tmp_path_factory, BRIEF)
+    yield finished
+    finished()
+
+
+@pytest.fixture(scope='module')
+def run(started_run):
+    """The brief profile's run, once it has ended."""
+    return started_run()
 
 
 @pytest.fixture(scope='module')
@@ -124,7 +149,38 @@ def topics(run):
 @pytest.fixture(scope='module')
 def settling_run(tmp_path_factory):
     """The short profile, once (2 s holds: the settling claim)."""
-    return run_demo(tmp_path_factory, SHORT)
+    return start_demo(tmp_path_factory, SHORT)()
+
+
+def test_sigint_stops_every_node_and_closes_the_bag(tmp_path, started_run):
+    """First in the module: the brief run (``started_run``) goes on meanwhile."""
+    ns = f'/kneedemo_int_{os.getpid()}'
+    out = tmp_path / 'out'
+    log_path = tmp_path / 'demo.log'
+    with open(log_path, 'wb') as log:
+        proc = subprocess.Popen(demo_command(out, ns, 'full'), stdout=log,
+                                stderr=subprocess.STDOUT, env=ros_env())
+        try:
+            deadline = time.monotonic() + RUN_TIMEOUT_S
+            while b'profile:' not in log_path.read_bytes():
+                assert proc.poll() is None and time.monotonic() < deadline, \
+                    log_path.read_text()
+                time.sleep(0.1)
+            assert len(processes_in(ns)) == 3
+            proc.send_signal(signal.SIGINT)
+            status = proc.wait(timeout=CLEANUP_TIMEOUT_S)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+            left = processes_in(ns)
+            for pid, _ in left:  # this test's own nodes (unique namespace): never leak them
+                os.kill(pid, signal.SIGKILL)
+    assert status == 130, log_path.read_text()
+    assert left == []
+    # Closed: metadata.yaml is written at the close, and the bag reads back.
+    assert (out / 'bag' / 'metadata.yaml').exists()
+    assert len(read_topics(out / 'bag').get(f'{ns}/joint_states', [])) > 0
 
 
 def test_demo_exits_zero_and_says_where_the_files_are(run):
@@ -199,33 +255,3 @@ def test_angle_is_near_each_held_target_at_the_end_of_its_hold(settling_run, rea
 def test_no_process_is_left_running(run):
     _, _, ns, _ = run
     assert processes_in(ns) == []
-
-
-def test_sigint_stops_every_node_and_closes_the_bag(tmp_path):
-    ns = f'/kneedemo_int_{os.getpid()}'
-    out = tmp_path / 'out'
-    log_path = tmp_path / 'demo.log'
-    with open(log_path, 'wb') as log:
-        proc = subprocess.Popen(demo_command(out, ns, 'full'), stdout=log,
-                                stderr=subprocess.STDOUT, env=ros_env())
-        try:
-            deadline = time.monotonic() + RUN_TIMEOUT_S
-            while b'profile:' not in log_path.read_bytes():
-                assert proc.poll() is None and time.monotonic() < deadline, \
-                    log_path.read_text()
-                time.sleep(0.1)
-            assert len(processes_in(ns)) == 3
-            proc.send_signal(signal.SIGINT)
-            status = proc.wait(timeout=CLEANUP_TIMEOUT_S)
-        finally:
-            if proc.poll() is None:
-                proc.kill()
-                proc.wait()
-            left = processes_in(ns)
-            for pid, _ in left:  # this test's own nodes (unique namespace): never leak them
-                os.kill(pid, signal.SIGKILL)
-    assert status == 130, log_path.read_text()
-    assert left == []
-    # Closed: metadata.yaml is written at the close, and the bag reads back.
-    assert (out / 'bag' / 'metadata.yaml').exists()
-    assert len(read_topics(out / 'bag').get(f'{ns}/joint_states', [])) > 0
