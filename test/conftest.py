@@ -83,7 +83,12 @@ def pytest_configure(config):
 
 
 def pytest_collection_modifyitems(config, items):
-    """Keep the ``realtime`` tests out of a run that does not ask for them by ``-m``."""
+    """Modules with a ``slow`` test first, each kept whole and in order: xdist
+    hands the modules out in this order, and a long one left for the end
+    keeps its worker busy while the other idles. Then the ``realtime`` tests
+    out of a run that does not ask for them by ``-m``."""
+    slow = {item.module for item in items if item.get_closest_marker('slow')}
+    items.sort(key=lambda item: item.module not in slow)
     if 'realtime' in (config.option.markexpr or ''):
         return
     kept = [item for item in items if not item.get_closest_marker('realtime')]

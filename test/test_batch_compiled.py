@@ -25,6 +25,10 @@ from hill_muscle_ros.model.muscle.batch import MuscleBatch
 
 from test_model_engines import muscle_params
 
+
+#: The module takes about 7 CPU-s: scheduled among the first (conftest).
+pytestmark = pytest.mark.slow
+
 #: [N] bound on compiled vs plain batch and vs separate muscles (as test_model_batch).
 ATOL_N = 1e-9
 #: [m], [m/s] bounds on CE length and velocity (as test_model_batch).

@@ -16,6 +16,10 @@ from hill_muscle_ros.model import Protocol
 from hill_muscle_ros.tools import cli
 from hill_muscle_ros.tools.figures import fes, paper, plotting, pulses
 
+
+#: The module takes about 7 CPU-s: scheduled among the first (conftest).
+pytestmark = pytest.mark.slow
+
 HILL_MUSCLE = Path(sys.executable).with_name('hill-muscle')
 PNG_SIGNATURE = b'\x89PNG\r\n\x1a\n'
 FIGURE_FILES = ('fig08_protocol_I_initial.png', 'fig09_protocol_II_initial.png',

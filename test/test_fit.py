@@ -22,6 +22,10 @@ from hill_muscle_ros.recording.reader import read_bag
 from hill_muscle_ros.timebase import NS_PER_S
 from hill_muscle_ros.tools import cli, fit
 
+
+#: The module takes about 16 CPU-s: scheduled among the first (conftest).
+pytestmark = pytest.mark.slow
+
 RATE_HZ = 1000.0
 #: The muscle behind the bags: three constants moved off the paper's values,
 #: each by more than 15 %, so that the fit has to travel from the defaults.

@@ -22,6 +22,10 @@ from hill_muscle_ros.model.limb import (LimbOutOfRange, LimbPlant, LimbProtocol,
 from hill_muscle_ros.model.limb.simulate import run_limb
 from limb_engines import TOL, on_engine, run_on, spy_quasi_static
 
+
+#: The module takes about 10 CPU-s: scheduled among the first (conftest).
+pytestmark = pytest.mark.slow
+
 CONFIG = Path(__file__).parents[1] / 'config'
 PYTHON, COMPILED = engine.PYTHON, engine.COMPILED
 

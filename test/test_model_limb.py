@@ -32,6 +32,10 @@ from limb_engines import spy_quasi_static
 from limb_reference import limb_reference
 from reference import reference_force
 
+
+#: The module takes about 9 CPU-s: scheduled among the first (conftest).
+pytestmark = pytest.mark.slow
+
 #: [deg] angle accuracy asked of the 1 ms step against the reference.
 ANGLE_ACCURACY_DEG = 0.05
 #: [N] force accuracy asked of the 1 ms step against the reference, per muscle.
