@@ -2,7 +2,9 @@
 
 A short profile keeps it quick. What must hold: it writes a bag that holds
 every recorded topic and a PNG; it leaves no process running, also when it
-is interrupted with SIGINT (Ctrl-C) or SIGTERM in mid-run.
+is interrupted with SIGINT (Ctrl-C) or SIGTERM in mid-run. The whole run goes
+on beside the interrupted one (the module's first test), each in a namespace
+of its own.
 """
 from __future__ import annotations
 
@@ -56,20 +58,32 @@ def processes_in(ns: str) -> list[tuple[int, str]]:
     return found
 
 
-def test_demo_writes_a_bag_with_every_topic_and_a_plot(tmp_path):
-    ns, out, cmd = demo(tmp_path)
-    done = subprocess.run(cmd, capture_output=True, text=True, env=ros_env(),
-                          timeout=RUN_TIMEOUT_S)
-    assert done.returncode == 0, done.stdout + done.stderr
-    bag = read_bag(out / 'bag')
-    assert bag.complete
-    for topic in RECORDED:
-        assert bag.topic(f'{ns}/{topic}').count > 0, topic
-    assert (out / 'closed_loop.png').stat().st_size > 0
-    assert processes_in(ns) == []
+@pytest.fixture(scope='module')
+def started_run(tmp_path_factory):
+    """The short profile, started with the module; a call that waits for it:
+    (exit status, output, namespace, output directory). Waited for at the
+    module's end if no test did, so that it never outlives it."""
+    tmp = tmp_path_factory.mktemp('closed_loop_demo')
+    ns, out, cmd = demo(tmp)
+    # A file, not a pipe: nothing reads the output while the demo runs.
+    log = tmp / 'demo.log'
+    with open(log, 'wb') as f:
+        proc = subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT, env=ros_env())
+
+    def finished():
+        try:
+            status = proc.wait(timeout=RUN_TIMEOUT_S)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+        return status, log.read_text(errors='replace'), ns, out
+    yield finished
+    finished()
 
 
-def test_interrupted_demo_leaves_no_process_running(tmp_path):
+def test_interrupted_demo_leaves_no_process_running(tmp_path, started_run):
+    """First in the module: the whole run (``started_run``) goes on meanwhile."""
     # SIGTERM, as a service manager stops a program. SIGINT and SIGHUP take the
     # same path (supervisor.StopSignals, each signal in test_stop_signals);
     # SIGINT end to end is test_demo's and test_demo_knee's.
@@ -96,3 +110,14 @@ def test_interrupted_demo_leaves_no_process_running(tmp_path):
             os.kill(pid, signal.SIGKILL)
     assert status != 0
     assert left == []
+
+
+def test_demo_writes_a_bag_with_every_topic_and_a_plot(started_run):
+    status, output, ns, out = started_run()
+    assert status == 0, output
+    bag = read_bag(out / 'bag')
+    assert bag.complete
+    for topic in RECORDED:
+        assert bag.topic(f'{ns}/{topic}').count > 0, topic
+    assert (out / 'closed_loop.png').stat().st_size > 0
+    assert processes_in(ns) == []
