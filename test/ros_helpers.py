@@ -36,6 +36,7 @@ too; here a failed wait is a failed test (``AssertionError``).
 """
 from __future__ import annotations
 
+import subprocess
 import time
 from pathlib import Path
 from typing import Any, Callable, Iterable
@@ -65,6 +66,30 @@ def ros_env(**extra: str) -> dict[str, str]:
     ``os.environ``; copying it passes them on.
     """
     return supervisor.ros_environment(**extra)
+
+
+def start_in_background(cmd: list[str], out_dir: Path, timeout_s: float,
+                        env: dict[str, str] | None = None) -> Callable[[], Any]:
+    """Start ``cmd`` (a demo, say) with its output in ``out_dir`` (files, not
+    pipes: nothing reads it meanwhile); return a call that waits for it, up to
+    ``timeout_s`` (then kills it), and gives its
+    :class:`subprocess.CompletedProcess`. The call may be made more than once.
+    """
+    stdout, stderr = out_dir / 'stdout.txt', out_dir / 'stderr.txt'
+    with open(stdout, 'w') as o, open(stderr, 'w') as e:
+        proc = subprocess.Popen(cmd, stdout=o, stderr=e, text=True,
+                                env=ros_env() if env is None else env)
+
+    def finished() -> subprocess.CompletedProcess:
+        try:
+            status = proc.wait(timeout=timeout_s)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+        return subprocess.CompletedProcess(cmd, status, stdout.read_text(errors='replace'),
+                                           stderr.read_text(errors='replace'))
+    return finished
 
 
 class RecordingLogger:

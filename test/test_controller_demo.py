@@ -20,7 +20,7 @@ import yaml
 
 from hill_muscle_ros.demo_closed_loop import RECORDED
 from hill_muscle_ros.recording.reader import read_bag
-from ros_helpers import ros_env
+from ros_helpers import ros_env, start_in_background
 
 pytestmark = pytest.mark.ros
 
@@ -61,25 +61,13 @@ def processes_in(ns: str) -> list[tuple[int, str]]:
 @pytest.fixture(scope='module')
 def started_run(tmp_path_factory):
     """The short profile, started with the module; a call that waits for it:
-    (exit status, output, namespace, output directory). Waited for at the
+    (process result, namespace, output directory). Waited for at the
     module's end if no test did, so that it never outlives it."""
     tmp = tmp_path_factory.mktemp('closed_loop_demo')
     ns, out, cmd = demo(tmp)
-    # A file, not a pipe: nothing reads the output while the demo runs.
-    log = tmp / 'demo.log'
-    with open(log, 'wb') as f:
-        proc = subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT, env=ros_env())
-
-    def finished():
-        try:
-            status = proc.wait(timeout=RUN_TIMEOUT_S)
-        finally:
-            if proc.poll() is None:
-                proc.kill()
-                proc.wait()
-        return status, log.read_text(errors='replace'), ns, out
-    yield finished
-    finished()
+    run = start_in_background(cmd, tmp, RUN_TIMEOUT_S)
+    yield lambda: (run(), ns, out)
+    run()
 
 
 def test_interrupted_demo_leaves_no_process_running(tmp_path, started_run):
@@ -113,8 +101,8 @@ def test_interrupted_demo_leaves_no_process_running(tmp_path, started_run):
 
 
 def test_demo_writes_a_bag_with_every_topic_and_a_plot(started_run):
-    status, output, ns, out = started_run()
-    assert status == 0, output
+    done, ns, out = started_run()
+    assert done.returncode == 0, done.stdout + done.stderr
     bag = read_bag(out / 'bag')
     assert bag.complete
     for topic in RECORDED:

@@ -33,7 +33,7 @@ from rosbags.highlevel import AnyReader
 
 from hill_muscle_ros.demo_knee import GIF_FPS, PROFILES, build_parser, plant_file
 from hill_muscle_ros.params_file import load_plant
-from ros_helpers import ros_env
+from ros_helpers import ros_env, start_in_background
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -98,25 +98,11 @@ def start_demo(tmp_path_factory, profile):
     (process result, output dir, namespace, wall time [s])."""
     out = tmp_path_factory.mktemp(f'demo_knee_{profile.name}') / 'out'
     ns = f'/kneedemo_{profile.name}_{os.getpid()}'
-    # Files, not pipes: nothing reads the output while the demo runs.
-    stdout, stderr = out.parent / 'stdout.txt', out.parent / 'stderr.txt'
     started = time.monotonic()
-    with open(stdout, 'w') as o, open(stderr, 'w') as e:
-        proc = subprocess.Popen(
-            demo_command(out, ns, profile.name, '--gif-fps', f'{TEST_GIF_FPS:g}'),
-            stdout=o, stderr=e, text=True, env=ros_env())
-
-    def finished():
-        try:
-            status = proc.wait(timeout=RUN_TIMEOUT_S)
-        finally:
-            if proc.poll() is None:
-                proc.kill()
-                proc.wait()
-        done = subprocess.CompletedProcess(proc.args, status, stdout.read_text(),
-                                           stderr.read_text())
-        return done, out, ns, time.monotonic() - started
-    return finished
+    run = start_in_background(
+        demo_command(out, ns, profile.name, '--gif-fps', f'{TEST_GIF_FPS:g}'), out.parent,
+        RUN_TIMEOUT_S)
+    return lambda: (run(), out, ns, time.monotonic() - started)
 
 
 def topics_of(run):

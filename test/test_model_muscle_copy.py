@@ -17,6 +17,10 @@ from hill_muscle_ros.model import Muscle, MuscleParams
 from hill_muscle_ros.model.engine import COMPILED, PYTHON
 from hill_muscle_ros.model.stimulator import ChannelCommand
 
+# One part of a protocol: commands held 1-20 steps (through 0 and 1), some
+# given at a step's end too, dl_MT a random walk of a few mm, dt 0.2-2 ms.
+from test_fes_compiled import protocols as command_runs
+
 #: Hypothesis examples per test and build: the plain build stays quick with at
 #: most MAX_UNITS units and 200 steps a part.
 EXAMPLES = 20
@@ -57,23 +61,6 @@ def fes_params(draw):
                    recruitment_seed=draw(st.integers(0, 5)))
 
 
-@st.composite
-def command_runs(draw):
-    """One part of a protocol: commands held 1-20 steps (through 0 and 1), some
-    given at a step's end too, dl_MT wandering within a few mm, dt 0.2-2 ms."""
-    steps = draw(st.integers(1, 200))
-    dt = draw(st.sampled_from([2e-4, 5e-4, 1e-3, 2e-3]))
-    hold = draw(st.integers(1, 20))
-    rng = np.random.default_rng(draw(st.integers(0, 2 ** 32 - 1)))
-    levels = rng.choice([0.0, 1.0, *rng.uniform(0.0, 1.0, 6)], size=steps // hold + 1)
-    r_start = np.repeat(levels, hold)[:steps]
-    r_end = None
-    if draw(st.booleans()):
-        r_end = np.where(rng.uniform(size=steps) < 0.2, rng.uniform(size=steps), r_start)
-    dl = np.clip(np.cumsum(rng.normal(0.0, 5e-4, steps)), -0.03, 0.03)
-    return r_start, dl, dt, r_end
-
-
 def _same_outputs(a, b):
     """Two muscles' outputs now, equal to the last bit (NaN where the other has NaN:
     a channel given no unit has no mean fitness)."""
@@ -81,7 +68,7 @@ def _same_outputs(a, b):
 
 
 def _run(muscle, part):
-    r_start, dl, dt, r_end = part
+    r_start, r_end, dl, dt = part
     return muscle.run_array(r_start, dl, dt, r_end)
 
 
@@ -108,14 +95,14 @@ def test_stepping_a_copy_leaves_the_original_as_it_was(build):
                           fibre_fractions=(0.5, 0.5), tau_fatigue_s=(4.0, 0.8),
                           tau_recovery_s=(8.0, 2.0), fatigue_min=(0.2, 0.1),
                           recruitment_order='random', n_units=120)
-    before = (np.resize([0.3, 0.8, 0.0, 0.6], 300), np.linspace(0.0, 0.008, 300), 1e-3, None)
-    after = (np.resize([0.9, 0.1], 200), np.linspace(0.008, -0.004, 200), 1e-3, None)
+    before = (np.resize([0.3, 0.8, 0.0, 0.6], 300), None, np.linspace(0.0, 0.008, 300), 1e-3)
+    after = (np.resize([0.9, 0.1], 200), None, np.linspace(0.008, -0.004, 200), 1e-3)
     muscle, untouched = Muscle(params, build=build), Muscle(params, build=build)
     _run(muscle, before)
     _run(untouched, before)
     twin = copy.deepcopy(muscle)
     # The copy is driven elsewhere, with a shorter step (its delay line grows) ...
-    _run(twin, (np.ones(400), np.full(400, -0.01), 2e-4, None))
+    _run(twin, (np.ones(400), None, np.full(400, -0.01), 2e-4))
     twin.set_recruitment(0.0)
     # ... and the original goes on exactly as a muscle never copied.
     assert muscle.outputs() == untouched.outputs() != twin.outputs()
@@ -138,12 +125,7 @@ def pulsed_params(draw):
 @st.composite
 def train_runs(draw, n_channels):
     """One part of a pulse protocol: a command to some channels (single pulses or
-    doublets at 10-60 Hz), then steps of 0.24-0.98 ms with dl_MT wandering.
-
-    The steps are powers of two seconds: ``run_trains`` takes the trains to
-    t + n dt while the kernels sum n steps, and with other steps the two can
-    differ by an ulp, after which commanding a running channel anew is refused
-    (``t1_s`` before where the channel stands), copy or not."""
+    doublets at 10-60 Hz), then steps of 0.2-1 ms with dl_MT wandering."""
     commands = [ChannelCommand(c, draw(st.sampled_from(['single', 'doublet'])),
                                draw(st.sampled_from([0.0, 100e-6, 250e-6, 500e-6])), None,
                                draw(st.sampled_from([10.0, 33.0, 60.0])))
@@ -151,7 +133,7 @@ def train_runs(draw, n_channels):
     steps = draw(st.integers(1, 200))
     rng = np.random.default_rng(draw(st.integers(0, 2 ** 32 - 1)))
     dl = np.clip(np.cumsum(rng.normal(0.0, 5e-4, steps)), -0.03, 0.03)
-    return commands, dl, draw(st.sampled_from([2.0 ** -12, 2.0 ** -11, 2.0 ** -10]))
+    return commands, dl, draw(st.sampled_from([2e-4, 3e-4, 5e-4, 1e-3]))
 
 
 def _run_trains(muscle, part):
