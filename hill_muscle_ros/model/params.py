@@ -27,6 +27,7 @@ ACTIVATION_MODEL_CHOICES = ('first_order', PULSED_MODEL)
 #: Stimulator profiles (model/stimulator.py, from pyScienceMode 1.1.5's devices).
 STIMULATOR_CHOICES = ('generic', 'rehastim2', 'p24')
 
+
 def type_block_ends(n_units: int, fractions: tuple[float, ...]) -> list[int]:
     """Last unit number of each block (fibre type, or channel territory):
     floor(N cumsum / sum + 0.5).

@@ -33,6 +33,10 @@ def replay_runs(n_parameters: int) -> int:
     return (n_parameters + 1) * EXPECTED_EVALUATIONS
 
 
+#: Column of the force in a muscle's output rows.
+_FORCE = MuscleOutputs._fields.index('force_n')
+
+
 class MuscleReplay:
     """The recorded inputs replayed through the muscle, for any parameters.
 
@@ -115,10 +119,6 @@ class MuscleReplay:
         :raises ValueError: for ``steps`` outside that range
         """
         return ReplayCheckpoint(self, params, steps)
-
-
-#: Column of the force in a muscle's output rows.
-_FORCE = MuscleOutputs._fields.index('force_n')
 
 
 class ReplayCheckpoint:
