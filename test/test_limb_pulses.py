@@ -233,6 +233,21 @@ def test_bad_channel_input_is_named(muscles, words):
         assert word in str(err.value), (word, str(err.value))
 
 
+@pytest.mark.parametrize('build', ['python', 'compiled'])
+@pytest.mark.parametrize('dt_s', [2e-4, 3e-4, 7e-4])
+def test_a_command_after_held_steps_is_taken_at_the_limbs_instant(build, dt_s):
+    # The limb's clock is a sum of steps; its channels must stand exactly there:
+    # after 24 steps of 0.2 ms the limb was at 0.0048 s and the channels at
+    # 0.0048000000000000004 s, and the next command was refused.
+    limb = Limb(knee(quadriceps=DING), build=build)
+    quadriceps = limb.plant.muscles[0].name
+    limb.stimulate(quadriceps, [ChannelCommand(1, 'single', 250e-6, None, 33.0)])
+    for k, n in enumerate((24, 7, 13)):
+        limb.hold([0.0, 0.0], 0.0, dt_s, n, 0.0)
+        limb.stimulate(quadriceps, [ChannelCommand(1, 'single', 200e-6 + 1e-5 * k, None, 33.0)])
+    assert limb.t_s == pytest.approx(44 * dt_s, rel=1e-12)
+
+
 def test_bad_stimulate_is_named():
     limb = Limb(knee(QUAD_DING, locked=True))
     cases = [

@@ -27,6 +27,20 @@ def check_train_frequency(command: ChannelCommand) -> None:
                          f'got {command.frequency_hz!r}')
 
 
+def steps_end_s(t_s: float, dt_s: float, n_steps: int) -> float:
+    """[s] where a clock at ``t_s`` stands after ``n_steps`` steps of ``dt_s``
+    added one at a time, as the kernels add them (t += dt each step).
+
+    The channels are brought there before the steps run: ``t_s + n dt`` can
+    round an ulp past the kernels' clock (0.0048 s after 24 steps of 0.2 ms
+    against 0.0048000000000000004 s), and a command given then would start
+    before the channels stand, and be refused.
+    """
+    for _ in range(n_steps):
+        t_s += dt_s
+    return t_s
+
+
 class ChannelTrains:
     """The channels of one ``ding2003`` muscle: commands, trains, pending pulses.
 

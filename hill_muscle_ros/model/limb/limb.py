@@ -19,7 +19,7 @@ from typing import Sequence
 import numpy as np
 
 from .. import engine as engines
-from ..channels import ChannelTrains
+from ..channels import ChannelTrains, steps_end_s
 from ..params import PULSED_MODEL
 from ..stimulator import ChannelCommand
 from ..substeps import MAX_SUBSTEP_S, substeps_for
@@ -264,7 +264,7 @@ class Limb:
         self._size_for(h)
         self._us[:] = us
         self._tau[0] = tau
-        self._pulses_until(self.t_s + n * h)
+        self._pulses_until(steps_end_s(self.t_s, h, n))
         self._entry(MODE_HOLD, h, n, 0.0)
 
     def hold(self, us: Sequence[float], tau: float, dt_s: float, n_steps: int,
@@ -286,7 +286,7 @@ class Limb:
         self._size_for(dt_s)
         self._us[:] = us
         self._tau[0] = tau
-        self._pulses_until(self.t_s + n_steps * dt_s)
+        self._pulses_until(steps_end_s(self.t_s, dt_s, n_steps))
         self._entry(MODE_HOLD, dt_s, n_steps, target_rad)
         return float(self._acc[0])
 

@@ -26,7 +26,7 @@ import numpy as np
 
 from .. import engine
 from ..params import PULSED_MODEL, MuscleParams
-from ..channels import ChannelTrains
+from ..channels import ChannelTrains, steps_end_s
 from ..stimulator import ChannelCommand
 from ..stimulus import command_from_pulse_width
 from ..substeps import length_ramp, substeps_for
@@ -361,14 +361,7 @@ class Muscle:
         """
         self._need_pulses('run_trains')
         dl = np.asarray(dl_mt_end_m, dtype=float)
-        # The trains are brought to where the kernel's clock will end, a sum of
-        # steps (t += dt each): t + n dt can round an ulp past it (0.0048 after
-        # 24 steps of 0.2 ms against 0.0048000000000000004), and a command
-        # given then would start before the trains stand, and be refused.
-        t_end_s, dt = self.t_s, float(dt_s)
-        for _ in range(len(dl)):
-            t_end_s += dt
-        due = self._channels.due(t_end_s)
+        due = self._channels.due(steps_end_s(self.t_s, float(dt_s), len(dl)))
         if due:
             out, act, _ = self.run_pulses([p[0] for p in due], [p[1] for p in due],
                                           [p[2] for p in due], dl, dt_s)
