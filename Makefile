@@ -61,7 +61,8 @@ kernels: $(STAMP) bytecode
 
 # `make test`: the behaviour, every test but the real-time claims, as two
 # pytest runs side by side: the tests marked `ros`, which run nodes in real
-# time, one module after the other (ROS_WORKERS); the others on TEST_WORKERS
+# time, one module after the other (ROS_WORKERS), but for the `unpaced` ones
+# (ROS_MARKS); the others (OFFLINE_MARKS) on TEST_WORKERS
 # xdist workers (a module's tests on one worker, --dist loadscope), each
 # worker on a ROS domain of its own, at nice 19 in a session whose autogroup
 # is at nice 19 too (test/background_priority.py: any user may lower their
@@ -92,16 +93,21 @@ PYTEST_TEST  := $(PYTEST) -q --dist loadscope --durations=15
 # the tests): importing every test module to read its markers took 4.3 CPU-s
 # at the start of the run, the ROS modules 1.7.
 ROS_TESTS = $(shell grep -l 'mark\.ros' test/test_*.py)
+# The `ros` tests whose outcome no live run's pace decides (marked `unpaced`:
+# start-up errors, parameters, messages) run with the offline tests: 8 s of the
+# ROS run, which is the longer of the two.
+ROS_MARKS     := ros and not unpaced
+OFFLINE_MARKS := not ros or unpaced
 
 test: $(STAMP) interfaces bytecode kernels
 	@offline_log=$$(mktemp); \
-	$(BIN)/python test/background_priority.py $(PYTEST_TEST) -n $(TEST_WORKERS) -m 'not ros' \
+	$(BIN)/python test/background_priority.py $(PYTEST_TEST) -n $(TEST_WORKERS) -m '$(OFFLINE_MARKS)' \
 	    > $$offline_log 2>&1 & offline=$$!; \
 	trap 'kill -TERM $$offline 2>/dev/null' INT TERM HUP; \
-	echo "== the ROS tests (-m ros); the offline ones (-m 'not ros') run meanwhile, reported below"; \
-	$(PYTEST_TEST) -n $(ROS_WORKERS) -m ros $(ROS_TESTS); ros_status=$$?; \
+	echo "== the ROS tests (-m '$(ROS_MARKS)'); the others (-m '$(OFFLINE_MARKS)') run meanwhile, reported below"; \
+	$(PYTEST_TEST) -n $(ROS_WORKERS) -m '$(ROS_MARKS)' $(ROS_TESTS); ros_status=$$?; \
 	wait $$offline; offline_status=$$?; \
-	echo "== the offline tests (-m 'not ros')"; cat $$offline_log; rm -f $$offline_log; \
+	echo "== the others (-m '$(OFFLINE_MARKS)')"; cat $$offline_log; rm -f $$offline_log; \
 	test $$ros_status -eq 0 && test $$offline_status -eq 0
 
 test-serial: $(STAMP) interfaces bytecode kernels

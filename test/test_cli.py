@@ -329,6 +329,7 @@ def test_simulate_and_figures_never_import_rclpy(tmp_path):
 
 
 @pytest.mark.ros
+@pytest.mark.unpaced
 def test_simulator_subcommand_hands_ros_parameters_to_the_real_node():
     """An out-of-range ``rate_hz`` reaches the node, which refuses to start."""
     if importlib.util.find_spec('hill_muscle_ros.nodes.simulator') is None:

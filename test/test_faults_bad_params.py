@@ -21,7 +21,7 @@ from std_msgs.msg import Float64
 from hill_muscle_ros.model import MuscleParams
 from ros_helpers import Probe, ProcessGroup, node_command
 
-pytestmark = [pytest.mark.faults, pytest.mark.ros]
+pytestmark = [pytest.mark.faults, pytest.mark.ros, pytest.mark.unpaced]
 
 _RUNS = itertools.count()
 #: [s] poll period of a process's exit status (no ROS here to spin).

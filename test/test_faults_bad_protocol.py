@@ -160,6 +160,7 @@ def bad_file(tmp_path, case: str):
 
 
 @pytest.mark.ros
+@pytest.mark.unpaced
 @pytest.mark.parametrize('case', CASES)
 def test_player_exits_non_zero_with_the_message_and_no_traceback(tmp_path, case):
     path = bad_file(tmp_path, case)

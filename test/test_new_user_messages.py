@@ -174,6 +174,7 @@ def test_the_named_knee_preset_is_a_plant_file_with_muscles():
 
 
 @pytest.mark.ros
+@pytest.mark.unpaced
 @pytest.mark.parametrize('command', ['limb', 'joint-controller'])
 def test_a_limb_node_started_without_a_plant_file_exits_1_saying_how_to_give_one(command):
     proc = run_cli(command)

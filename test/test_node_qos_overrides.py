@@ -31,7 +31,7 @@ from hill_muscle_ros.qos import OUTPUT_QOS, RELIABLE_QOS
 from hill_muscle_ros.params_file import load_muscle_params
 from ros_helpers import Probe, ProcessGroup, node_command
 
-pytestmark = pytest.mark.ros
+pytestmark = [pytest.mark.ros, pytest.mark.unpaced]
 
 _RUNS = itertools.count()
 #: [-] the depth the tests override the force publisher's with.

@@ -12,7 +12,7 @@ import yaml
 from hill_muscle_ros.resources import default_params_file
 from ros_helpers import ProcessGroup, Probe, node_command
 
-pytestmark = pytest.mark.ros
+pytestmark = [pytest.mark.ros, pytest.mark.unpaced]
 
 #: [s] a node that fails on its parameters does so at once; this is ample.
 EXIT_TIMEOUT_S = 60.0
