@@ -158,13 +158,6 @@ def test_player_replays_protocol_then_sends_zero(short_replays, output):
     assert length.messages[-1].data == pytest.approx(protocol.dl_mt(protocol.duration_s))
 
 
-def test_the_start_line_names_the_subscribing_nodes(short_replays):
-    # Every subscriber counts towards min_subscribers, a recorder as the
-    # simulator: the line says which nodes the protocol started for.
-    log = short_replays['pulse_width']['player'].output()
-    assert 'starts: every subscriber (/short_replays_probe) acknowledged the rest state' in log
-
-
 #: Polls of the player (every 50 ms) that must see the rest state
 #: unacknowledged, and so not start the protocol.
 UNACKED_POLLS = 5

@@ -299,8 +299,7 @@ class ProtocolPlayer(Node):
         # How long the handshake took says whether acknowledgements are quick
         # (a slow one once delayed the protocol by a Fast DDS heartbeat period).
         acked_ms = (self._steady.now().nanoseconds - self._rest_sent_ns) / NS_PER_MS
-        self.get_logger().info(f'{self._protocol.name} starts: every subscriber '
-                               f'({", ".join(self._subscriber_nodes())}) acknowledged '
+        self.get_logger().info(f'{self._protocol.name} starts: every subscriber acknowledged '
                                f'the rest state {acked_ms:.1f} ms after it was sent')
         # Time 0 is the first tick of the node's own clock, not now: with
         # use_sim_time, the clock is the last /clock this node took, and while
@@ -308,15 +307,6 @@ class ProtocolPlayer(Node):
         # 0.54 s of waiting left it 1.8 s of sim time behind, and the protocol
         # was "done" at its first tick). The tick timer fires on a fresh clock.
         self._timer = self.create_timer(self._period_s, self._on_tick)
-
-    def _subscriber_nodes(self) -> list[str]:
-        """The nodes subscribed to the outputs, by full name, for the start line:
-        a recorder started before the player counts as a subscriber just as the
-        simulator does, so the line shows whether the simulator was one of them
-        (``min_subscribers`` 2 waits for both)."""
-        return sorted({f'{info.node_namespace.rstrip("/")}/{info.node_name}'
-                       for pub in (self._pub_stim, self._pub_dl)
-                       for info in self.get_subscriptions_info_by_topic(pub.topic_name)})
 
     def _send(self, sends: list[Send]) -> None:
         """Publish the playback's messages, in order."""
